@@ -1,0 +1,5 @@
+//! Analyses built on the tracer: spot diagrams and their statistics.
+
+pub mod spot;
+
+pub use spot::{spot_diagram, spot_stats, SpotOptions, SpotResult, SpotStats};

@@ -1,0 +1,115 @@
+//! The library's one error type.
+
+use std::path::Path;
+
+/// What kind of failure an [`Error`] is. New kinds may be added.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// A file or directory could not be read or written.
+    Io,
+    /// Input text is not well-formed (JSON syntax, CSV fields, numbers).
+    Parse,
+    /// Input is well-formed but describes something invalid (negative gap, unknown glass, ...).
+    Invalid,
+    /// A computation could not produce a result (no rays reached the image, singular system, ...).
+    Numerical,
+    /// An argument to a library function is out of its domain.
+    Argument,
+}
+
+/// An error with a message that says what was wrong and where (file, line, surface index).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct Error {
+    /// The kind of failure.
+    pub kind: ErrorKind,
+    /// Human-readable message naming the place and the problem.
+    pub message: String,
+}
+
+/// `Result` with the library's [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;
+
+impl Error {
+    /// A new error of `kind` with `message`.
+    pub fn new(kind: ErrorKind, message: impl Into<String>) -> Self {
+        Error {
+            kind,
+            message: message.into(),
+        }
+    }
+    /// Shorthand for an [`ErrorKind::Invalid`] error.
+    pub fn invalid(message: impl Into<String>) -> Self {
+        Error::new(ErrorKind::Invalid, message)
+    }
+    /// Shorthand for an [`ErrorKind::Argument`] error.
+    pub fn argument(message: impl Into<String>) -> Self {
+        Error::new(ErrorKind::Argument, message)
+    }
+    /// Shorthand for an [`ErrorKind::Numerical`] error.
+    pub fn numerical(message: impl Into<String>) -> Self {
+        Error::new(ErrorKind::Numerical, message)
+    }
+    /// An I/O error on `path`.
+    pub fn io(path: &Path, e: std::io::Error) -> Self {
+        Error::new(ErrorKind::Io, format!("{}: {e}", path.display()))
+    }
+    /// Prefixes the message with a location such as a file name.
+    pub fn context(mut self, place: impl std::fmt::Display) -> Self {
+        self.message = format!("{place}: {}", self.message);
+        self
+    }
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same directory, then a rename,
+/// so a reader never sees a half-written file.
+///
+/// # Errors
+/// [`ErrorKind::Io`] naming the path when the file cannot be written or renamed.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::argument(format!("{}: not a file path", path.display())))?;
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_leaves_nothing_on_failure() {
+        let dir = std::env::temp_dir().join(format!("tolray-aw-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let ok = dir.join("a.txt");
+        write_atomic(&ok, b"hello").unwrap();
+        assert_eq!(std::fs::read(&ok).unwrap(), b"hello");
+        let bad = dir.join("missing").join("b.txt");
+        let e = write_atomic(&bad, b"x").unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Io);
+        assert!(e.message.contains("b.txt"));
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,396 @@
+//! DeepLens' lens JSON: reading (2.5.x and legacy layouts) and writing.
+//!
+//! Accepted: `d_next` gaps or legacy absolute `d` (+ `d_sensor`), `roc` or `c`, `mat2` as a glass
+//! name or `"n_d/V_d"` (legacy `mat1` ignored), `r_sensor` or `sensor_size`, `sensor_res`,
+//! `obj_depth` (negative mm), `ai` with or without `use_ai2`. Keys in parentheses are
+//! informational and ignored, except `"(object)": "inf"`, tolray's marker for an object at
+//! infinity (DeepLens ignores it too). Unknown surface types are errors, never skipped.
+
+use super::{Lens, Material, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use crate::error::{Error, ErrorKind, Result};
+use serde_json::{json, Map, Value};
+use std::path::Path;
+
+/// Reads a lens JSON file; every error names the file.
+///
+/// # Errors
+/// I/O errors, JSON syntax errors (with line and column), and prescription errors naming the
+/// surface index and key.
+pub fn read_file(path: &Path) -> Result<Lens> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    from_str(&text).map_err(|e| e.context(path.display()))
+}
+
+/// Parses lens JSON text.
+///
+/// # Errors
+/// As [`read_file`], without the file name.
+pub fn from_str(text: &str) -> Result<Lens> {
+    let v: Value = serde_json::from_str(text).map_err(|e| {
+        Error::new(
+            ErrorKind::Parse,
+            format!(
+                "line {}, column {}: malformed JSON: {e}",
+                e.line(),
+                e.column()
+            ),
+        )
+    })?;
+    from_value(&v)
+}
+
+fn num(obj: &Map<String, Value>, key: &str, at: &str) -> Result<Option<f64>> {
+    match obj.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::Number(n)) => Ok(n.as_f64()),
+        Some(other) => Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}\"{key}\" must be a number, found {other}"),
+        )),
+    }
+}
+
+fn num_array<const N: usize>(
+    obj: &Map<String, Value>,
+    key: &str,
+    at: &str,
+) -> Result<Option<[f64; N]>> {
+    match obj.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::Array(a)) if a.len() == N && a.iter().all(Value::is_number) => {
+            let mut out = [0.0; N];
+            for (o, x) in out.iter_mut().zip(a) {
+                *o = x.as_f64().unwrap_or(f64::NAN);
+            }
+            Ok(Some(out))
+        }
+        Some(other) => Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}\"{key}\" must be an array of {N} numbers, found {other}"),
+        )),
+    }
+}
+
+fn finite(v: f64, at: &str, key: &str) -> Result<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(Error::invalid(format!(
+            "{at}\"{key}\" is not a finite number"
+        )))
+    }
+}
+
+/// Builds a lens from parsed JSON.
+///
+/// # Errors
+/// As [`from_str`].
+pub fn from_value(v: &Value) -> Result<Lens> {
+    let top = v
+        .as_object()
+        .ok_or_else(|| Error::new(ErrorKind::Parse, "the top level must be a JSON object"))?;
+    let surfaces_v = top
+        .get("surfaces")
+        .and_then(Value::as_array)
+        .ok_or_else(|| Error::invalid("missing key \"surfaces\" (an array of surfaces)"))?;
+    if surfaces_v.is_empty() {
+        return Err(Error::invalid("\"surfaces\" is empty"));
+    }
+    let mut surfaces = Vec::with_capacity(surfaces_v.len());
+    let mut abs_d = Vec::with_capacity(surfaces_v.len());
+    for (i, sv) in surfaces_v.iter().enumerate() {
+        let at = format!("surface {i}: ");
+        let s = sv
+            .as_object()
+            .ok_or_else(|| Error::invalid(format!("{at}must be a JSON object")))?;
+        let (surface, d_abs) = surface_from(s, &at)?;
+        surfaces.push(surface);
+        abs_d.push(d_abs);
+    }
+    // Gaps: d_next wins; else legacy absolute d (and d_sensor for the last gap).
+    let d_sensor = num(top, "d_sensor", "")?;
+    let n = surfaces.len();
+    for i in 0..n {
+        if surfaces[i].d_next_mm.is_nan() {
+            let next = if i + 1 < n { abs_d[i + 1] } else { d_sensor };
+            match (abs_d[i], next) {
+                (Some(a), Some(b)) => surfaces[i].d_next_mm = b - a,
+                _ => {
+                    let what = if i + 1 < n {
+                        "\"d_next\" (or legacy absolute \"d\" on this and the next surface)"
+                    } else {
+                        "\"d_next\" (the distance to the sensor; or legacy \"d\" with a top-level \"d_sensor\")"
+                    };
+                    return Err(Error::invalid(format!("surface {i}: missing {what}")));
+                }
+            }
+        }
+    }
+
+    let object = match (
+        top.get("(object)").and_then(Value::as_str),
+        num(top, "obj_depth", "")?,
+    ) {
+        (Some(s), _) => Object::parse(s)?,
+        (None, Some(d)) => Object::parse(&d.to_string())?,
+        (None, None) => Object::Infinite,
+    };
+    let res = match num_array::<2>(top, "sensor_res", "")? {
+        Some([w, h]) if w >= 1.0 && h >= 1.0 && w.fract() == 0.0 && h.fract() == 0.0 => {
+            [w as u32, h as u32]
+        }
+        Some(r) => {
+            return Err(Error::invalid(format!(
+                "\"sensor_res\" {r:?} must be two positive whole numbers"
+            )))
+        }
+        None => [2000, 2000],
+    };
+    let sensor = match (
+        num(top, "r_sensor", "")?,
+        num_array::<2>(top, "sensor_size", "")?,
+    ) {
+        (Some(r), _) if r > 0.0 && r.is_finite() => Sensor::from_half_diagonal(r, res),
+        (None, Some([w, h])) if w > 0.0 && h > 0.0 => Sensor {
+            size_mm: [w, h],
+            resolution: res,
+        },
+        (Some(r), _) => return Err(Error::invalid(format!("\"r_sensor\" {r} must be positive"))),
+        _ => {
+            return Err(Error::invalid(
+                "missing \"r_sensor\" (sensor half-diagonal, mm) or \"sensor_size\" [w, h] mm",
+            ))
+        }
+    };
+    let primary_um = num(top, "primary_wvln", "")?.unwrap_or(0.5875618);
+    if !(0.1..=10.0).contains(&primary_um) {
+        return Err(Error::invalid(format!(
+            "\"primary_wvln\" {primary_um} must be in micrometres (0.1 to 10)"
+        )));
+    }
+    let rgb_um = num_array::<3>(top, "wvln_rgb", "")?.unwrap_or([0.656, 0.587, 0.486]);
+    if rgb_um.iter().any(|w| !(0.1..=10.0).contains(w)) {
+        return Err(Error::invalid(format!(
+            "\"wvln_rgb\" {rgb_um:?} must be in micrometres (0.1 to 10)"
+        )));
+    }
+    let lens = Lens {
+        info: top
+            .get("info")
+            .and_then(Value::as_str)
+            .unwrap_or("")
+            .to_string(),
+        surfaces,
+        object,
+        sensor,
+        primary_wavelength_nm: primary_um * 1e3,
+        rgb_wavelengths_nm: rgb_um.map(|w| w * 1e3),
+    };
+    lens.validate()?;
+    Ok(lens)
+}
+
+fn surface_from(s: &Map<String, Value>, at: &str) -> Result<(Surface, Option<f64>)> {
+    let ty = s.get("type").and_then(Value::as_str).ok_or_else(|| {
+        Error::invalid(format!(
+            "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop or Plane)"
+        ))
+    })?;
+    let role = match ty {
+        "Spheric" | "Aspheric" | "Plane" => SurfaceRole::Refractive,
+        "Aperture" | "Stop" => SurfaceRole::Aperture,
+        other => {
+            return Err(Error::invalid(format!(
+                "{at}unsupported surface type \"{other}\" (tolray traces Spheric, Aspheric, Aperture, Stop and Plane)"
+            )))
+        }
+    };
+    let r = num(s, "r", at)?
+        .ok_or_else(|| Error::invalid(format!("{at}missing \"r\" (clear semi-aperture, mm)")))?;
+    let r = finite(r, at, "r")?;
+    let c = match (num(s, "roc", at)?, num(s, "c", at)?) {
+        (_, Some(c)) => finite(c, at, "c")?,
+        (Some(roc), None) if roc == 0.0 || roc.is_infinite() => 0.0,
+        (Some(roc), None) => {
+            let c = 1.0 / finite(roc, at, "roc")?;
+            // DeepLens writes the exact curvature as "(c)"; use it when it is 1/roc to rounding,
+            // so that files written by tolray round-trip exactly.
+            match num(s, "(c)", at)? {
+                Some(cc) if (cc - c).abs() <= 8.0 * f64::EPSILON * c.abs() => cc,
+                _ => c,
+            }
+        }
+        (None, None) if role == SurfaceRole::Aperture || ty == "Plane" => 0.0,
+        (None, None) => {
+            return Err(Error::invalid(format!(
+                "{at}missing \"roc\" (radius, mm) or \"c\" (curvature, 1/mm)"
+            )))
+        }
+    };
+    let k = finite(num(s, "k", at)?.unwrap_or(0.0), at, "k")?;
+    let mut asph = [0.0; N_ASPH];
+    if let Some(ai) = s.get("ai") {
+        let ai = ai
+            .as_array()
+            .filter(|a| a.iter().all(Value::is_number))
+            .ok_or_else(|| {
+                Error::new(
+                    ErrorKind::Parse,
+                    format!("{at}\"ai\" must be an array of numbers"),
+                )
+            })?;
+        let use_ai2 = match s.get("use_ai2") {
+            None => true,
+            Some(Value::Bool(b)) => *b,
+            Some(other) => {
+                return Err(Error::new(
+                    ErrorKind::Parse,
+                    format!("{at}\"use_ai2\" must be true or false, found {other}"),
+                ))
+            }
+        };
+        let offset = usize::from(!use_ai2);
+        if ai.len() + offset > N_ASPH {
+            return Err(Error::invalid(format!(
+                "{at}\"ai\" has {} terms; tolray supports even terms up to a16",
+                ai.len()
+            )));
+        }
+        for (j, a) in ai.iter().enumerate() {
+            asph[j + offset] = finite(a.as_f64().unwrap_or(f64::NAN), at, "ai")?;
+        }
+    }
+    let material = match s.get("mat2") {
+        Some(Value::String(m)) => Material::parse(m).map_err(|e| {
+            e.context(format!(
+                "surface {}",
+                at.trim_end_matches(": ").trim_start_matches("surface ")
+            ))
+        })?,
+        None => {
+            return Err(Error::invalid(format!(
+                "{at}missing \"mat2\" (the medium after the surface)"
+            )))
+        }
+        Some(other) => {
+            return Err(Error::new(
+                ErrorKind::Parse,
+                format!("{at}\"mat2\" must be a string, found {other}"),
+            ))
+        }
+    };
+    let is_square = s.get("is_square").and_then(Value::as_bool).unwrap_or(false);
+    if is_square {
+        return Err(Error::invalid(format!(
+            "{at}square apertures (\"is_square\": true) are not supported"
+        )));
+    }
+    let is_stop = role == SurfaceRole::Aperture
+        || s.get("is_aperture")
+            .and_then(Value::as_bool)
+            .unwrap_or(false);
+    let d_next = match num(s, "d_next", at)? {
+        Some(d) => finite(d, at, "d_next")?,
+        None => f64::NAN,
+    };
+    let surface = Surface {
+        role,
+        c,
+        k,
+        asph,
+        semi_aperture_mm: r,
+        d_next_mm: d_next,
+        material,
+        is_stop,
+        pos_xy_mm: num_array::<2>(s, "pos_xy", at)?.unwrap_or([0.0; 2]),
+        vec_local: num_array::<3>(s, "vec_local", at)?.unwrap_or([0.0, 0.0, 1.0]),
+    };
+    Ok((surface, num(s, "d", at)?))
+}
+
+/// The lens as DeepLens 2.5-style JSON (plus tolray's ignored `"(object)"` key at infinity).
+pub fn to_value(lens: &Lens) -> Value {
+    let mut top = Map::new();
+    top.insert("info".into(), json!(lens.info));
+    if let Ok(p) = lens.paraxial(lens.primary_wavelength_nm) {
+        top.insert("foclen".into(), json!(p.efl_mm));
+        top.insert("fnum".into(), json!(p.fnum));
+    }
+    top.insert(
+        "primary_wvln".into(),
+        json!(lens.primary_wavelength_nm * 1e-3),
+    );
+    top.insert(
+        "wvln_rgb".into(),
+        json!(lens.rgb_wavelengths_nm.map(|w| w * 1e-3)),
+    );
+    match lens.object {
+        Object::Finite { distance_mm } => {
+            top.insert("obj_depth".into(), json!(-distance_mm));
+        }
+        Object::Infinite => {
+            top.insert("(object)".into(), json!("inf"));
+        }
+    }
+    top.insert("r_sensor".into(), json!(lens.sensor.half_diagonal_mm()));
+    top.insert(
+        "(d_sensor)".into(),
+        json!(lens.vertex_z_mm().last().copied().unwrap_or(0.0)),
+    );
+    top.insert("(sensor_size)".into(), json!(lens.sensor.size_mm));
+    top.insert("sensor_res".into(), json!(lens.sensor.resolution));
+    let surfaces: Vec<Value> = lens
+        .surfaces
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let mut m = Map::new();
+            m.insert("idx".into(), json!(i));
+            let ty = match s.role {
+                SurfaceRole::Aperture => "Aperture",
+                SurfaceRole::Refractive if s.k != 0.0 || s.is_aspheric() => "Aspheric",
+                SurfaceRole::Refractive => "Spheric",
+            };
+            m.insert("type".into(), json!(ty));
+            m.insert("r".into(), json!(s.semi_aperture_mm));
+            if s.role == SurfaceRole::Refractive {
+                m.insert("(c)".into(), json!(s.c));
+                m.insert(
+                    "roc".into(),
+                    json!(if s.c == 0.0 { 0.0 } else { 1.0 / s.c }),
+                );
+            }
+            if ty == "Aspheric" {
+                m.insert("k".into(), json!(s.k));
+                m.insert("ai".into(), json!(s.asph.to_vec()));
+                m.insert("use_ai2".into(), json!(true));
+            }
+            m.insert("d_next".into(), json!(s.d_next_mm));
+            m.insert("pos_xy".into(), json!(s.pos_xy_mm));
+            m.insert("vec_local".into(), json!(s.vec_local));
+            m.insert("is_square".into(), json!(false));
+            m.insert("mat2".into(), json!(s.material.json_name()));
+            if s.is_stop && s.role == SurfaceRole::Refractive {
+                m.insert("is_aperture".into(), json!(true));
+            }
+            Value::Object(m)
+        })
+        .collect();
+    top.insert("surfaces".into(), Value::Array(surfaces));
+    Value::Object(top)
+}
+
+/// Pretty-printed JSON text of the lens.
+pub fn to_string(lens: &Lens) -> String {
+    let mut s = serde_json::to_string_pretty(&to_value(lens)).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
+/// Writes the lens to `path` atomically.
+///
+/// # Errors
+/// [`ErrorKind::Io`] naming the path.
+pub fn write_file(lens: &Lens, path: &Path) -> Result<()> {
+    crate::error::write_atomic(path, to_string(lens).as_bytes())
+}

@@ -1,0 +1,330 @@
+//! Lens prescriptions: the editable [`Lens`], its files, and the compiled [`System`] the tracer runs.
+//!
+//! A [`Lens`] is a sequence of surfaces in the DeepLens sense: each surface owns the medium that
+//! follows it (`material`) and the gap to the next surface (`d_next_mm`); the last gap reaches the
+//! image plane. Surfaces are counted from 0. Compiling a lens ([`Lens::compile`]) yields an
+//! immutable flat table in one number type, with every surface's rigid placement resolved.
+
+mod builtin;
+mod catalog_data;
+pub mod json;
+pub mod material;
+pub mod paraxial;
+mod system;
+
+pub use builtin::{builtin, builtin_names};
+pub use material::Material;
+pub use paraxial::Paraxial;
+pub use system::{Adjustments, Param, SurfaceKind, SurfaceRow, System};
+
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// Number of even-asphere coefficients stored per surface: a2, a4, ..., a16.
+pub const N_ASPH: usize = 8;
+
+/// What a surface does to light.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SurfaceRole {
+    /// A refracting interface between two media.
+    Refractive,
+    /// A flat aperture (DeepLens "Aperture"/"Stop"): it clips rays but does not refract.
+    Aperture,
+}
+
+/// One surface of a prescription.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Surface {
+    /// Refracting surface or bare aperture.
+    pub role: SurfaceRole,
+    /// Vertex curvature, 1/mm (0 = flat). Optimize curvature, not radius.
+    pub c: f64,
+    /// Conic constant (0 = sphere, -1 = paraboloid).
+    pub k: f64,
+    /// Even-asphere coefficients a2, a4, ..., a16 (sag terms a_{2i} ρ^{2i}, mm^{1-2i}).
+    pub asph: [f64; N_ASPH],
+    /// Clear semi-aperture, mm (the radius beyond which rays are vignetted).
+    pub semi_aperture_mm: f64,
+    /// Axial gap from this vertex to the next (the last: to the image plane), mm.
+    pub d_next_mm: f64,
+    /// Medium after this surface.
+    pub material: Material,
+    /// True if this surface is the aperture stop.
+    pub is_stop: bool,
+    /// Lateral vertex offset (DeepLens `pos_xy`), mm.
+    pub pos_xy_mm: [f64; 2],
+    /// Unit surface normal at the vertex (DeepLens `vec_local`), nominally (0, 0, 1).
+    pub vec_local: [f64; 3],
+}
+
+impl Surface {
+    /// A spherical (or flat, `c = 0`) refracting surface.
+    pub fn sphere(c: f64, semi_aperture_mm: f64, d_next_mm: f64, material: Material) -> Self {
+        Surface {
+            role: SurfaceRole::Refractive,
+            c,
+            k: 0.0,
+            asph: [0.0; N_ASPH],
+            semi_aperture_mm,
+            d_next_mm,
+            material,
+            is_stop: false,
+            pos_xy_mm: [0.0; 2],
+            vec_local: [0.0, 0.0, 1.0],
+        }
+    }
+    /// A flat aperture stop in air.
+    pub fn stop(semi_aperture_mm: f64, d_next_mm: f64) -> Self {
+        Surface {
+            role: SurfaceRole::Aperture,
+            is_stop: true,
+            ..Surface::sphere(0.0, semi_aperture_mm, d_next_mm, Material::Air)
+        }
+    }
+    /// True if any asphere coefficient is non-zero.
+    pub fn is_aspheric(&self) -> bool {
+        self.asph.iter().any(|&a| a != 0.0)
+    }
+    /// Sag z(ρ) at radial distance `rho` mm, or `None` beyond the conic's rim.
+    pub fn sag(&self, rho: f64) -> Option<f64> {
+        let u = rho * rho;
+        let arg = 1.0 - (1.0 + self.k) * self.c * self.c * u;
+        if arg < 0.0 {
+            return None;
+        }
+        let mut z = self.c * u / (1.0 + arg.sqrt());
+        let mut p = u;
+        for a in self.asph {
+            z += a * p;
+            p *= u;
+        }
+        Some(z)
+    }
+}
+
+/// Where the object is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Object {
+    /// At infinity: every field is a bundle of parallel rays.
+    Infinite,
+    /// At a finite distance in front of the first vertex (the object plane is `z = -distance_mm`).
+    Finite {
+        /// Distance from the object plane to the first vertex, mm (> 0).
+        distance_mm: f64,
+    },
+}
+
+impl Object {
+    /// Parses `inf` / `infinity` or a distance in mm (DeepLens' negative `obj_depth` is accepted).
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for anything else or a zero distance.
+    pub fn parse(s: &str) -> Result<Object> {
+        let t = s.trim().to_ascii_lowercase();
+        if matches!(t.as_str(), "inf" | "infinity" | "-inf") {
+            return Ok(Object::Infinite);
+        }
+        match t.parse::<f64>() {
+            Ok(v) if v.is_infinite() => Ok(Object::Infinite),
+            Ok(v) if v.is_finite() && v != 0.0 => Ok(Object::Finite {
+                distance_mm: v.abs(),
+            }),
+            _ => Err(Error::argument(format!(
+                "object distance \"{s}\": give a distance in mm (e.g. 1000) or \"inf\""
+            ))),
+        }
+    }
+}
+
+/// The image sensor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sensor {
+    /// Sensor width and height, mm.
+    pub size_mm: [f64; 2],
+    /// Pixel columns and rows.
+    pub resolution: [u32; 2],
+}
+
+impl Sensor {
+    /// A sensor with half-diagonal `r_mm` and a square-pixel resolution, shaped like DeepLens does
+    /// (the sensor's aspect ratio follows the resolution).
+    pub fn from_half_diagonal(r_mm: f64, resolution: [u32; 2]) -> Sensor {
+        let (w, h) = (resolution[0] as f64, resolution[1] as f64);
+        let diag = (w * w + h * h).sqrt();
+        Sensor {
+            size_mm: [2.0 * r_mm * w / diag, 2.0 * r_mm * h / diag],
+            resolution,
+        }
+    }
+    /// Half-diagonal (image-circle radius), mm.
+    pub fn half_diagonal_mm(&self) -> f64 {
+        0.5 * self.size_mm[0].hypot(self.size_mm[1])
+    }
+    /// Pixel pitch (x), mm.
+    pub fn pixel_pitch_mm(&self) -> f64 {
+        self.size_mm[0] / self.resolution[0] as f64
+    }
+}
+
+/// An editable lens prescription.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lens {
+    /// Free-text description.
+    pub info: String,
+    /// Surfaces, counted from 0.
+    pub surfaces: Vec<Surface>,
+    /// Object position.
+    pub object: Object,
+    /// Image sensor (placed `surfaces.last().d_next_mm` behind the last vertex).
+    pub sensor: Sensor,
+    /// Primary (design) wavelength, nm.
+    pub primary_wavelength_nm: f64,
+    /// Red, green and blue wavelengths, nm.
+    pub rgb_wavelengths_nm: [f64; 3],
+}
+
+impl Lens {
+    /// Loads a lens from a file path or a built-in name (`lens1`, `lens2`, `cooke-triplet`).
+    ///
+    /// # Errors
+    /// I/O, JSON and validation errors, each naming the file and the place.
+    pub fn load(name_or_path: &str) -> Result<Lens> {
+        if let Some(lens) = builtin(name_or_path) {
+            return Ok(lens);
+        }
+        let path = Path::new(name_or_path);
+        if !path.exists() {
+            return Err(Error::new(
+                crate::ErrorKind::Io,
+                format!(
+                    "{name_or_path}: no such file, and not a built-in lens (built-ins: {})",
+                    builtin_names().join(", ")
+                ),
+            ));
+        }
+        json::read_file(path)
+    }
+
+    /// Index of the aperture stop surface, if one is marked.
+    pub fn stop_index(&self) -> Option<usize> {
+        self.surfaces.iter().position(|s| s.is_stop)
+    }
+
+    /// Axial vertex positions of every surface and, last, of the image plane, mm (first vertex at 0).
+    pub fn vertex_z_mm(&self) -> Vec<f64> {
+        let mut z = Vec::with_capacity(self.surfaces.len() + 1);
+        let mut acc = 0.0;
+        for s in &self.surfaces {
+            z.push(acc);
+            acc += s.d_next_mm;
+        }
+        z.push(acc);
+        z
+    }
+
+    /// Distance from the last vertex to the image plane, mm.
+    pub fn image_distance_mm(&self) -> f64 {
+        self.surfaces.last().map_or(0.0, |s| s.d_next_mm)
+    }
+
+    /// Checks the prescription for things no tracer can handle and says which surface is wrong.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Invalid`] naming the surface index and the problem.
+    pub fn validate(&self) -> Result<()> {
+        if self.surfaces.is_empty() {
+            return Err(Error::invalid("the lens has no surfaces"));
+        }
+        let n_stops = self.surfaces.iter().filter(|s| s.is_stop).count();
+        if n_stops > 1 {
+            return Err(Error::invalid(
+                "more than one surface is marked as the aperture stop",
+            ));
+        }
+        for (i, s) in self.surfaces.iter().enumerate() {
+            let at = |m: String| Error::invalid(format!("surface {i}: {m}"));
+            let finite = [s.c, s.k, s.semi_aperture_mm, s.d_next_mm]
+                .iter()
+                .chain(s.asph.iter())
+                .all(|v| v.is_finite());
+            if !finite {
+                return Err(at("a number is not finite".into()));
+            }
+            if !(s.semi_aperture_mm > 0.0) {
+                return Err(at(format!(
+                    "clear semi-aperture {} mm must be positive",
+                    s.semi_aperture_mm
+                )));
+            }
+            if s.d_next_mm < 0.0 {
+                return Err(at(format!(
+                    "gap to the next surface {} mm is negative",
+                    s.d_next_mm
+                )));
+            }
+            let rim = (1.0 + s.k) * s.c * s.c * s.semi_aperture_mm * s.semi_aperture_mm;
+            if rim > 1.0 {
+                return Err(at(format!(
+                    "clear semi-aperture {} mm exceeds the surface's rim (radius {} mm, conic {})",
+                    s.semi_aperture_mm,
+                    1.0 / s.c,
+                    s.k
+                )));
+            }
+            let n = s.vec_local;
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if !(n[2] > 0.0) || !(len > 0.0) {
+                return Err(at("vec_local must point along +z".into()));
+            }
+            if s.role == SurfaceRole::Aperture && (s.c != 0.0 || s.is_aspheric()) {
+                return Err(at("an aperture surface must be flat".into()));
+            }
+        }
+        if !(self.primary_wavelength_nm > 0.0) {
+            return Err(Error::invalid("primary wavelength must be positive"));
+        }
+        if let Object::Finite { distance_mm } = self.object {
+            if !(distance_mm > 0.0) || !distance_mm.is_finite() {
+                return Err(Error::invalid("object distance must be positive"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Problems that do not stop tracing but an optical engineer should see: neighbouring
+    /// surfaces whose sags cross inside their common clear aperture (negative edge thickness).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for i in 0..self.surfaces.len().saturating_sub(1) {
+            let (a, b) = (&self.surfaces[i], &self.surfaces[i + 1]);
+            let r = a.semi_aperture_mm.min(b.semi_aperture_mm);
+            for j in (0..=32).rev() {
+                let rho = r * j as f64 / 32.0;
+                if let (Some(za), Some(zb)) = (a.sag(rho), b.sag(rho)) {
+                    let gap = a.d_next_mm + zb - za;
+                    if gap < -1e-9 {
+                        out.push(format!(
+                            "surfaces {i} and {} cross inside their clear apertures: at height {rho:.3} mm the gap is {gap:.4} mm (clear semi-apertures may be too large)",
+                            i + 1
+                        ));
+                        break;
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Compiles the prescription with no adjustments into an `f64` table.
+    pub fn compile(&self) -> System<f64> {
+        System::compile(self, &Adjustments::none(self.surfaces.len()), &|_, v| v)
+    }
+
+    /// Paraxial (first-order) analysis at `wavelength_nm`.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Numerical`] for an afocal system or a lens without a stop.
+    pub fn paraxial(&self, wavelength_nm: f64) -> Result<Paraxial> {
+        paraxial::analyze(self, wavelength_nm)
+    }
+}

@@ -1,0 +1,158 @@
+//! First-order (paraxial) optics by y-nu ray tracing.
+
+use super::{Lens, Object, SurfaceRole};
+use crate::error::{Error, Result};
+use serde::Serialize;
+
+/// First-order properties of a lens at one wavelength. Lengths in mm; axial positions are global
+/// z (first vertex at 0, light toward +z).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Paraxial {
+    /// Wavelength of the analysis, nm.
+    pub wavelength_nm: f64,
+    /// Effective focal length, mm.
+    pub efl_mm: f64,
+    /// Back focal distance: last vertex to the paraxial infinity focus, mm.
+    pub bfd_mm: f64,
+    /// Last vertex to the paraxial image of the stated object, mm (= BFD for an object at infinity).
+    pub image_distance_mm: f64,
+    /// Axial position of the entrance pupil, mm.
+    pub entrance_pupil_z_mm: f64,
+    /// Entrance pupil diameter, mm.
+    pub entrance_pupil_diameter_mm: f64,
+    /// Axial position of the exit pupil, mm.
+    pub exit_pupil_z_mm: f64,
+    /// Exit pupil diameter, mm.
+    pub exit_pupil_diameter_mm: f64,
+    /// Image-space F-number for an object at infinity, EFL / EPD.
+    pub fnum: f64,
+    /// Working (paraxial) F-number for the stated object, 1 / (2 |u'|).
+    pub working_fnum: f64,
+    /// Paraxial lateral magnification for the stated object (0 at infinity).
+    pub magnification: f64,
+    /// Half field of view from the sensor's half-diagonal, degrees: atan(r_sensor / EFL).
+    pub half_fov_deg: f64,
+    /// Index of the aperture-stop surface (the marked stop, or the limiting aperture).
+    pub stop_surface: usize,
+    /// First vertex to the image plane, mm.
+    pub total_track_mm: f64,
+}
+
+/// Paraxial heights at every surface and the final height and slope after the last one.
+struct Ynu {
+    heights: Vec<f64>,
+    y_last: f64,
+    u_last: f64,
+}
+
+/// Traces a paraxial ray that arrives at the vertex plane of surface `start` (before refracting
+/// there) with height `y0` and slope `u0`; heights of surfaces before `start` are left 0.
+fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
+    let (mut y, mut u) = (y0, u0);
+    let mut heights = vec![0.0; lens.surfaces.len()];
+    let last = lens.surfaces.len() - 1;
+    for i in start..lens.surfaces.len() {
+        let s = &lens.surfaces[i];
+        heights[i] = y;
+        let n0 = if i == 0 { 1.0 } else { n[i - 1] };
+        if s.role == SurfaceRole::Refractive {
+            let power = (s.c + 2.0 * s.asph[0]) * (n[i] - n0);
+            u = (n0 * u - y * power) / n[i];
+        }
+        if i < last {
+            y += u * s.d_next_mm;
+        }
+    }
+    Ynu {
+        heights,
+        y_last: y,
+        u_last: u,
+    }
+}
+
+/// Paraxial analysis of `lens` at `wavelength_nm`.
+///
+/// # Errors
+/// [`crate::ErrorKind::Numerical`] if the system is afocal or the stop's image is at infinity.
+pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
+    lens.validate()?;
+    let n: Vec<f64> = lens
+        .surfaces
+        .iter()
+        .map(|s| s.material.index(wavelength_nm))
+        .collect();
+    let last = lens.surfaces.len() - 1;
+    let parallel = ynu(lens, &n, 0, 1.0, 0.0);
+    if parallel.u_last.abs() < 1e-14 {
+        return Err(Error::numerical("the lens is afocal (no focal length)"));
+    }
+    let efl = -1.0 / parallel.u_last;
+    let bfd = -parallel.y_last / parallel.u_last;
+    let axial = match lens.object {
+        Object::Infinite => None,
+        Object::Finite { distance_mm } => Some(ynu(lens, &n, 0, distance_mm, 1.0)),
+    };
+    let image_distance = axial.as_ref().map_or(bfd, |r| -r.y_last / r.u_last);
+
+    // The stop: the marked one, else the surface that limits the axial beam.
+    let marginal = axial.as_ref().unwrap_or(&parallel);
+    let stop = lens.stop_index().unwrap_or_else(|| {
+        (0..lens.surfaces.len())
+            .min_by(|&a, &b| {
+                let ra = lens.surfaces[a].semi_aperture_mm / marginal.heights[a].abs();
+                let rb = lens.surfaces[b].semi_aperture_mm / marginal.heights[b].abs();
+                ra.total_cmp(&rb)
+            })
+            .unwrap_or(0)
+    });
+    let r_stop = lens.surfaces[stop].semi_aperture_mm;
+    let a = parallel.heights[stop];
+    let b = ynu(lens, &n, 0, 0.0, 1.0).heights[stop];
+    if a.abs() < 1e-14 {
+        return Err(Error::numerical("the entrance pupil is at infinity"));
+    }
+    let enp_z = b / a;
+    let enp_r = r_stop / a.abs();
+
+    // Exit pupil: image of the stop through the surfaces after it.
+    let z = lens.vertex_z_mm();
+    let (xp_z, xp_r) = if stop == last {
+        (z[last], r_stop)
+    } else {
+        // Rays leave the stop vertex (after any refraction there) and meet surface stop + 1.
+        let d = lens.surfaces[stop].d_next_mm;
+        let chief = ynu(lens, &n, stop + 1, d, 1.0);
+        let edge = ynu(lens, &n, stop + 1, r_stop, 0.0);
+        if chief.u_last.abs() < 1e-14 {
+            (f64::INFINITY, f64::INFINITY)
+        } else {
+            let zx = -chief.y_last / chief.u_last;
+            (z[last] + zx, (edge.y_last + edge.u_last * zx).abs())
+        }
+    };
+
+    let (working_fnum, magnification) = match lens.object {
+        Object::Infinite => (efl / (2.0 * enp_r), 0.0),
+        Object::Finite { distance_mm } => {
+            let u0 = enp_r / (enp_z + distance_mm);
+            let r = ynu(lens, &n, 0, u0 * distance_mm, u0);
+            (1.0 / (2.0 * r.u_last.abs()), u0 / r.u_last)
+        }
+    };
+    Ok(Paraxial {
+        wavelength_nm,
+        efl_mm: efl,
+        bfd_mm: bfd,
+        image_distance_mm: image_distance,
+        entrance_pupil_z_mm: enp_z,
+        entrance_pupil_diameter_mm: 2.0 * enp_r,
+        exit_pupil_z_mm: xp_z,
+        exit_pupil_diameter_mm: 2.0 * xp_r,
+        fnum: efl / (2.0 * enp_r),
+        working_fnum,
+        magnification,
+        half_fov_deg: (lens.sensor.half_diagonal_mm() / efl).atan().to_degrees(),
+        stop_surface: stop,
+        total_track_mm: z[last + 1],
+    })
+}

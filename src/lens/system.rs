@@ -1,0 +1,240 @@
+//! The compiled lens: an immutable flat table of surfaces in one number type.
+
+use super::{Lens, Material, SurfaceRole, N_ASPH};
+use crate::math::{Mat3, Rigid, Vec3};
+use crate::real::Real;
+
+/// Which intersection routine a surface needs; chosen once at compile time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SurfaceKind {
+    /// Flat (c = 0, no asphere terms): one division.
+    Plane,
+    /// Sphere or conic: closed-form, cancellation-free quadratic.
+    Quadric,
+    /// Even asphere: Newton's method started from the quadric solution.
+    Asphere,
+}
+
+/// A design parameter of a lens, for compiling with overridden (e.g. dual-number) values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Param {
+    /// Curvature of surface `i`, 1/mm.
+    Curvature(usize),
+    /// Conic constant of surface `i`.
+    Conic(usize),
+    /// Asphere coefficient `j` (0 = a2, 1 = a4, ...) of surface `i`.
+    Asphere(usize, usize),
+    /// Gap after surface `i`, mm (the last surface's gap is the image distance).
+    Gap(usize),
+}
+
+/// Rigid motions and curvature offsets applied to a nominal lens (tolerances, placements).
+///
+/// A motion maps the nominal global frame to the moved one: a surface's placement becomes
+/// `motion ∘ nominal placement`. The nominal [`Lens`] is never edited.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adjustments {
+    /// One rigid motion per surface.
+    pub surface_motion: Vec<Rigid<f64>>,
+    /// Curvature offset per surface, 1/mm.
+    pub curvature_offset: Vec<f64>,
+    /// Rigid motion of the image plane.
+    pub image_motion: Rigid<f64>,
+}
+
+impl Adjustments {
+    /// No adjustment for a lens of `n` surfaces.
+    pub fn none(n: usize) -> Self {
+        Adjustments {
+            surface_motion: vec![Rigid::identity(); n],
+            curvature_offset: vec![0.0; n],
+            image_motion: Rigid::identity(),
+        }
+    }
+}
+
+/// One compiled surface.
+#[derive(Clone, Debug)]
+pub struct SurfaceRow<S> {
+    /// Intersection routine.
+    pub kind: SurfaceKind,
+    /// False for bare apertures (rays pass unrefracted).
+    pub refract: bool,
+    /// Curvature (with any offset), 1/mm.
+    pub c: S,
+    /// 1 + conic constant.
+    pub k1: S,
+    /// Asphere coefficients a2..a16.
+    pub asph: [S; N_ASPH],
+    /// Number of leading asphere coefficients in use.
+    pub n_asph: usize,
+    /// Squared clear semi-aperture, mm².
+    pub ap2: S,
+    /// True if the surface frame is rotated relative to the global frame.
+    pub rotated: bool,
+    /// Local-to-global rotation.
+    pub rot: Mat3<S>,
+    /// Vertex position in the global frame, mm.
+    pub pos: Vec3<S>,
+}
+
+/// A compiled lens: flat, immutable, in number type `S`.
+#[derive(Clone, Debug)]
+pub struct System<S> {
+    /// The surfaces, counted from 0.
+    pub rows: Vec<SurfaceRow<S>>,
+    /// Placement of the image plane (its local z is the plane's normal).
+    pub image: Rigid<S>,
+    /// True if the image plane is rotated.
+    pub image_rotated: bool,
+    /// Medium after each surface.
+    pub materials: Vec<Material>,
+    /// Index of the aperture-stop surface, if any.
+    pub stop: Option<usize>,
+}
+
+/// Rotation taking +z to the unit vector `v` by the shortest arc.
+fn rotation_to(v: [f64; 3]) -> Mat3<f64> {
+    let n: Vec3<f64> = Vec3::cst(v[0], v[1], v[2]).normalized();
+    let (x, y) = (n.x, n.y);
+    let s2 = x * x + y * y;
+    if s2 == 0.0 {
+        return Mat3::identity();
+    }
+    let c = n.z;
+    let f = (1.0 - c) / s2;
+    Mat3 {
+        rows: [
+            Vec3::new(1.0 - f * x * x, -f * x * y, x),
+            Vec3::new(-f * x * y, 1.0 - f * y * y, y),
+            Vec3::new(-x, -y, c),
+        ],
+    }
+}
+
+fn is_identity(m: &Mat3<f64>) -> bool {
+    *m == Mat3::identity()
+}
+
+impl<S: Real> System<S> {
+    /// Compiles `lens` with `adj` applied; `lift` turns each design parameter's value into an `S`
+    /// (identity for values, a seeded dual number for gradients).
+    pub fn compile(lens: &Lens, adj: &Adjustments, lift: &dyn Fn(Param, S) -> S) -> System<S> {
+        let mut z = S::cst(0.0);
+        let mut rows = Vec::with_capacity(lens.surfaces.len());
+        for (i, s) in lens.surfaces.iter().enumerate() {
+            let r0 = rotation_to(s.vec_local);
+            let motion = &adj.surface_motion[i];
+            let rot = motion.rotation * r0;
+            let lift_c = |m: Mat3<f64>| Mat3 {
+                rows: m.rows.map(|r| r.map_value::<S>()),
+            };
+            let nominal = Vec3::new(S::cst(s.pos_xy_mm[0]), S::cst(s.pos_xy_mm[1]), z);
+            let pos = motion.translation.map_value::<S>() + lift_c(motion.rotation).apply(nominal);
+            let c = lift(Param::Curvature(i), S::cst(s.c)) + S::cst(adj.curvature_offset[i]);
+            let k = lift(Param::Conic(i), S::cst(s.k));
+            let mut asph = [S::cst(0.0); N_ASPH];
+            for (j, a) in asph.iter_mut().enumerate() {
+                *a = lift(Param::Asphere(i, j), S::cst(s.asph[j]));
+            }
+            let n_asph = s.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
+            // Flat refracting surfaces use the quadric routine, which is exact at c = 0 and keeps
+            // curvature derivatives; only bare apertures take the plane shortcut.
+            let kind = if n_asph > 0 {
+                SurfaceKind::Asphere
+            } else if s.role == SurfaceRole::Aperture {
+                SurfaceKind::Plane
+            } else {
+                SurfaceKind::Quadric
+            };
+            rows.push(SurfaceRow {
+                kind,
+                refract: s.role == SurfaceRole::Refractive,
+                c,
+                k1: S::cst(1.0) + k,
+                asph,
+                n_asph,
+                ap2: S::cst(s.semi_aperture_mm * s.semi_aperture_mm),
+                rotated: !is_identity(&rot),
+                rot: lift_c(rot),
+                pos,
+            });
+            z += lift(Param::Gap(i), S::cst(s.d_next_mm));
+        }
+        let m = &adj.image_motion;
+        let image = Rigid {
+            rotation: Mat3 {
+                rows: m.rotation.rows.map(|r| r.map_value::<S>()),
+            },
+            translation: m.translation.map_value::<S>()
+                + Mat3 {
+                    rows: m.rotation.rows.map(|r| r.map_value::<S>()),
+                }
+                .apply(Vec3::new(S::cst(0.0), S::cst(0.0), z)),
+        };
+        System {
+            rows,
+            image,
+            image_rotated: !is_identity(&m.rotation),
+            materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
+            stop: lens.stop_index(),
+        }
+    }
+
+    /// Refractive index after each surface at `wavelength_nm` (the object space is air).
+    pub fn indices(&self, wavelength_nm: f64) -> Vec<S> {
+        self.materials
+            .iter()
+            .map(|m| S::cst(m.index(wavelength_nm)))
+            .collect()
+    }
+
+    /// The same system in another number type (derivatives dropped).
+    pub fn convert<T: Real>(&self) -> System<T> {
+        let m3 = |m: &Mat3<S>| Mat3 {
+            rows: m.rows.map(|r| r.map_value::<T>()),
+        };
+        System {
+            rows: self
+                .rows
+                .iter()
+                .map(|r| SurfaceRow {
+                    kind: r.kind,
+                    refract: r.refract,
+                    c: T::cst(r.c.value()),
+                    k1: T::cst(r.k1.value()),
+                    asph: r.asph.map(|a| T::cst(a.value())),
+                    n_asph: r.n_asph,
+                    ap2: T::cst(r.ap2.value()),
+                    rotated: r.rotated,
+                    rot: m3(&r.rot),
+                    pos: r.pos.map_value(),
+                })
+                .collect(),
+            image: Rigid {
+                rotation: m3(&self.image.rotation),
+                translation: self.image.translation.map_value(),
+            },
+            image_rotated: self.image_rotated,
+            materials: self.materials.clone(),
+            stop: self.stop,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rotation_to_maps_z_onto_v() {
+        let v = [0.1, -0.2, 0.97];
+        let n: f64 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+        let r = rotation_to(v);
+        let z = r.apply(Vec3::cst(0.0, 0.0, 1.0));
+        let s = n.sqrt();
+        assert!((z.x - v[0] / s).abs() < 1e-15 && (z.y - v[1] / s).abs() < 1e-15);
+        let i = r.transpose() * r;
+        assert!((i.rows[0].x - 1.0).abs() < 1e-15 && i.rows[0].y.abs() < 1e-15);
+    }
+}

@@ -1,0 +1,130 @@
+//! The number trait every geometric kernel in tolray is generic over.
+//!
+//! The tracer is written once against [`Real`]. Value traces instantiate it with `f32` or `f64`;
+//! gradient traces instantiate it with forward-mode dual numbers. Comparisons and branches look at
+//! the value part only ([`Real::value`]), so the same code path is taken for every number type
+//! and derivatives flow through the arithmetic unchanged.
+
+use std::fmt::Debug;
+use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
+
+/// Everything the tracing kernel needs from a number.
+///
+/// Implementations must be plain `Copy` values (no heap), so that ray state stays on the stack
+/// and inner loops vectorize.
+pub trait Real:
+    Copy
+    + Send
+    + Sync
+    + Debug
+    + Default
+    + 'static
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + AddAssign
+    + SubAssign
+    + MulAssign
+{
+    /// A constant (derivatives zero).
+    fn cst(v: f64) -> Self;
+    /// The value part as `f64` (for branching, reporting and statistics).
+    fn value(self) -> f64;
+    /// Square root.
+    fn sqrt(self) -> Self;
+    /// `self` if `cond`, else `other`; written so that LLVM can turn it into a select.
+    #[inline(always)]
+    fn pick(cond: bool, a: Self, b: Self) -> Self {
+        if cond {
+            a
+        } else {
+            b
+        }
+    }
+    /// Sine.
+    fn sin(self) -> Self;
+    /// Cosine.
+    fn cos(self) -> Self;
+    /// Absolute value (by the value part's sign).
+    #[inline(always)]
+    fn abs(self) -> Self {
+        if self.value() < 0.0 {
+            -self
+        } else {
+            self
+        }
+    }
+    /// `|self|` with the sign of `sign` (by value parts; `+0` counts as positive).
+    #[inline(always)]
+    fn copysign(self, sign: Self) -> Self {
+        let a = self.abs();
+        if sign.value() < 0.0 {
+            -a
+        } else {
+            a
+        }
+    }
+    /// Machine epsilon of the value type.
+    const EPSILON: f64;
+    /// Short type name for reports and benchmark labels.
+    const NAME: &'static str;
+}
+
+macro_rules! impl_real_float {
+    ($t:ty) => {
+        impl Real for $t {
+            #[inline(always)]
+            fn cst(v: f64) -> Self {
+                v as $t
+            }
+            #[inline(always)]
+            fn value(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                <$t>::sqrt(self)
+            }
+            #[inline(always)]
+            fn sin(self) -> Self {
+                <$t>::sin(self)
+            }
+            #[inline(always)]
+            fn cos(self) -> Self {
+                <$t>::cos(self)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+            #[inline(always)]
+            fn copysign(self, sign: Self) -> Self {
+                <$t>::copysign(self, sign)
+            }
+            const EPSILON: f64 = <$t>::EPSILON as f64;
+            const NAME: &'static str = stringify!($t);
+        }
+    };
+}
+impl_real_float!(f32);
+impl_real_float!(f64);
+
+#[cfg(test)]
+mod tests {
+    use super::Real;
+
+    fn generic_hypot<S: Real>(a: S, b: S) -> S {
+        (a * a + b * b).sqrt()
+    }
+
+    #[test]
+    fn float_impls_agree_with_std() {
+        assert_eq!(generic_hypot(3.0f64, 4.0).value(), 5.0);
+        assert_eq!(generic_hypot(3.0f32, 4.0).value(), 5.0);
+        assert_eq!(Real::copysign(2.0f64, -0.5), -2.0);
+        assert_eq!(<f64 as Real>::pick(false, 1.0, 2.0), 2.0);
+        assert_eq!(<f32 as Real>::cst(0.1), 0.1f32);
+    }
+}

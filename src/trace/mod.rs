@@ -1,0 +1,285 @@
+//! Ray tracing: structure-of-arrays ray batches, the generic kernel, the parallel driver and a
+//! plain scalar reference tracer.
+//!
+//! Rays live in blocks of [`LANES`] rays, each block a structure of arrays. The kernel loops over
+//! surfaces outside and lanes inside, so that LLVM turns the lane loop into SIMD code; the `f32`
+//! and `f64` instantiations are compiled for several instruction sets and picked at run time.
+//! A ray never becomes NaN silently: it carries a [`RayStatus`].
+
+mod kernel;
+pub mod rays;
+pub mod reference;
+
+pub use kernel::Traceable;
+pub use rays::{Field, Pupil, PupilPattern, RaySet};
+
+use crate::lens::System;
+use crate::math::Vec3;
+use crate::real::Real;
+use rayon::prelude::*;
+
+/// Rays per block (the width of the lane loop).
+pub const LANES: usize = 16;
+
+/// Blocks per parallel work item.
+const CHUNK_BLOCKS: usize = 16;
+
+/// What happened to a ray. Surfaces are counted from 0; the image plane counts as surface N.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RayStatus {
+    /// Reached the image plane.
+    Alive,
+    /// Outside the clear aperture (or stop) of a surface.
+    Vignetted(u32),
+    /// Did not meet a surface at all.
+    Missed(u32),
+    /// Total internal reflection at a surface.
+    Tir(u32),
+    /// The input ray was invalid (non-finite numbers or a zero direction).
+    Invalid,
+}
+
+pub(crate) const CODE_VIGNETTED: u32 = 1 << 24;
+pub(crate) const CODE_MISSED: u32 = 2 << 24;
+pub(crate) const CODE_TIR: u32 = 3 << 24;
+pub(crate) const CODE_INVALID: u32 = 4 << 24;
+
+impl RayStatus {
+    /// Decodes the packed status stored in a batch.
+    pub fn from_code(code: u32) -> RayStatus {
+        let s = code & 0x00ff_ffff;
+        match code & 0xff00_0000 {
+            0 => RayStatus::Alive,
+            CODE_VIGNETTED => RayStatus::Vignetted(s),
+            CODE_MISSED => RayStatus::Missed(s),
+            CODE_TIR => RayStatus::Tir(s),
+            _ => RayStatus::Invalid,
+        }
+    }
+    /// The packed code.
+    pub fn code(self) -> u32 {
+        match self {
+            RayStatus::Alive => 0,
+            RayStatus::Vignetted(s) => CODE_VIGNETTED | s,
+            RayStatus::Missed(s) => CODE_MISSED | s,
+            RayStatus::Tir(s) => CODE_TIR | s,
+            RayStatus::Invalid => CODE_INVALID,
+        }
+    }
+    /// True if the ray reached the image plane.
+    pub fn is_alive(self) -> bool {
+        self == RayStatus::Alive
+    }
+}
+
+impl std::fmt::Display for RayStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RayStatus::Alive => write!(f, "alive"),
+            RayStatus::Vignetted(s) => write!(f, "vignetted@{s}"),
+            RayStatus::Missed(s) => write!(f, "missed@{s}"),
+            RayStatus::Tir(s) => write!(f, "tir@{s}"),
+            RayStatus::Invalid => write!(f, "invalid"),
+        }
+    }
+}
+
+/// One block of rays, structure of arrays. Positions in mm (global frame), unit directions,
+/// optical path length in mm.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub struct Block<S> {
+    /// Position x, y, z.
+    pub o: [[S; LANES]; 3],
+    /// Direction x, y, z (unit length).
+    pub d: [[S; LANES]; 3],
+    /// Optical path length accumulated so far, mm.
+    pub opl: [S; LANES],
+    /// Packed [`RayStatus`].
+    pub status: [u32; LANES],
+}
+
+impl<S: Real> Block<S> {
+    fn dead() -> Self {
+        Block {
+            o: [[S::cst(0.0); LANES]; 3],
+            d: [[S::cst(0.0); LANES]; 3],
+            opl: [S::cst(0.0); LANES],
+            status: [CODE_INVALID; LANES],
+        }
+    }
+}
+
+/// One ray read back from a batch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray<S> {
+    /// Position, mm.
+    pub o: Vec3<S>,
+    /// Unit direction.
+    pub d: Vec3<S>,
+    /// Optical path length, mm.
+    pub opl: S,
+    /// Outcome.
+    pub status: RayStatus,
+}
+
+/// A batch of rays of one wavelength, padded to whole blocks with dead rays.
+#[derive(Clone, Debug)]
+pub struct RayBatch<S> {
+    blocks: Vec<Block<S>>,
+    len: usize,
+}
+
+impl<S: Real> Default for RayBatch<S> {
+    fn default() -> Self {
+        RayBatch::new()
+    }
+}
+
+impl<S: Real> RayBatch<S> {
+    /// An empty batch.
+    pub fn new() -> Self {
+        RayBatch {
+            blocks: Vec::new(),
+            len: 0,
+        }
+    }
+    /// An empty batch with room for `n` rays.
+    pub fn with_capacity(n: usize) -> Self {
+        RayBatch {
+            blocks: Vec::with_capacity(n.div_ceil(LANES)),
+            len: 0,
+        }
+    }
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+    /// True if there are no rays.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+    /// Appends a ray at `o` (mm) with direction `d` (need not be normalized). A ray with
+    /// non-finite numbers or a zero direction is stored as [`RayStatus::Invalid`].
+    pub fn push(&mut self, o: Vec3<f64>, d: Vec3<f64>) {
+        let (b, l) = (self.len / LANES, self.len % LANES);
+        if l == 0 {
+            self.blocks.push(Block::dead());
+        }
+        let norm = d.norm();
+        let ok = [o.x, o.y, o.z, d.x, d.y, d.z].iter().all(|v| v.is_finite()) && norm > 0.0;
+        let d = if ok {
+            d * (1.0 / norm)
+        } else {
+            Vec3::cst(0.0, 0.0, 1.0)
+        };
+        let o = if ok { o } else { Vec3::cst(0.0, 0.0, 0.0) };
+        let blk = &mut self.blocks[b];
+        for (k, v) in [o.x, o.y, o.z].into_iter().enumerate() {
+            blk.o[k][l] = S::cst(v);
+        }
+        for (k, v) in [d.x, d.y, d.z].into_iter().enumerate() {
+            blk.d[k][l] = S::cst(v);
+        }
+        blk.opl[l] = S::cst(0.0);
+        blk.status[l] = if ok { 0 } else { CODE_INVALID };
+        self.len += 1;
+    }
+    /// Ray `i`.
+    ///
+    /// # Panics
+    /// If `i >= self.len()`.
+    pub fn get(&self, i: usize) -> Ray<S> {
+        assert!(i < self.len, "ray index {i} out of range {}", self.len);
+        let (b, l) = (&self.blocks[i / LANES], i % LANES);
+        Ray {
+            o: Vec3::new(b.o[0][l], b.o[1][l], b.o[2][l]),
+            d: Vec3::new(b.d[0][l], b.d[1][l], b.d[2][l]),
+            opl: b.opl[l],
+            status: RayStatus::from_code(b.status[l]),
+        }
+    }
+    /// Iterates over all rays.
+    pub fn iter(&self) -> impl Iterator<Item = Ray<S>> + '_ {
+        (0..self.len).map(|i| self.get(i))
+    }
+    /// The blocks (padding rays are [`RayStatus::Invalid`]).
+    pub fn blocks(&self) -> &[Block<S>] {
+        &self.blocks
+    }
+    /// Mutable blocks, for custom kernels.
+    pub fn blocks_mut(&mut self) -> &mut [Block<S>] {
+        &mut self.blocks
+    }
+}
+
+/// Options of a trace.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceOptions {
+    /// Clip rays at clear apertures and the stop (false: the reference's "mode A").
+    pub apertures: bool,
+}
+
+impl Default for TraceOptions {
+    fn default() -> Self {
+        TraceOptions { apertures: true }
+    }
+}
+
+/// Traces every ray of `batch` (one wavelength, `wavelength_nm`) through `sys` to the image plane,
+/// in parallel over blocks on the current rayon pool. Results do not depend on the thread count.
+pub fn trace<S: Traceable>(
+    sys: &System<S>,
+    wavelength_nm: f64,
+    batch: &mut RayBatch<S>,
+    opts: TraceOptions,
+) {
+    let n = sys.indices(wavelength_nm);
+    batch
+        .blocks
+        .par_chunks_mut(CHUNK_BLOCKS)
+        .for_each(|c| S::trace_blocks(sys, &n, opts.apertures, c));
+}
+
+/// As [`trace`], on the calling thread only.
+pub fn trace_serial<S: Traceable>(
+    sys: &System<S>,
+    wavelength_nm: f64,
+    batch: &mut RayBatch<S>,
+    opts: TraceOptions,
+) {
+    let n = sys.indices(wavelength_nm);
+    S::trace_blocks(sys, &n, opts.apertures, &mut batch.blocks);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn status_codes_round_trip_and_print() {
+        for s in [
+            RayStatus::Alive,
+            RayStatus::Vignetted(3),
+            RayStatus::Missed(2),
+            RayStatus::Tir(5),
+            RayStatus::Invalid,
+        ] {
+            assert_eq!(RayStatus::from_code(s.code()), s);
+        }
+        assert_eq!(RayStatus::Tir(5).to_string(), "tir@5");
+        assert_eq!(RayStatus::Vignetted(3).to_string(), "vignetted@3");
+    }
+
+    #[test]
+    fn push_normalizes_and_flags_bad_rays() {
+        let mut b = RayBatch::<f64>::new();
+        b.push(Vec3::cst(0.0, 0.0, 0.0), Vec3::cst(0.0, 3.0, 4.0));
+        b.push(Vec3::cst(f64::NAN, 0.0, 0.0), Vec3::cst(0.0, 0.0, 1.0));
+        b.push(Vec3::cst(0.0, 0.0, 0.0), Vec3::cst(0.0, 0.0, 0.0));
+        assert_eq!(b.len(), 3);
+        assert!((b.get(0).d.y - 0.6).abs() < 1e-15);
+        assert_eq!(b.get(1).status, RayStatus::Invalid);
+        assert_eq!(b.get(2).status, RayStatus::Invalid);
+    }
+}

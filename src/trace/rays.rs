@@ -1,0 +1,370 @@
+//! Ray generation: fields, pupil sampling over the paraxial entrance pupil, optional real ray
+//! aiming at the stop.
+
+use super::reference::trace_ray;
+use super::RayBatch;
+use crate::error::{Error, Result};
+use crate::lens::{Lens, Object, Paraxial, System};
+use crate::math::Vec3;
+use crate::real::Real;
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+/// A field point. Positive values put the object above/right of the axis (rays then travel
+/// toward -y/-x), as in the reference data.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub enum Field {
+    /// Field angles about the first vertex, degrees. For a finite object the object point is
+    /// at `(d tan x, d tan y, -d)`.
+    AngleDeg {
+        /// Angle in the x-z plane.
+        x: f64,
+        /// Angle in the y-z plane (meridional).
+        y: f64,
+    },
+    /// Object height, mm (finite objects only).
+    HeightMm {
+        /// Height along x.
+        x: f64,
+        /// Height along y.
+        y: f64,
+    },
+    /// Fraction of the full field, linear in the tangent of the angle:
+    /// `tan t = fraction * r_sensor / EFL`.
+    Fraction {
+        /// Fraction along x.
+        x: f64,
+        /// Fraction along y.
+        y: f64,
+    },
+}
+
+impl Field {
+    /// A meridional field given as an angle in degrees.
+    pub fn angle(y_deg: f64) -> Field {
+        Field::AngleDeg { x: 0.0, y: y_deg }
+    }
+    /// A meridional field given as a fraction of the full field.
+    pub fn fraction(y: f64) -> Field {
+        Field::Fraction { x: 0.0, y }
+    }
+    /// Parses `0.7` (fraction of the full field), `5deg` (angle) or `2.5mm` (object height);
+    /// `x,y` pairs are written `0.5:0.5`, `3deg:-2deg`.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] naming the text.
+    pub fn parse(s: &str) -> Result<Field> {
+        let t = s.trim();
+        let (xs, ys) = match t.split_once(':') {
+            Some((a, b)) => (a, b),
+            None => ("0", t),
+        };
+        let unit = |v: &str| -> Result<(f64, u8)> {
+            let v = v.trim();
+            let (num, kind) = if let Some(n) = v.strip_suffix("deg") {
+                (n, 1)
+            } else if let Some(n) = v.strip_suffix("mm") {
+                (n, 2)
+            } else {
+                (v, 0)
+            };
+            num.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .map(|x| (x, kind))
+                .ok_or_else(|| Error::argument(format!("field \"{s}\": expected a fraction (0.7), an angle (5deg) or an object height (2.5mm)")))
+        };
+        let (x, kx) = unit(xs)?;
+        let (y, ky) = unit(ys)?;
+        let kind = if xs.trim() == "0" { ky } else { kx };
+        if kx != ky && xs.trim() != "0" {
+            return Err(Error::argument(format!(
+                "field \"{s}\": both components need the same unit"
+            )));
+        }
+        Ok(match kind {
+            1 => Field::AngleDeg { x, y },
+            2 => Field::HeightMm { x, y },
+            _ => Field::Fraction { x, y },
+        })
+    }
+
+    /// Short label for tables (`0.70`, `5.00deg`, `2.50mm`).
+    pub fn label(&self) -> String {
+        let (x, y, u) = match *self {
+            Field::AngleDeg { x, y } => (x, y, "deg"),
+            Field::HeightMm { x, y } => (x, y, "mm"),
+            Field::Fraction { x, y } => (x, y, ""),
+        };
+        if x == 0.0 {
+            format!("{y:.3}{u}")
+        } else {
+            format!("{x:.3}{u}:{y:.3}{u}")
+        }
+    }
+
+    /// Field angles (tan x, tan y) seen from the first vertex.
+    fn tangents(&self, lens: &Lens, para: &Paraxial) -> Result<(f64, f64)> {
+        Ok(match *self {
+            Field::AngleDeg { x, y } => (x.to_radians().tan(), y.to_radians().tan()),
+            Field::Fraction { x, y } => {
+                let t = lens.sensor.half_diagonal_mm() / para.efl_mm;
+                (x * t, y * t)
+            }
+            Field::HeightMm { x, y } => match lens.object {
+                Object::Finite { distance_mm } => (x / distance_mm, y / distance_mm),
+                Object::Infinite => {
+                    return Err(Error::argument(
+                        "an object height field needs a finite object distance",
+                    ))
+                }
+            },
+        })
+    }
+}
+
+/// How the entrance pupil is sampled.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub enum PupilPattern {
+    /// Cell-centred `n x n` square grid, points kept inside the disk.
+    Grid(usize),
+    /// Hexapolar: the centre plus rings 1..=n, ring k holding 6k points.
+    Hex(usize),
+    /// `n` uniform random points over the disk area, seeded.
+    Random {
+        /// Number of points.
+        n: usize,
+        /// Seed.
+        seed: u64,
+    },
+}
+
+/// Pupil sampling: a pattern over a disk of `scale` times the paraxial entrance-pupil radius,
+/// optionally with real ray aiming at the stop.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Pupil {
+    /// Point pattern.
+    pub pattern: PupilPattern,
+    /// Radius of the sampled disk relative to the paraxial entrance pupil.
+    pub scale: f64,
+    /// Aim each ray so that it crosses the real stop at the pattern point scaled to the stop
+    /// radius (instead of aiming at the paraxial entrance pupil).
+    pub aim: bool,
+}
+
+impl Pupil {
+    /// A `n x n` grid over the paraxial entrance pupil, no aiming.
+    pub fn grid(n: usize) -> Pupil {
+        Pupil {
+            pattern: PupilPattern::Grid(n),
+            scale: 1.0,
+            aim: false,
+        }
+    }
+    /// Parses `grid:64`, `hex:8` or `random:1000` (seeded by `seed`).
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] naming the text.
+    pub fn parse(s: &str, seed: u64) -> Result<Pupil> {
+        let bad = || Error::argument(format!("pupil \"{s}\": expected grid:N, hex:N or random:N"));
+        let (kind, n) = s.split_once(':').ok_or_else(bad)?;
+        let n: usize = n.trim().parse().map_err(|_| bad())?;
+        if n == 0 || n > 100_000_000 {
+            return Err(bad());
+        }
+        let pattern = match kind.trim() {
+            "grid" => PupilPattern::Grid(n),
+            "hex" => PupilPattern::Hex(n),
+            "random" => PupilPattern::Random { n, seed },
+            _ => return Err(bad()),
+        };
+        Ok(Pupil {
+            pattern,
+            scale: 1.0,
+            aim: false,
+        })
+    }
+
+    /// Normalized pupil points (unit disk times `scale`).
+    pub fn points(&self) -> Vec<[f64; 2]> {
+        let s = self.scale;
+        match self.pattern {
+            PupilPattern::Grid(n) => {
+                let mut pts = Vec::with_capacity(n * n);
+                for j in 0..n {
+                    for i in 0..n {
+                        let x = (2 * i + 1) as f64 / n as f64 - 1.0;
+                        let y = (2 * j + 1) as f64 / n as f64 - 1.0;
+                        if x * x + y * y <= 1.0 {
+                            pts.push([x * s, y * s]);
+                        }
+                    }
+                }
+                pts
+            }
+            PupilPattern::Hex(rings) => {
+                let mut pts = vec![[0.0, 0.0]];
+                for k in 1..=rings {
+                    let r = k as f64 / rings as f64 * s;
+                    for m in 0..6 * k {
+                        let a = std::f64::consts::TAU * m as f64 / (6 * k) as f64;
+                        pts.push([r * a.cos(), r * a.sin()]);
+                    }
+                }
+                pts
+            }
+            PupilPattern::Random { n, seed } => {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                (0..n)
+                    .map(|_| {
+                        let r = rng.random::<f64>().sqrt() * s;
+                        let a = std::f64::consts::TAU * rng.random::<f64>();
+                        [r * a.cos(), r * a.sin()]
+                    })
+                    .collect()
+            }
+        }
+    }
+}
+
+/// The rays of one field: origins and directions in the global frame, plus the chief ray.
+#[derive(Clone, Debug)]
+pub struct RaySet {
+    /// Ray origins, mm.
+    pub origins: Vec<Vec3<f64>>,
+    /// Ray directions (unit).
+    pub directions: Vec<Vec3<f64>>,
+    /// Normalized pupil coordinates of each ray.
+    pub pupil: Vec<[f64; 2]>,
+    /// The chief ray (through the pupil centre).
+    pub chief: (Vec3<f64>, Vec3<f64>),
+}
+
+impl RaySet {
+    /// Generates the rays of `field` through `pupil` at `wavelength_nm` (used for aiming only).
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for an object-height field at infinity;
+    /// [`crate::ErrorKind::Numerical`] when ray aiming fails to converge.
+    pub fn generate(
+        lens: &Lens,
+        para: &Paraxial,
+        field: Field,
+        pupil: &Pupil,
+        wavelength_nm: f64,
+    ) -> Result<RaySet> {
+        let (tx, ty) = field.tangents(lens, para)?;
+        let r_ep = 0.5 * para.entrance_pupil_diameter_mm;
+        let z_ep = para.entrance_pupil_z_mm;
+        // Infinite-object rays start on a plane in front of the lens.
+        let z0 = {
+            let s = &lens.surfaces[0];
+            let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
+            z_ep.min(sag).min(0.0) - 1.0
+        };
+        let make = |px: f64, py: f64| -> (Vec3<f64>, Vec3<f64>) {
+            let p = Vec3::new(px, py, z_ep);
+            match lens.object {
+                Object::Finite { distance_mm } => {
+                    let q = Vec3::new(distance_mm * tx, distance_mm * ty, -distance_mm);
+                    (q, (p - q).normalized())
+                }
+                Object::Infinite => {
+                    let d = Vec3::new(-tx, -ty, 1.0).normalized();
+                    (p - d * ((p.z - z0) / d.z), d)
+                }
+            }
+        };
+        let pts = pupil.points();
+        let mut set = RaySet {
+            origins: Vec::with_capacity(pts.len()),
+            directions: Vec::with_capacity(pts.len()),
+            pupil: pts.clone(),
+            chief: make(0.0, 0.0),
+        };
+        if pupil.aim {
+            let sys = lens.compile();
+            let stop = para.stop_surface;
+            let n = sys.indices(wavelength_nm);
+            let r_stop = lens.surfaces[stop].semi_aperture_mm;
+            let aim =
+                |target: [f64; 2], guess: [f64; 2]| aim_ray(&sys, &n, stop, &make, target, guess);
+            let c = aim([0.0, 0.0], [0.0, 0.0])?;
+            set.chief = make(c[0], c[1]);
+            for q in &pts {
+                let guess = [c[0] + q[0] * r_ep, c[1] + q[1] * r_ep];
+                let e = aim([q[0] * r_stop, q[1] * r_stop], guess)?;
+                let (o, d) = make(e[0], e[1]);
+                set.origins.push(o);
+                set.directions.push(d);
+            }
+        } else {
+            for q in &pts {
+                let (o, d) = make(q[0] * r_ep, q[1] * r_ep);
+                set.origins.push(o);
+                set.directions.push(d);
+            }
+        }
+        Ok(set)
+    }
+
+    /// The rays as a batch in number type `S`.
+    pub fn batch<S: Real>(&self) -> RayBatch<S> {
+        let mut b = RayBatch::with_capacity(self.origins.len());
+        for (o, d) in self.origins.iter().zip(&self.directions) {
+            b.push(*o, *d);
+        }
+        b
+    }
+}
+
+/// Finds entrance-plane coordinates whose ray crosses the stop (in its own frame) at `target`,
+/// by Newton's method with a finite-difference Jacobian on the reference tracer.
+fn aim_ray(
+    sys: &System<f64>,
+    n: &[f64],
+    stop: usize,
+    make: &dyn Fn(f64, f64) -> (Vec3<f64>, Vec3<f64>),
+    target: [f64; 2],
+    guess: [f64; 2],
+) -> Result<[f64; 2]> {
+    let at_stop = |e: [f64; 2]| -> Option<[f64; 2]> {
+        let (o, d) = make(e[0], e[1]);
+        let r = trace_ray(sys, n, o, d, false, Some(stop));
+        if !r.status.is_alive() {
+            return None;
+        }
+        let row = &sys.rows[stop];
+        let p = row.rot.apply_t(r.o - row.pos);
+        Some([p.x, p.y])
+    };
+    let mut e = guess;
+    for _ in 0..30 {
+        let f = at_stop(e).ok_or_else(|| {
+            Error::numerical("ray aiming: a ray missed a surface before the stop")
+        })?;
+        let r = [f[0] - target[0], f[1] - target[1]];
+        if r[0].abs().max(r[1].abs()) < 1e-12 {
+            return Ok(e);
+        }
+        let h = 1e-6;
+        let fx = at_stop([e[0] + h, e[1]]).ok_or_else(|| Error::numerical("ray aiming failed"))?;
+        let fy = at_stop([e[0], e[1] + h]).ok_or_else(|| Error::numerical("ray aiming failed"))?;
+        let (a, b, c, d) = (
+            (fx[0] - f[0]) / h,
+            (fy[0] - f[0]) / h,
+            (fx[1] - f[1]) / h,
+            (fy[1] - f[1]) / h,
+        );
+        let det = a * d - b * c;
+        if det.abs() < 1e-300 {
+            return Err(Error::numerical("ray aiming: singular pupil mapping"));
+        }
+        e = [
+            e[0] - (d * r[0] - b * r[1]) / det,
+            e[1] - (a * r[1] - c * r[0]) / det,
+        ];
+    }
+    Err(Error::numerical("ray aiming did not converge"))
+}
