@@ -136,3 +136,34 @@ fn nominal_rms_spots() {
         }
     }
 }
+
+use tolray::lens::{Adjustments, Material, Surface, System};
+use tolray::math::{Mat3, Rigid, Vec3};
+
+#[test]
+fn tilted_plate_sign_check() {
+    let v = values();
+    let want = v["plate_tilt_check"]["y_mm"].as_f64().unwrap();
+    let mut l = lens("lens1");
+    l.surfaces = vec![
+        Surface::sphere(0.0, 10.0, 10.0, Material::Constant(1.5)),
+        Surface::sphere(0.0, 10.0, 20.0, Material::Air),
+    ];
+    let mut adj = Adjustments::none(2);
+    let r = Mat3::from_tilt_deg(1.0, 0.0, 0.0);
+    adj.surface_motion[0] =
+        Rigid::about_pivot(r, Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.0));
+    adj.surface_motion[1] =
+        Rigid::about_pivot(r, Vec3::new(0.0, 0.0, 10.0), Vec3::new(0.0, 0.0, 0.0));
+    let sys: System<f64> = System::compile(&l, &adj, &|_, v| v);
+    let mut b = tolray::trace::RayBatch::<f64>::new();
+    b.push(Vec3::new(0.0, 0.0, -5.0), Vec3::new(0.0, 0.0, 1.0));
+    tolray::trace::trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+    let ray = b.get(0);
+    assert!(ray.status.is_alive());
+    assert!(
+        (ray.o.y - want).abs() < 1e-12,
+        "plate shift {} vs {want}",
+        ray.o.y
+    );
+}

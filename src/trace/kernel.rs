@@ -141,17 +141,22 @@ fn intersect<S: Real, const KIND: u8>(
         let t = -p.z / d.z;
         return (t, d.z.value() != 0.0, Vec3::new(zero, zero, -one));
     }
-    // Quadric c (x² + y² + k1 z²) - 2 z = 0; near-vertex root without cancellation.
+    // Quadric c (x² + y² + k1 z²) - 2 z = 0, solved from the ray's crossing of the vertex plane
+    // (where the constant term is small). Of the two roots this takes the one nearest that
+    // crossing, without cancellation; it tends to the plane solution as c -> 0.
     let (c, k1) = (row.c, row.k1);
+    let mut ok = d.z.value() != 0.0;
+    let t0 = -p.z / S::pick(ok, d.z, one);
+    let (x0, y0) = (p.x + d.x * t0, p.y + d.y * t0);
     let a = c * (d.x * d.x + d.y * d.y + k1 * d.z * d.z);
-    let b = c * (p.x * d.x + p.y * d.y + k1 * p.z * d.z) - d.z;
-    let cc = c * (p.x * p.x + p.y * p.y + k1 * p.z * p.z) - S::cst(2.0) * p.z;
+    let b = c * (x0 * d.x + y0 * d.y) - d.z;
+    let cc = c * (x0 * x0 + y0 * y0);
     let disc = b * b - a * cc;
-    let mut ok = disc.value() >= 0.0;
+    ok &= disc.value() >= 0.0;
     let s = S::pick(ok, disc, zero).sqrt();
     let den = b + s.copysign(b);
     ok &= den.value() != 0.0;
-    let mut t = -cc / S::pick(ok, den, one);
+    let mut t = t0 - cc / S::pick(ok, den, one);
     if KIND == QUADRIC {
         let h = p + d * t;
         // Only the vertex-side sheet of the quadric is the lens surface.
