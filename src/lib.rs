@@ -15,6 +15,7 @@
 
 pub mod analysis;
 pub mod error;
+pub mod figures;
 pub mod lens;
 pub mod math;
 pub mod plot;

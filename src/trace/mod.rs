@@ -7,6 +7,7 @@
 //! A ray never becomes NaN silently: it carries a [`RayStatus`].
 
 mod kernel;
+pub mod raw;
 pub mod rays;
 pub mod reference;
 

@@ -1,0 +1,235 @@
+//! Pictures: spot diagrams and lens layouts, drawn on a [`Canvas`].
+
+use crate::analysis::SpotResult;
+use crate::error::{Error, Result};
+use crate::lens::{Lens, Paraxial, SurfaceRole, System};
+use crate::math::Vec3;
+use crate::plot::{Canvas, PALETTE};
+use crate::trace::reference::trace_ray;
+use crate::trace::{Field, Pupil, PupilPattern, RaySet};
+use std::path::Path;
+
+/// Writes `canvas` as PNG atomically.
+///
+/// # Errors
+/// [`crate::ErrorKind::Io`] naming the path.
+pub fn save(canvas: &Canvas, path: &Path) -> Result<()> {
+    canvas.save_png(path).map_err(|e| Error::io(path, e))
+}
+
+/// A spot diagram: one panel per field, every wavelength overlaid in its own colour, in
+/// micrometres about the field's polychromatic (or only) centroid, same scale in every panel.
+pub fn spot_figure(results: &[SpotResult], title: &str) -> Canvas {
+    let mut fields: Vec<Field> = Vec::new();
+    for r in results {
+        if !fields.contains(&r.field) {
+            fields.push(r.field);
+        }
+    }
+    let per_field = |f: &Field| {
+        let f = *f;
+        results.iter().filter(move |r| r.field == f)
+    };
+    // Centre per field, and a common half-width in µm.
+    let centre = |f: &Field| {
+        let all: Vec<&SpotResult> = per_field(f).collect();
+        let poly = all
+            .iter()
+            .find(|r| r.wavelength_nm.is_none())
+            .or(all.first());
+        poly.map_or([0.0, 0.0], |r| r.stats.centroid_mm)
+    };
+    let mut half = 1e-3f64;
+    for f in &fields {
+        let c = centre(f);
+        for r in per_field(f).filter(|r| r.wavelength_nm.is_some()) {
+            for p in &r.points {
+                half = half.max(((p[0] - c[0]).abs()).max((p[1] - c[1]).abs()) * 1e3);
+            }
+        }
+    }
+    half *= 1.05;
+    let cols = fields.len().clamp(1, 4);
+    let rows = fields.len().div_ceil(cols).max(1);
+    let (pw, ph) = (300u32, 300u32);
+    let mut cv = Canvas::new(cols as u32 * (pw + 80) + 20, rows as u32 * (ph + 90) + 60);
+    cv.set_view(
+        (0, 0, cv.image().width(), 40),
+        (0.0, 1.0),
+        (0.0, 1.0),
+        false,
+    );
+    cv.title(title);
+    for (k, f) in fields.iter().enumerate() {
+        let (col, row) = ((k % cols) as u32, (k / cols) as u32);
+        let rect = (70 + col * (pw + 80), 80 + row * (ph + 90), pw, ph);
+        cv.set_view(rect, (-half, half), (-half, half), true);
+        let c = centre(f);
+        let mut legend = Vec::new();
+        for (w, r) in per_field(f)
+            .filter(|r| r.wavelength_nm.is_some())
+            .enumerate()
+        {
+            let colour = PALETTE[w % PALETTE.len()];
+            for p in &r.points {
+                cv.dot(((p[0] - c[0]) * 1e3, (p[1] - c[1]) * 1e3), 0.0, colour);
+            }
+            legend.push((format!("{:.1} nm", r.wavelength_nm.unwrap_or(0.0)), colour));
+        }
+        cv.axes("x (um)", "y (um)");
+        let rms = per_field(f)
+            .find(|r| r.wavelength_nm.is_none())
+            .or_else(|| per_field(f).next())
+            .map_or(0.0, |r| r.stats.rms_um);
+        cv.text_px(
+            rect.0 as i32,
+            rect.1 as i32 - 30,
+            &format!("field {}  RMS {:.2} um", f.label(), rms),
+            1,
+            [0, 0, 0],
+        );
+        let mut y = rect.1 as i32 + 4;
+        for (label, colour) in legend {
+            cv.text_px(
+                (rect.0 + pw) as i32 - Canvas::text_width(&label, 1) as i32 - 4,
+                y,
+                &label,
+                1,
+                colour,
+            );
+            y += 10;
+        }
+    }
+    cv
+}
+
+/// Meridional layout: surface profiles, element edges, stop, image plane, and a fan of
+/// `rays_per_field` meridional rays for each field (aimed at the paraxial entrance pupil).
+///
+/// # Errors
+/// Paraxial or ray-generation errors.
+pub fn layout_figure(
+    lens: &Lens,
+    sys: &System<f64>,
+    para: &Paraxial,
+    fields: &[Field],
+    wavelength_nm: f64,
+    rays_per_field: usize,
+) -> Result<Canvas> {
+    let z = lens.vertex_z_mm();
+    let track = *z.last().unwrap_or(&1.0);
+    let ymax = lens
+        .surfaces
+        .iter()
+        .map(|s| s.semi_aperture_mm)
+        .fold(lens.sensor.half_diagonal_mm(), f64::max);
+    let zmin = -0.08 * track;
+    let mut cv = Canvas::new(1100, 560);
+    cv.set_view(
+        (60, 50, 1020, 460),
+        (zmin, track * 1.03),
+        (-ymax * 1.1, ymax * 1.1),
+        true,
+    );
+    // Rays first, so the glass outlines stay visible.
+    let n = sys.indices(wavelength_nm);
+    let fan = Pupil {
+        pattern: PupilPattern::Grid(rays_per_field.max(1)),
+        scale: 1.0,
+        aim: false,
+    };
+    for (k, &f) in fields.iter().enumerate() {
+        let set = RaySet::generate(
+            lens,
+            para,
+            f,
+            &Pupil {
+                pattern: PupilPattern::Grid(1),
+                ..fan
+            },
+            wavelength_nm,
+        )?;
+        let colour = PALETTE[k % PALETTE.len()];
+        let r_ep = 0.5 * para.entrance_pupil_diameter_mm;
+        let m = rays_per_field.max(1);
+        for j in 0..m {
+            let py = if m == 1 {
+                0.0
+            } else {
+                (2.0 * j as f64 / (m - 1) as f64 - 1.0) * r_ep * 0.999
+            };
+            let (o0, d0) = set.chief;
+            // Shift the chief ray's pupil point along y (same object point or direction).
+            let (o, d) = match lens.object {
+                crate::Object::Finite { .. } => {
+                    let target = o0
+                        + d0 * ((para.entrance_pupil_z_mm - o0.z) / d0.z)
+                        + Vec3::new(0.0, py, 0.0);
+                    (o0, (target - o0).normalized())
+                }
+                crate::Object::Infinite => (o0 + Vec3::new(0.0, py, 0.0), d0),
+            };
+            let mut pts = vec![(o.z.max(zmin), o.y + d.y * ((o.z.max(zmin) - o.z) / d.z))];
+            for i in 0..=lens.surfaces.len() {
+                let upto = (i < lens.surfaces.len()).then_some(i);
+                let r = trace_ray(sys, &n, o, d, true, upto);
+                if !r.status.is_alive() {
+                    break;
+                }
+                pts.push((r.o.z, r.o.y));
+            }
+            cv.polyline(&pts, colour);
+        }
+    }
+    let black = [0, 0, 0];
+    let profile = |i: usize| -> Vec<(f64, f64)> {
+        let s = &lens.surfaces[i];
+        let r = s.semi_aperture_mm;
+        (0..=60)
+            .filter_map(|j| {
+                let y = -r + 2.0 * r * j as f64 / 60.0;
+                s.sag(y).map(|sz| (z[i] + sz, y))
+            })
+            .collect()
+    };
+    for (i, s) in lens.surfaces.iter().enumerate() {
+        if s.role == SurfaceRole::Aperture || s.is_stop {
+            let r = s.semi_aperture_mm;
+            let zs = z[i] + s.sag(r).unwrap_or(0.0);
+            cv.line((zs, r), (zs, r + 0.15 * ymax), black);
+            cv.line((zs, -r), (zs, -r - 0.15 * ymax), black);
+        }
+        if s.role == SurfaceRole::Refractive {
+            cv.polyline(&profile(i), black);
+        }
+        // Element edges: join this surface to the next through the glass.
+        if !s.material.is_air() && i + 1 < lens.surfaces.len() {
+            let (a, b) = (profile(i), profile(i + 1));
+            for (pa, pb) in [(a.first(), b.first()), (a.last(), b.last())] {
+                if let (Some(pa), Some(pb)) = (pa, pb) {
+                    let edge = if pa.1.abs() > pb.1.abs() {
+                        (pb.0, pa.1)
+                    } else {
+                        (pa.0, pb.1)
+                    };
+                    cv.polyline(&[*pa, edge, *pb], black);
+                }
+            }
+        }
+    }
+    let h = lens.sensor.half_diagonal_mm();
+    cv.line((track, -h), (track, h), [200, 0, 0]);
+    cv.line((zmin, 0.0), (track * 1.02, 0.0), [160, 160, 160]);
+    cv.axes("z (mm)", "y (mm)");
+    cv.title(&format!(
+        "{}  EFL {:.2} mm  F/{:.2}",
+        short(&lens.info),
+        para.efl_mm,
+        para.fnum
+    ));
+    Ok(cv)
+}
+
+fn short(s: &str) -> &str {
+    s.split(':').next().unwrap_or(s).trim()
+}
