@@ -66,6 +66,17 @@ pub trait Real:
             a
         }
     }
+    /// `self < other`, comparing value parts in the native type (no widening, so that lane
+    /// loops vectorize).
+    #[inline(always)]
+    fn lt(self, other: Self) -> bool {
+        self.value() < other.value()
+    }
+    /// `self == 0` by value.
+    #[inline(always)]
+    fn is_zero(self) -> bool {
+        self.value() == 0.0
+    }
     /// Machine epsilon of the value type.
     const EPSILON: f64;
     /// Short type name for reports and benchmark labels.
@@ -102,6 +113,14 @@ macro_rules! impl_real_float {
             #[inline(always)]
             fn copysign(self, sign: Self) -> Self {
                 <$t>::copysign(self, sign)
+            }
+            #[inline(always)]
+            fn lt(self, other: Self) -> bool {
+                self < other
+            }
+            #[inline(always)]
+            fn is_zero(self) -> bool {
+                self == 0.0
             }
             const EPSILON: f64 = <$t>::EPSILON as f64;
             const NAME: &'static str = stringify!($t);

@@ -58,32 +58,37 @@ pub(crate) fn trace_blocks_generic<S: Real>(
         for (i, row) in sys.rows.iter().enumerate() {
             let n1 = if i == 0 { S::cst(1.0) } else { n[i - 1] };
             let eta = n1 / n[i];
-            let clip_here = clip;
             let code = i as u32;
-            match (row.kind, row.rotated) {
-                (SurfaceKind::Plane, false) => {
-                    lanes::<S, PLANE, false>(row, n1, eta, clip_here, code, b)
-                }
-                (SurfaceKind::Plane, true) => {
-                    lanes::<S, PLANE, true>(row, n1, eta, clip_here, code, b)
-                }
-                (SurfaceKind::Quadric, false) => {
-                    lanes::<S, QUADRIC, false>(row, n1, eta, clip_here, code, b)
-                }
-                (SurfaceKind::Quadric, true) => {
-                    lanes::<S, QUADRIC, true>(row, n1, eta, clip_here, code, b)
-                }
-                (SurfaceKind::Asphere, false) => {
-                    lanes::<S, ASPHERE, false>(row, n1, eta, clip_here, code, b)
-                }
-                (SurfaceKind::Asphere, true) => {
-                    lanes::<S, ASPHERE, true>(row, n1, eta, clip_here, code, b)
-                }
+            macro_rules! go {
+                ($kind:expr, $rot:expr, $clip:expr) => {
+                    lanes::<S, { $kind }, { $rot }, { $clip }>(row, n1, eta, code, b)
+                };
+            }
+            match (row.kind, row.rotated, clip) {
+                (SurfaceKind::Plane, false, false) => go!(PLANE, false, false),
+                (SurfaceKind::Plane, false, true) => go!(PLANE, false, true),
+                (SurfaceKind::Plane, true, false) => go!(PLANE, true, false),
+                (SurfaceKind::Plane, true, true) => go!(PLANE, true, true),
+                (SurfaceKind::Quadric, false, false) => go!(QUADRIC, false, false),
+                (SurfaceKind::Quadric, false, true) => go!(QUADRIC, false, true),
+                (SurfaceKind::Quadric, true, false) => go!(QUADRIC, true, false),
+                (SurfaceKind::Quadric, true, true) => go!(QUADRIC, true, true),
+                (SurfaceKind::Asphere, false, false) => go!(ASPHERE, false, false),
+                (SurfaceKind::Asphere, false, true) => go!(ASPHERE, false, true),
+                (SurfaceKind::Asphere, true, false) => go!(ASPHERE, true, false),
+                (SurfaceKind::Asphere, true, true) => go!(ASPHERE, true, true),
             }
         }
         let n_last = n.last().copied().unwrap_or(S::cst(1.0));
         image_lanes(sys, n_last, sys.rows.len() as u32, b);
     }
+}
+
+/// The lane-loop trip count, hidden from LLVM's full unroller: a fully unrolled 16-lane loop is
+/// left to the SLP vectorizer, which fails on this body, while the loop vectorizer succeeds.
+#[inline(always)]
+fn lane_count() -> usize {
+    std::hint::black_box(LANES).min(LANES)
 }
 
 #[inline(always)]
@@ -106,13 +111,18 @@ fn store<S: Real>(b: &mut Block<S>, l: usize, keep: bool, o: Vec3<S>, d: Vec3<S>
     b.opl[l] = s(b.opl[l], b.opl[l] + dopl);
 }
 
+#[inline(always)]
+fn zero_lt<S: Real>(x: S) -> bool {
+    S::cst(0.0).lt(x)
+}
+
 /// Sag and its derivative with respect to u = x² + y² for an even asphere; `ok` is false beyond
 /// the conic's rim.
 #[inline(always)]
 pub(crate) fn asphere_sag<S: Real>(row: &SurfaceRow<S>, u: S) -> (S, S, bool) {
     let one = S::cst(1.0);
     let arg = one - row.k1 * row.c * row.c * u;
-    let ok = arg.value() > 0.0;
+    let ok = zero_lt(arg);
     let q = S::pick(ok, arg, one).sqrt();
     let mut z = row.c * u / (one + q);
     let mut dz = row.c / (S::cst(2.0) * q);
@@ -139,28 +149,28 @@ fn intersect<S: Real, const KIND: u8>(
     let one = S::cst(1.0);
     if KIND == PLANE {
         let t = -p.z / d.z;
-        return (t, d.z.value() != 0.0, Vec3::new(zero, zero, -one));
+        return (t, !d.z.is_zero(), Vec3::new(zero, zero, -one));
     }
     // Quadric c (x² + y² + k1 z²) - 2 z = 0, solved from the ray's crossing of the vertex plane
     // (where the constant term is small). Of the two roots this takes the one nearest that
     // crossing, without cancellation; it tends to the plane solution as c -> 0.
     let (c, k1) = (row.c, row.k1);
-    let mut ok = d.z.value() != 0.0;
+    let mut ok = !d.z.is_zero();
     let t0 = -p.z / S::pick(ok, d.z, one);
     let (x0, y0) = (p.x + d.x * t0, p.y + d.y * t0);
     let a = c * (d.x * d.x + d.y * d.y + k1 * d.z * d.z);
     let b = c * (x0 * d.x + y0 * d.y) - d.z;
     let cc = c * (x0 * x0 + y0 * y0);
     let disc = b * b - a * cc;
-    ok &= disc.value() >= 0.0;
+    ok &= !disc.lt(zero);
     let s = S::pick(ok, disc, zero).sqrt();
     let den = b + s.copysign(b);
-    ok &= den.value() != 0.0;
+    ok &= !den.is_zero();
     let mut t = t0 - cc / S::pick(ok, den, one);
     if KIND == QUADRIC {
         let h = p + d * t;
         // Only the vertex-side sheet of the quadric is the lens surface.
-        ok &= (c * k1 * h.z).value() < 1.0;
+        ok &= (c * k1 * h.z).lt(one);
         return (t, ok, Vec3::new(c * h.x, c * h.y, c * k1 * h.z - one));
     }
     // Even asphere: Newton on f(t) = z(t) - sag(x(t)² + y(t)²) from the quadric root.
@@ -186,18 +196,20 @@ fn intersect<S: Real, const KIND: u8>(
     (t, ok, Vec3::new(two * h.x * dz, two * h.y * dz, -one))
 }
 
+/// One surface for every lane of a block. `KIND`, `ROT` (rotated frame) and `CLIP` (apertures
+/// on) are compile-time so that the lane loop has no control flow left and vectorizes. A plane
+/// surface is a bare aperture: it clips but never refracts.
 #[inline(always)]
-fn lanes<S: Real, const KIND: u8, const ROT: bool>(
+fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     row: &SurfaceRow<S>,
     n1: S,
     eta: S,
-    clip: bool,
     code: u32,
     b: &mut Block<S>,
 ) {
     let one = S::cst(1.0);
     let zero = S::cst(0.0);
-    for l in 0..LANES {
+    for l in 0..lane_count() {
         let (o, d0) = load(b, l);
         let mut p = o - row.pos;
         let mut d = d0;
@@ -207,11 +219,11 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool>(
         }
         let (t, hit, nrm) = intersect::<S, KIND>(row, p, d);
         let h = p + d * t;
-        let vignetted = clip && (h.x * h.x + h.y * h.y).value() > row.ap2.value();
+        let vignetted = CLIP && row.ap2.lt(h.x * h.x + h.y * h.y);
         // Refraction (vector Snell). The normal is flipped to face the incoming ray.
         let nrm = nrm * (one / nrm.norm());
         let mut cosi = -nrm.dot(d);
-        let flip = cosi.value() < 0.0;
+        let flip = cosi.lt(zero);
         cosi = S::pick(flip, -cosi, cosi);
         let nrm = Vec3::new(
             S::pick(flip, -nrm.x, nrm.x),
@@ -219,9 +231,9 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool>(
             S::pick(flip, -nrm.z, nrm.z),
         );
         let k = one - eta * eta * (one - cosi * cosi);
-        let tir = row.refract && k.value() < 0.0;
+        let tir = KIND != PLANE && k.lt(zero);
         let g = eta * cosi - S::pick(tir, zero, k).sqrt();
-        let dr = if row.refract { d * eta + nrm * g } else { d };
+        let dr = if KIND != PLANE { d * eta + nrm * g } else { d };
         let (og, dg) = if ROT {
             (row.rot.apply(h) + row.pos, row.rot.apply(dr))
         } else {
@@ -246,7 +258,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool>(
 #[inline(always)]
 fn image_lanes<S: Real>(sys: &System<S>, n_last: S, code: u32, b: &mut Block<S>) {
     let img = &sys.image;
-    for l in 0..LANES {
+    for l in 0..lane_count() {
         let (o, d0) = load(b, l);
         let mut p = o - img.translation;
         let mut d = d0;
@@ -254,7 +266,7 @@ fn image_lanes<S: Real>(sys: &System<S>, n_last: S, code: u32, b: &mut Block<S>)
             p = img.rotation.apply_t(p);
             d = img.rotation.apply_t(d);
         }
-        let hit = d.z.value() != 0.0;
+        let hit = !d.z.is_zero();
         let t = -p.z / S::pick(hit, d.z, S::cst(1.0));
         let h = p + d * t;
         let og = if sys.image_rotated {
