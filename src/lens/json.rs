@@ -151,10 +151,9 @@ pub fn from_value(v: &Value) -> Result<Lens> {
         num_array::<2>(top, "sensor_size", "")?,
     ) {
         (Some(r), _) if r > 0.0 && r.is_finite() => Sensor::from_half_diagonal(r, res),
-        (None, Some([w, h])) if w > 0.0 && h > 0.0 => Sensor {
-            size_mm: [w, h],
-            resolution: res,
-        },
+        (None, Some([w, h])) if w > 0.0 && h > 0.0 => {
+            Sensor::from_half_diagonal(0.5 * w.hypot(h), res)
+        }
         (Some(r), _) => return Err(Error::invalid(format!("\"r_sensor\" {r} must be positive"))),
         _ => {
             return Err(Error::invalid(
@@ -337,7 +336,7 @@ pub fn to_value(lens: &Lens) -> Value {
         "(d_sensor)".into(),
         json!(lens.vertex_z_mm().last().copied().unwrap_or(0.0)),
     );
-    top.insert("(sensor_size)".into(), json!(lens.sensor.size_mm));
+    top.insert("(sensor_size)".into(), json!(lens.sensor.size_mm()));
     top.insert("sensor_res".into(), json!(lens.sensor.resolution));
     let surfaces: Vec<Value> = lens
         .surfaces

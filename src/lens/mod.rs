@@ -136,33 +136,34 @@ impl Object {
     }
 }
 
-/// The image sensor.
+/// The image sensor: a rectangle of square pixels whose aspect ratio follows the resolution,
+/// sized by its half-diagonal (DeepLens' `r_sensor`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sensor {
-    /// Sensor width and height, mm.
-    pub size_mm: [f64; 2],
+    /// Half-diagonal (image-circle radius), mm.
+    pub r_mm: f64,
     /// Pixel columns and rows.
     pub resolution: [u32; 2],
 }
 
 impl Sensor {
-    /// A sensor with half-diagonal `r_mm` and a square-pixel resolution, shaped like DeepLens does
-    /// (the sensor's aspect ratio follows the resolution).
+    /// A sensor with half-diagonal `r_mm` and `resolution` pixels.
     pub fn from_half_diagonal(r_mm: f64, resolution: [u32; 2]) -> Sensor {
-        let (w, h) = (resolution[0] as f64, resolution[1] as f64);
-        let diag = (w * w + h * h).sqrt();
-        Sensor {
-            size_mm: [2.0 * r_mm * w / diag, 2.0 * r_mm * h / diag],
-            resolution,
-        }
+        Sensor { r_mm, resolution }
     }
     /// Half-diagonal (image-circle radius), mm.
     pub fn half_diagonal_mm(&self) -> f64 {
-        0.5 * self.size_mm[0].hypot(self.size_mm[1])
+        self.r_mm
     }
-    /// Pixel pitch (x), mm.
+    /// Width and height, mm.
+    pub fn size_mm(&self) -> [f64; 2] {
+        let (w, h) = (self.resolution[0] as f64, self.resolution[1] as f64);
+        let diag = w.hypot(h);
+        [2.0 * self.r_mm * w / diag, 2.0 * self.r_mm * h / diag]
+    }
+    /// Pixel pitch, mm.
     pub fn pixel_pitch_mm(&self) -> f64 {
-        self.size_mm[0] / self.resolution[0] as f64
+        self.size_mm()[0] / self.resolution[0] as f64
     }
 }
 

@@ -1,0 +1,200 @@
+//! The `tolray` binary end to end: numbers against the reference values, files, exit codes.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn tolray(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tolray-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+#[test]
+fn info_prints_the_reference_first_order_data() {
+    let (code, out, _) = tolray(&["info", "lens2"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("50.277907 mm"), "EFL\n{out}");
+    assert!(out.contains("29.876996 mm"), "EP position\n{out}");
+    let (code, out, _) = tolray(&["info", "lens1", "--json"]);
+    assert_eq!(code, 0);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let efl = v["paraxial"]["efl_mm"].as_f64().unwrap();
+    assert!((efl - 48.53684694175222).abs() < 1e-9);
+}
+
+#[test]
+fn spot_json_reproduces_reference_rms() {
+    let want = [
+        4.833032052561748,
+        9.94319254102365,
+        15.279530400713975,
+        10.377528827647229,
+    ];
+    let (code, out, err) = tolray(&[
+        "spot",
+        "cooke-triplet",
+        "--object",
+        "inf",
+        "--fields",
+        "0deg,10deg,14deg,20deg",
+        "--pupil",
+        "grid:64",
+        "--no-apertures",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    for (k, w) in want.iter().enumerate() {
+        let got = v[k]["stats"]["rms_um"].as_f64().unwrap();
+        assert!(((got - w) / w).abs() < 1e-6, "field {k}: {got} vs {w}");
+    }
+    let png = tmp("spots.png");
+    let (code, out, _) = tolray(&[
+        "spot",
+        "lens1",
+        "--wavelengths",
+        "rgb",
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0);
+    assert!(out.contains("poly"));
+    assert_eq!(image_size(&png), (1540, 450));
+}
+
+fn image_size(p: &std::path::Path) -> (u32, u32) {
+    let bytes = std::fs::read(p).unwrap();
+    assert_eq!(&bytes[1..4], b"PNG");
+    let be = |i: usize| u32::from_be_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+    (be(16), be(20))
+}
+
+#[test]
+fn raw_trace_round_trip() {
+    let input = tmp("rays.csv");
+    std::fs::write(&input, "ox,oy,oz,dx,dy,dz,wavelength_nm\n0,1,-10,0,0,1,587.5618\n0,0,-10,0,0,2,486.1327\n0,15,-10,0,0,1,587.5618\n0,1,-10,0,0,1,587.5618\n").unwrap();
+    let out = tmp("hits.csv");
+    let (code, _, err) = tolray(&[
+        "trace",
+        "lens1",
+        "--rays",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let text = std::fs::read_to_string(&out).unwrap();
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 4);
+    assert_eq!(rows[0][7], "alive");
+    assert_eq!(rows[2][7], "vignetted@0");
+    assert_eq!(rows[0], rows[3], "same ray, same answer");
+    // The axial ray stays on the axis and lands on the image plane (z = 60.52 mm).
+    let z: f64 = rows[1][2].parse().unwrap();
+    let y: f64 = rows[1][1].parse().unwrap();
+    assert!((z - 60.52).abs() < 1e-9 && y.abs() < 1e-12);
+    // Against the library on the same ray.
+    let lens = tolray::Lens::load("lens1").unwrap();
+    let sys = lens.compile();
+    let n = sys.indices(587.5618);
+    let r = tolray::trace::reference::trace_ray(
+        &sys,
+        &n,
+        tolray::math::Vec3::new(0.0, 1.0, -10.0),
+        tolray::math::Vec3::new(0.0, 0.0, 1.0),
+        true,
+        None,
+    );
+    let y0: f64 = rows[0][1].parse().unwrap();
+    let opl: f64 = rows[0][6].parse().unwrap();
+    assert!((y0 - r.o.y).abs() < 1e-10 && (opl - r.opl).abs() < 1e-9);
+    // --no-apertures lets the far ray through the first surface.
+    let (code, _, _) = tolray(&[
+        "trace",
+        "lens1",
+        "--rays",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-apertures",
+    ]);
+    assert_eq!(code, 0);
+    assert!(!std::fs::read_to_string(&out)
+        .unwrap()
+        .contains("vignetted@0"));
+}
+
+#[test]
+fn errors_and_exit_codes() {
+    let (code, _, err) = tolray(&["spot"]);
+    assert_eq!(code, 2, "usage error: {err}");
+    let (code, _, err) = tolray(&["info", "missing.json"]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("missing.json") && err.contains("built-in"),
+        "{err}"
+    );
+    let bad = tmp("bad.json");
+    std::fs::write(&bad, "{\"surfaces\": [{\"type\": \"Spheric\", \"r\": 5, \"roc\": 10, \"d_next\": 5, \"mat2\": \"unobtainium\"}], \"r_sensor\": 5}").unwrap();
+    let (code, _, err) = tolray(&["info", bad.to_str().unwrap()]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("bad.json") && err.contains("surface 0") && err.contains("unknown glass"),
+        "{err}"
+    );
+    let rays = tmp("bad.csv");
+    std::fs::write(&rays, "0,0,-1,0,0,1,587\n0,0,-1,0,zero,1,587\n").unwrap();
+    let out = tmp("never.csv");
+    let (code, _, err) = tolray(&[
+        "trace",
+        "lens1",
+        "--rays",
+        rays.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("bad.csv") && err.contains("line 2, column 5"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no output file on error");
+    let (code, _, err) = tolray(&["spot", "lens1", "--fields", "abc"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("field \"abc\""), "{err}");
+}
+
+#[test]
+fn layout_and_demo_write_pictures() {
+    let png = tmp("layout.png");
+    let (code, _, err) = tolray(&["layout", "cooke-triplet", "--png", png.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(image_size(&png), (1100, 560));
+    let dir = tmp("demo");
+    let (code, out, err) = tolray(&["demo", "--out", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("cooke-triplet"));
+    for n in [
+        "lens1-spots.png",
+        "lens2-layout.png",
+        "cooke-triplet-spots.json",
+    ] {
+        assert!(dir.join(n).exists(), "{n}");
+    }
+}
