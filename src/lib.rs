@@ -20,6 +20,7 @@ pub mod lens;
 pub mod math;
 pub mod plot;
 pub mod real;
+pub mod tolerance;
 pub mod trace;
 
 pub use error::{Error, ErrorKind, Result};

@@ -100,6 +100,17 @@ pub enum Material {
     },
     /// A catalog glass.
     Catalog(&'static CatalogGlass),
+    /// A glass with a tolerance applied: n(λ) = `nd_new` + (base(λ) − `nd`) · `scale`.
+    Perturbed {
+        /// The nominal glass.
+        base: Box<Material>,
+        /// The nominal glass' n_d.
+        nd: f64,
+        /// The perturbed n_d.
+        nd_new: f64,
+        /// Dispersion scale (perturbed n_F − n_C over nominal).
+        scale: f64,
+    },
 }
 
 impl Material {
@@ -115,6 +126,12 @@ impl Material {
                 a + b * inv2(wavelength_nm)
             }
             Material::Catalog(g) => g.dispersion.index(wavelength_nm * 1e-3),
+            Material::Perturbed {
+                base,
+                nd,
+                nd_new,
+                scale,
+            } => nd_new + (base.index(wavelength_nm) - nd) * scale,
         }
     }
 
@@ -130,6 +147,11 @@ impl Material {
             Material::Constant(n) => format!("{n}"),
             Material::Model { nd, vd } => format!("{nd}/{vd}"),
             Material::Catalog(g) => g.name.to_ascii_lowercase(),
+            Material::Perturbed { nd_new, scale, .. } => {
+                let disp = self.index(LAMBDA_F_NM) - self.index(LAMBDA_C_NM);
+                let _ = scale;
+                format!("{nd_new}/{}", (nd_new - 1.0) / disp)
+            }
         }
     }
 

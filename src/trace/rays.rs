@@ -8,11 +8,11 @@ use crate::lens::{Lens, Object, Paraxial, System};
 use crate::math::Vec3;
 use crate::real::Real;
 use rand::{Rng, SeedableRng};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// A field point. Positive values put the object above/right of the axis (rays then travel
 /// toward -y/-x), as in the reference data.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Field {
     /// Field angles about the first vertex, degrees. For a finite object the object point is
     /// at `(d tan x, d tan y, -d)`.
@@ -125,7 +125,7 @@ impl Field {
 }
 
 /// How the entrance pupil is sampled.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum PupilPattern {
     /// Cell-centred `n x n` square grid, points kept inside the disk.
     Grid(usize),
@@ -142,7 +142,7 @@ pub enum PupilPattern {
 
 /// Pupil sampling: a pattern over a disk of `scale` times the paraxial entrance-pupil radius,
 /// optionally with real ray aiming at the stop.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Pupil {
     /// Point pattern.
     pub pattern: PupilPattern,

@@ -1,0 +1,420 @@
+//! Monte Carlo tolerance analysis, the focus compensator, sensitivity, yield statistics, and
+//! merging of sharded runs.
+
+use super::spec::{OperandKind, Slot, ToleranceSpec};
+use super::Perturbation;
+use crate::error::{Error, Result};
+use crate::lens::{Lens, System};
+use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Settings of a Monte Carlo run. Everything that determines the numbers is here, so that shard
+/// reports can be checked for compatibility before merging.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct McOptions {
+    /// The tolerance spec sampled.
+    pub spec: ToleranceSpec,
+    /// Total number of trials of the study.
+    pub trials: usize,
+    /// Seed; trial k uses pattern k of this seed.
+    pub seed: u64,
+    /// Fields at which RMS spots are computed.
+    pub fields: Vec<Field>,
+    /// Wavelengths, nm (polychromatic RMS when more than one).
+    pub wavelengths_nm: Vec<f64>,
+    /// Pupil sampling (aimed at the nominal paraxial entrance pupil).
+    pub pupil: Pupil,
+    /// Refocus the sensor per trial to the best RMS focus (the compensator).
+    pub compensate_focus: bool,
+    /// Clip at clear apertures and the stop.
+    pub apertures: bool,
+}
+
+/// The outcome of one trial.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrialResult {
+    /// Trial index (= pattern index).
+    pub index: usize,
+    /// RMS spot radius per field, µm (after refocus when compensating).
+    pub rms_um: Vec<f64>,
+    /// Mean of `rms_um` over the fields, µm.
+    pub mean_rms_um: f64,
+    /// Sensor refocus of the compensator along the image-plane normal, mm.
+    pub focus_shift_mm: Option<f64>,
+    /// The sampled pattern, so that the trial can be re-traced (`tolray spot --perturb`).
+    pub pattern: Perturbation,
+}
+
+/// Statistics of one quantity over the trials.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Stats {
+    /// Mean.
+    pub mean: f64,
+    /// Standard deviation (population).
+    pub std: f64,
+    /// Minimum.
+    pub min: f64,
+    /// Maximum.
+    pub max: f64,
+    /// Percentiles `[p, value]` for p = 10, 50, 70, 90 (linear interpolation between ranks).
+    pub percentiles: Vec<[f64; 2]>,
+    /// Yield in the paper's form: `[fraction, X]` = "this fraction of lenses have RMS spot
+    /// below X µm", for 90, 70, 50 and 10 %.
+    pub yield_below: Vec<[f64; 2]>,
+}
+
+/// Percentile `p` (0..100) of sorted values, linear interpolation between closest ranks.
+pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let x = p / 100.0 * (sorted.len() - 1) as f64;
+    let (i, f) = (x.floor() as usize, x - x.floor());
+    let j = (i + 1).min(sorted.len() - 1);
+    sorted[i] + f * (sorted[j] - sorted[i])
+}
+
+/// Statistics of `values` (in the given order).
+pub fn stats(values: &[f64]) -> Stats {
+    let n = values.len().max(1) as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let std = (values.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n).sqrt();
+    let mut s = values.to_vec();
+    s.sort_by(f64::total_cmp);
+    Stats {
+        mean,
+        std,
+        min: s.first().copied().unwrap_or(f64::NAN),
+        max: s.last().copied().unwrap_or(f64::NAN),
+        percentiles: [10.0, 50.0, 70.0, 90.0]
+            .iter()
+            .map(|&p| [p, percentile(&s, p)])
+            .collect(),
+        yield_below: [90.0, 70.0, 50.0, 10.0]
+            .iter()
+            .map(|&p| [p / 100.0, percentile(&s, p)])
+            .collect(),
+    }
+}
+
+/// Summary over all trials: per field and for the field mean.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Per field, in the order of the fields.
+    pub per_field: Vec<Stats>,
+    /// Of the mean RMS over fields.
+    pub mean_over_fields: Stats,
+    /// Of the compensator's refocus, mm.
+    pub focus_shift_mm: Option<Stats>,
+}
+
+/// A Monte Carlo report (complete, or one shard of a study).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct McReport {
+    /// tolray version that wrote it.
+    pub tolray_version: String,
+    /// The lens analysed (name or path as given).
+    pub lens: String,
+    /// Settings.
+    pub options: McOptions,
+    /// `[k, n]` if this is shard k (from 0) of n.
+    pub shard: Option<[usize; 2]>,
+    /// Nominal RMS per field, µm (refocused too when compensating).
+    pub nominal_rms_um: Vec<f64>,
+    /// Nominal refocus, mm (when compensating).
+    pub nominal_focus_shift_mm: Option<f64>,
+    /// Trials in index order.
+    pub trials: Vec<TrialResult>,
+    /// Statistics; present when the report holds every trial of the study.
+    pub summary: Option<Summary>,
+}
+
+/// Rays of every field and wavelength, generated once from the nominal lens.
+struct Bundles {
+    /// Per (field, wavelength): the batch to copy for each trial.
+    batches: Vec<(usize, f64, RayBatch<f64>)>,
+    n_fields: usize,
+}
+
+impl Bundles {
+    fn new(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
+        if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
+            return Err(Error::argument(
+                "a tolerance analysis needs at least one field and one wavelength",
+            ));
+        }
+        let para = lens.paraxial(opts.wavelengths_nm[0])?;
+        let mut batches = Vec::new();
+        for (f, field) in opts.fields.iter().enumerate() {
+            for &wl in &opts.wavelengths_nm {
+                let set = RaySet::generate(lens, &para, *field, &opts.pupil, wl)?;
+                batches.push((f, wl, set.batch::<f64>()));
+            }
+        }
+        Ok(Bundles {
+            batches,
+            n_fields: opts.fields.len(),
+        })
+    }
+
+    /// RMS per field (µm) of a compiled system, refocused when `compensate`.
+    fn rms(&self, sys: &System<f64>, opts: &McOptions) -> Result<(Vec<f64>, Option<f64>)> {
+        // Per field: moments of sensor positions p and slopes s = (dx/dz, dy/dz) in the image
+        // plane frame, so that the mean-square radius at a refocus δ is A + 2 B δ + C δ².
+        let mut pts: Vec<Vec<[f64; 4]>> = vec![Vec::new(); self.n_fields];
+        for (f, wl, batch) in &self.batches {
+            let mut b = batch.clone();
+            trace_serial(
+                sys,
+                *wl,
+                &mut b,
+                TraceOptions {
+                    apertures: opts.apertures,
+                },
+            );
+            for r in b.iter().filter(|r| r.status.is_alive()) {
+                let p = sys.image.point_to_local(r.o);
+                let d = sys.image.rotation.apply_t(r.d);
+                pts[*f].push([p.x, p.y, d.x / d.z, d.y / d.z]);
+            }
+        }
+        let mut abc = Vec::with_capacity(self.n_fields);
+        for (f, p) in pts.iter().enumerate() {
+            if p.is_empty() {
+                return Err(Error::numerical(format!(
+                    "no ray of field {} reached the image",
+                    opts.fields[f].label()
+                )));
+            }
+            let n = p.len() as f64;
+            let m: [f64; 4] = std::array::from_fn(|k| p.iter().map(|q| q[k]).sum::<f64>() / n);
+            let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
+            for q in p {
+                let (px, py, sx, sy) = (q[0] - m[0], q[1] - m[1], q[2] - m[2], q[3] - m[3]);
+                a += px * px + py * py;
+                b += px * sx + py * sy;
+                c += sx * sx + sy * sy;
+            }
+            abc.push((a / n, b / n, c / n));
+        }
+        let delta = if opts.compensate_focus {
+            let (sb, sc): (f64, f64) = abc.iter().fold((0.0, 0.0), |(x, y), t| (x + t.1, y + t.2));
+            Some(if sc > 0.0 { -sb / sc } else { 0.0 })
+        } else {
+            None
+        };
+        let d = delta.unwrap_or(0.0);
+        let rms = abc
+            .iter()
+            .map(|&(a, b, c)| (a + 2.0 * b * d + c * d * d).max(0.0).sqrt() * 1e3)
+            .collect();
+        Ok((rms, delta))
+    }
+}
+
+fn trial_rms(
+    lens: &Lens,
+    bundles: &Bundles,
+    opts: &McOptions,
+    pattern: &Perturbation,
+) -> Result<(Vec<f64>, Option<f64>)> {
+    let (plens, adj) = pattern.apply(lens)?;
+    let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
+    bundles.rms(&sys, opts)
+}
+
+/// RMS spot per field (µm) of `lens` perturbed by `pattern`, refocused when the options say so.
+///
+/// # Errors
+/// Invalid pattern, ray generation, or a field with no surviving ray.
+pub fn perturbed_rms(
+    lens: &Lens,
+    opts: &McOptions,
+    pattern: &Perturbation,
+) -> Result<(Vec<f64>, Option<f64>)> {
+    trial_rms(lens, &Bundles::new(lens, opts)?, opts, pattern)
+}
+
+/// Runs the Monte Carlo trials `range` (all of them when `shard` is `None`) in parallel; results
+/// are independent of the thread count. `progress` is called once per finished trial.
+///
+/// # Errors
+/// Spec validation errors, and the first trial whose lens loses every ray of a field (its index
+/// and pattern are named).
+pub fn monte_carlo(
+    lens: &Lens,
+    lens_name: &str,
+    opts: &McOptions,
+    shard: Option<(usize, usize)>,
+    progress: &(dyn Fn() + Sync),
+) -> Result<McReport> {
+    let slots = opts.spec.slots(lens)?;
+    let bundles = Bundles::new(lens, opts)?;
+    let (nominal, nominal_shift) = bundles.rms(&lens.compile(), opts)?;
+    let range = match shard {
+        None => 0..opts.trials,
+        Some((k, n)) => {
+            if n == 0 || k >= n {
+                return Err(Error::argument(format!("shard {k}/{n}: K must be in 0..N")));
+            }
+            (k * opts.trials / n)..((k + 1) * opts.trials / n)
+        }
+    };
+    let trials: Vec<TrialResult> = range
+        .into_par_iter()
+        .map(|k| {
+            let pattern = opts.spec.sample_slots(&slots, opts.seed, k as u64);
+            let r = trial_rms(lens, &bundles, opts, &pattern).map_err(|e| {
+                e.context(format!(
+                    "trial {k} (pattern: {})",
+                    serde_json::to_string(&pattern).unwrap_or_default()
+                ))
+            });
+            progress();
+            r.map(|(rms, shift)| TrialResult {
+                index: k,
+                mean_rms_um: rms.iter().sum::<f64>() / rms.len() as f64,
+                rms_um: rms,
+                focus_shift_mm: shift,
+                pattern,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut report = McReport {
+        tolray_version: env!("CARGO_PKG_VERSION").to_string(),
+        lens: lens_name.to_string(),
+        options: opts.clone(),
+        shard: shard.map(|(k, n)| [k, n]),
+        nominal_rms_um: nominal,
+        nominal_focus_shift_mm: nominal_shift,
+        trials,
+        summary: None,
+    };
+    if shard.is_none() {
+        report.summary = Some(summarize(&report));
+    }
+    Ok(report)
+}
+
+fn summarize(r: &McReport) -> Summary {
+    let nf = r.options.fields.len();
+    let per_field = (0..nf)
+        .map(|f| stats(&r.trials.iter().map(|t| t.rms_um[f]).collect::<Vec<_>>()))
+        .collect();
+    let shifts: Vec<f64> = r.trials.iter().filter_map(|t| t.focus_shift_mm).collect();
+    Summary {
+        per_field,
+        mean_over_fields: stats(&r.trials.iter().map(|t| t.mean_rms_um).collect::<Vec<_>>()),
+        focus_shift_mm: (!shifts.is_empty()).then(|| stats(&shifts)),
+    }
+}
+
+/// Combines shard reports of one study into the report a single run gives.
+///
+/// # Errors
+/// [`crate::ErrorKind::Invalid`] if the shards come from different studies, overlap, or leave
+/// trials missing.
+pub fn merge_reports(parts: &[McReport]) -> Result<McReport> {
+    let first = parts
+        .first()
+        .ok_or_else(|| Error::argument("nothing to merge"))?;
+    let mut out = first.clone();
+    out.trials.clear();
+    for (i, p) in parts.iter().enumerate() {
+        if p.options != first.options
+            || p.lens != first.lens
+            || p.nominal_rms_um != first.nominal_rms_um
+        {
+            return Err(Error::invalid(format!(
+                "report {i} comes from a different study (lens, settings or nominal differ)"
+            )));
+        }
+        out.trials.extend(p.trials.iter().cloned());
+    }
+    out.trials.sort_by_key(|t| t.index);
+    for (k, t) in out.trials.iter().enumerate() {
+        if t.index != k {
+            let what = if t.index < k {
+                "appears twice"
+            } else {
+                "is missing"
+            };
+            return Err(Error::invalid(format!(
+                "trial {} {what}",
+                if t.index < k { t.index } else { k }
+            )));
+        }
+    }
+    if out.trials.len() != first.options.trials {
+        return Err(Error::invalid(format!(
+            "trials {}..{} are missing",
+            out.trials.len(),
+            first.options.trials
+        )));
+    }
+    out.shard = None;
+    out.summary = Some(summarize(&out));
+    Ok(out)
+}
+
+/// One row of a sensitivity table: one operand on one target and axis, at −max and +max.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SensitivityRow {
+    /// Operand.
+    pub operand: OperandKind,
+    /// Element or surface index.
+    pub target: usize,
+    /// Axis (0 = x, 1 = y, 2 = z) for decenters and tilts.
+    pub axis: usize,
+    /// The range max applied.
+    pub max: f64,
+    /// RMS per field at −max, µm.
+    pub rms_minus_um: Vec<f64>,
+    /// RMS per field at +max, µm.
+    pub rms_plus_um: Vec<f64>,
+    /// Largest |ΔRMS| over fields and signs, µm.
+    pub worst_delta_um: f64,
+}
+
+/// Sensitivity analysis: each operand alone at −max and +max, sorted worst first.
+///
+/// # Errors
+/// As [`monte_carlo`].
+pub fn sensitivity(lens: &Lens, opts: &McOptions) -> Result<(Vec<f64>, Vec<SensitivityRow>)> {
+    let slots: Vec<Slot> = opts.spec.slots(lens)?;
+    let bundles = Bundles::new(lens, opts)?;
+    let (nominal, _) = bundles.rms(&lens.compile(), opts)?;
+    let mut rows = slots
+        .par_iter()
+        .map(|&(k, t, axis)| {
+            let op = &opts.spec.operands[k];
+            let at = |v: f64| {
+                let mut p = Perturbation {
+                    pivot: opts.spec.pivot,
+                    ..Default::default()
+                };
+                op.kind.set(&mut p, t, axis, v);
+                trial_rms(lens, &bundles, opts, &p).map(|r| r.0)
+            };
+            let (minus, plus) = (at(-op.max)?, at(op.max)?);
+            let worst = minus
+                .iter()
+                .chain(&plus)
+                .zip(nominal.iter().chain(&nominal))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            Ok(SensitivityRow {
+                operand: op.kind,
+                target: t,
+                axis,
+                max: op.max,
+                rms_minus_um: minus,
+                rms_plus_um: plus,
+                worst_delta_um: worst,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    rows.sort_by(|a, b| b.worst_delta_um.total_cmp(&a.worst_delta_um));
+    Ok((nominal, rows))
+}
