@@ -233,3 +233,73 @@ pub fn layout_figure(
 fn short(s: &str) -> &str {
     s.split(':').next().unwrap_or(s).trim()
 }
+
+/// Histogram and cumulative distribution of Monte Carlo RMS spots (mean over fields), with the
+/// nominal value and the 90 % / 50 % yield lines marked.
+pub fn tolerance_figure(report: &crate::tolerance::McReport) -> Canvas {
+    let v: Vec<f64> = report.trials.iter().map(|t| t.mean_rms_um).collect();
+    let nominal =
+        report.nominal_rms_um.iter().sum::<f64>() / report.nominal_rms_um.len().max(1) as f64;
+    let (lo, hi) = v
+        .iter()
+        .fold((nominal, nominal), |(a, b), &x| (a.min(x), b.max(x)));
+    let (lo, hi) = if hi > lo {
+        (lo, hi)
+    } else {
+        (lo - 1.0, hi + 1.0)
+    };
+    let bins = (v.len() as f64).sqrt().clamp(5.0, 60.0) as usize;
+    let w = (hi - lo) / bins as f64;
+    let mut counts = vec![0usize; bins];
+    for x in &v {
+        counts[(((x - lo) / w) as usize).min(bins - 1)] += 1;
+    }
+    let top = *counts.iter().max().unwrap_or(&1) as f64;
+    let mut cv = Canvas::new(900, 480);
+    cv.set_view(
+        (70, 50, 800, 370),
+        (lo - w, hi + w),
+        (0.0, top * 1.1),
+        false,
+    );
+    for (b, &c) in counts.iter().enumerate() {
+        let x0 = lo + b as f64 * w;
+        let (p0, p1) = (cv.to_px(x0, c as f64), cv.to_px(x0 + w, 0.0));
+        let (x, y) = (p0.0.round() as i32, p0.1.round() as i32);
+        cv.rect_px(
+            x,
+            y,
+            (p1.0 - p0.0).max(1.0) as u32,
+            (p1.1 - p0.1).max(1.0) as u32,
+            [120, 160, 220],
+            true,
+        );
+    }
+    // CDF on the same axes, scaled to the histogram's height.
+    let mut s = v.clone();
+    s.sort_by(f64::total_cmp);
+    let cdf: Vec<(f64, f64)> = s
+        .iter()
+        .enumerate()
+        .map(|(i, &x)| (x, (i + 1) as f64 / s.len() as f64 * top * 1.1))
+        .collect();
+    cv.polyline(&cdf, [200, 60, 30]);
+    cv.line((nominal, 0.0), (nominal, top * 1.1), [0, 150, 0]);
+    if let Some(sm) = &report.summary {
+        for r in &sm.mean_over_fields.yield_below {
+            if r[0] == 0.9 || r[0] == 0.5 {
+                cv.line((r[1], 0.0), (r[1], top * 1.1), [90, 90, 90]);
+            }
+        }
+    }
+    cv.axes(
+        "mean RMS spot over fields (um)",
+        "trials (bars); CDF (line, full height = 100 %)",
+    );
+    cv.title(&format!(
+        "Monte Carlo {}: {} trials (green nominal, grey 50/90 % yield)",
+        report.lens,
+        v.len()
+    ));
+    cv
+}

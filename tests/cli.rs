@@ -198,3 +198,112 @@ fn layout_and_demo_write_pictures() {
         assert!(dir.join(n).exists(), "{n}");
     }
 }
+
+#[test]
+fn tolerance_shards_merge_and_patterns_retrace() {
+    let dir = tmp("mc");
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    let common = [
+        "tolerance",
+        "lens1",
+        "--trials",
+        "12",
+        "--seed",
+        "3",
+        "--pupil",
+        "grid:12",
+        "--compensate",
+        "focus",
+    ];
+    let (code, out, err) = tolray(
+        &[
+            &common[..],
+            &[
+                "--json",
+                &s("all.json"),
+                "--png",
+                &s("h.png"),
+                "--save-pattern",
+                "4",
+                &s("p4.json"),
+            ],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("yield: 90 %") && err.contains("\"type\": \"decenter\""),
+        "prints the spec used\n{err}"
+    );
+    for k in 0..2 {
+        let (code, out, _) = tolray(
+            &[
+                &common[..],
+                &[
+                    "--shard",
+                    &format!("{k}/2"),
+                    "--json",
+                    &s(&format!("part{k}.json")),
+                ],
+            ]
+            .concat(),
+        );
+        assert_eq!(code, 0);
+        assert!(out.contains("partial report"));
+    }
+    let (code, _, err) = tolray(&[
+        "merge",
+        &s("part1.json"),
+        &s("part0.json"),
+        "--json",
+        &s("merged.json"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let all: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s("all.json")).unwrap()).unwrap();
+    let merged: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s("merged.json")).unwrap()).unwrap();
+    assert!(
+        all == merged,
+        "merged shard reports differ from the single run"
+    );
+    // The saved pattern re-traces to the trial's numbers (no compensator, so compare with the
+    // library's uncompensated RMS of the same pattern).
+    let pattern =
+        tolray::tolerance::Perturbation::read(std::path::Path::new(&s("p4.json"))).unwrap();
+    assert!(pattern == serde_json::from_value(all["trials"][4]["pattern"].clone()).unwrap());
+    let (code, _, err) = tolray(&["spot", "lens1", "--perturb", &s("p4.json"), "--fields", "0"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = tolray(&["merge", &s("part1.json"), "--json", &s("bad.json")]);
+    assert_eq!(code, 1);
+    assert!(err.contains("missing"), "{err}");
+    std::fs::write(
+        s("spec.json"),
+        r#"{"operands": [{"type": "decenter", "max": 0.01, "elements": [7]}]}"#,
+    )
+    .unwrap();
+    let (code, _, err) = tolray(&[
+        "tolerance",
+        "lens1",
+        "--trials",
+        "2",
+        "--spec",
+        &s("spec.json"),
+    ]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("spec.json") && err.contains("element 7 is out of range"),
+        "{err}"
+    );
+    let (code, out, _) = tolray(&[
+        "sensitivity",
+        "cooke-triplet",
+        "--top",
+        "3",
+        "--pupil",
+        "grid:12",
+    ]);
+    assert_eq!(code, 0);
+    assert_eq!(out.lines().count(), 5);
+}

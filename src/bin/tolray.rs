@@ -7,6 +7,10 @@ use std::process::ExitCode;
 use tolray::analysis::{spot_diagram, SpotOptions, SpotResult};
 use tolray::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
 use tolray::lens::{json, Paraxial};
+use tolray::tolerance::analysis::Stats;
+use tolray::tolerance::{
+    merge_reports, monte_carlo, sensitivity, McOptions, McReport, Perturbation, ToleranceSpec,
+};
 use tolray::trace::raw::{parse_csv, parse_json, to_csv, trace_raw};
 use tolray::trace::{Field, Pupil, TraceOptions};
 use tolray::{figures, Lens, Object};
@@ -45,6 +49,59 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Write a spot-diagram picture.
+        #[arg(long, value_name = "FILE.png")]
+        png: Option<PathBuf>,
+        /// Trace the lens perturbed by this tolerance pattern (JSON, as written by `tolerance --json`).
+        #[arg(long, value_name = "PATTERN.json")]
+        perturb: Option<PathBuf>,
+    },
+    /// Monte Carlo tolerance analysis: RMS spot statistics and yield over random fabricated lenses.
+    Tolerance {
+        #[command(flatten)]
+        lens: LensArgs,
+        #[command(flatten)]
+        tol: TolArgs,
+        /// Number of trials of the study.
+        #[arg(long, default_value_t = 1000)]
+        trials: usize,
+        /// Random seed; trial k uses pattern k of this seed.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// Run only shard K of N (K from 0, e.g. $SLURM_ARRAY_TASK_ID) and write a partial report.
+        #[arg(long, value_name = "K/N")]
+        shard: Option<String>,
+        /// Write the report (every trial with its pattern, statistics, yield) as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        json: Option<PathBuf>,
+        /// Write a histogram and CDF picture.
+        #[arg(long, value_name = "FILE.png")]
+        png: Option<PathBuf>,
+        /// Write the pattern of trial K to a file, to re-trace it with `spot --perturb`.
+        #[arg(long, value_names = ["K", "FILE.json"], num_args = 2)]
+        save_pattern: Option<Vec<String>>,
+    },
+    /// Sensitivity: each tolerance operand alone at -max and +max, worst first.
+    Sensitivity {
+        #[command(flatten)]
+        lens: LensArgs,
+        #[command(flatten)]
+        tol: TolArgs,
+        /// Write the table as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        json: Option<PathBuf>,
+        /// Rows to print.
+        #[arg(long, default_value_t = 20)]
+        top: usize,
+    },
+    /// Merge shard reports of one Monte Carlo study into the report a single run gives.
+    Merge {
+        /// Shard reports (JSON).
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        /// Output report.
+        #[arg(long, value_name = "FILE.json")]
+        json: PathBuf,
+        /// Write a histogram and CDF picture.
         #[arg(long, value_name = "FILE.png")]
         png: Option<PathBuf>,
     },
@@ -113,6 +170,59 @@ struct RayArgs {
     /// Ignore clear apertures and the stop.
     #[arg(long)]
     no_apertures: bool,
+}
+
+#[derive(Args)]
+struct TolArgs {
+    /// Tolerance spec (JSON); default: the paper's Table A1 (decenter 0.04 mm, tilt 0.05 deg,
+    /// axial shift 0.04 mm per element, curvature 0.3 % per surface; N(0, (max/3)^2) clamped).
+    #[arg(long, value_name = "SPEC.json")]
+    spec: Option<PathBuf>,
+    /// Fields (fractions, 5deg angles or 2.5mm heights).
+    #[arg(long, value_delimiter = ',', default_value = "0,0.7,1")]
+    fields: Vec<String>,
+    /// Wavelengths in nm, or d, F, C, rgb.
+    #[arg(long, value_delimiter = ',', default_value = "d")]
+    wavelengths: Vec<String>,
+    /// Pupil sampling: grid:N, hex:N or random:N.
+    #[arg(long, default_value = "grid:32")]
+    pupil: String,
+    /// Compensator: "focus" refocuses the sensor per trial to the best RMS focus.
+    #[arg(long, value_parser = ["focus"])]
+    compensate: Option<String>,
+    /// Ignore clear apertures and the stop.
+    #[arg(long)]
+    no_apertures: bool,
+}
+
+impl TolArgs {
+    fn options(&self, lens: &Lens, trials: usize, seed: u64) -> anyhow::Result<McOptions> {
+        let spec = match &self.spec {
+            Some(p) => ToleranceSpec::read(p)?,
+            None => ToleranceSpec::default(),
+        };
+        spec.validate(lens).map_err(|e| {
+            e.context(
+                self.spec
+                    .as_ref()
+                    .map_or("default spec".into(), |p| p.display().to_string()),
+            )
+        })?;
+        Ok(McOptions {
+            spec,
+            trials,
+            seed,
+            fields: self
+                .fields
+                .iter()
+                .map(|f| Field::parse(f))
+                .collect::<tolray::Result<Vec<_>>>()?,
+            wavelengths_nm: parse_wavelengths(&self.wavelengths, lens)?,
+            pupil: Pupil::parse(&self.pupil, seed)?,
+            compensate_focus: self.compensate.is_some(),
+            apertures: !self.no_apertures,
+        })
+    }
 }
 
 impl LensArgs {
@@ -306,10 +416,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             rays,
             json,
             png,
+            perturb,
         } => {
             let l = lens.load()?;
             let opts = rays.options(&l)?;
-            let results = spot_diagram(&l, &l.compile(), &opts)?;
+            let sys = match &perturb {
+                None => l.compile(),
+                Some(p) => {
+                    let pattern = Perturbation::read(p)?;
+                    let (pl, adj) = pattern.apply(&l).map_err(|e| e.context(p.display()))?;
+                    tolray::lens::System::compile(&pl, &adj, &|_, v| v)
+                }
+            };
+            let results = spot_diagram(&l, &sys, &opts)?;
             if json {
                 emit_line(&format!("{}", serde_json::to_string_pretty(&results)?));
             } else {
@@ -387,9 +506,211 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             )?;
             eprintln!("wrote {}", png.display());
         }
+        Command::Tolerance {
+            lens,
+            tol,
+            trials,
+            seed,
+            shard,
+            json,
+            png,
+            save_pattern,
+        } => {
+            let l = lens.load()?;
+            let opts = tol.options(&l, trials, seed)?;
+            let shard = shard.as_deref().map(parse_shard).transpose()?;
+            eprintln!(
+                "tolerance spec (pivot at each element's {:?} vertex):\n{}",
+                opts.spec.pivot,
+                opts.spec.to_json().trim_end()
+            );
+            let n = shard.map_or(trials, |(k, n)| (k + 1) * trials / n - k * trials / n);
+            let report = with_progress(n as u64, "trials", |tick| {
+                monte_carlo(&l, &lens.lens, &opts, shard, tick)
+            })?;
+            emit(&tolerance_text(&report));
+            if let Some(p) = json {
+                write_text(&p, &(serde_json::to_string_pretty(&report)? + "\n"))?;
+                eprintln!("wrote {}", p.display());
+            }
+            if let Some(p) = png {
+                figures::save(&figures::tolerance_figure(&report), &p)?;
+                eprintln!("wrote {}", p.display());
+            }
+            if let Some(v) = save_pattern {
+                let k: usize = v[0].parse().map_err(|_| {
+                    anyhow::anyhow!("--save-pattern: \"{}\" is not a trial number", v[0])
+                })?;
+                let t = report.trials.iter().find(|t| t.index == k).ok_or_else(|| {
+                    anyhow::anyhow!("--save-pattern: trial {k} is not in this run")
+                })?;
+                write_text(Path::new(&v[1]), &t.pattern.to_json())?;
+                eprintln!("wrote the pattern of trial {k} to {}", v[1]);
+            }
+        }
+        Command::Sensitivity {
+            lens,
+            tol,
+            json,
+            top,
+        } => {
+            let l = lens.load()?;
+            let opts = tol.options(&l, 0, 0)?;
+            let (nominal, rows) = sensitivity(&l, &opts)?;
+            let fields: Vec<String> = opts.fields.iter().map(|f| f.label()).collect();
+            emit(&format!("Sensitivity of RMS spot (um) to each operand alone at -max / +max; nominal per field {}: {}\n", fields.join(", "), fmt_list(&nominal)));
+            emit(&format!(
+                "{:>16} {:>6} {:>4} {:>10}   {:<30} {:<30} {:>10}\n",
+                "operand", "target", "axis", "max", "RMS at -max", "RMS at +max", "worst |d|"
+            ));
+            for r in rows.iter().take(top) {
+                emit(&format!(
+                    "{:>16} {:>6} {:>4} {:>7} {:<3}  {:<30} {:<30} {:>10.4}\n",
+                    format!("{:?}", r.operand).to_lowercase(),
+                    r.target,
+                    if r.operand.axes() == 1 {
+                        "-"
+                    } else {
+                        ["x", "y", "z"][r.axis]
+                    },
+                    r.max,
+                    r.operand.unit(),
+                    fmt_list(&r.rms_minus_um),
+                    fmt_list(&r.rms_plus_um),
+                    r.worst_delta_um
+                ));
+            }
+            if let Some(p) = json {
+                write_text(
+                    &p,
+                    &(serde_json::to_string_pretty(
+                        &serde_json::json!({"nominal_rms_um": nominal, "rows": rows}),
+                    )? + "\n"),
+                )?;
+                eprintln!("wrote {}", p.display());
+            }
+        }
+        Command::Merge { parts, json, png } => {
+            let reports = parts
+                .iter()
+                .map(|p| -> anyhow::Result<McReport> {
+                    let text = std::fs::read_to_string(p)
+                        .with_context(|| format!("{}: cannot read", p.display()))?;
+                    serde_json::from_str(&text)
+                        .with_context(|| format!("{}: not a tolray tolerance report", p.display()))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let merged = merge_reports(&reports)?;
+            emit(&tolerance_text(&merged));
+            write_text(&json, &(serde_json::to_string_pretty(&merged)? + "\n"))?;
+            if let Some(p) = png {
+                figures::save(&figures::tolerance_figure(&merged), &p)?;
+            }
+        }
         Command::Demo { out } => demo(&out)?,
     }
     Ok(())
+}
+
+fn parse_shard(s: &str) -> anyhow::Result<(usize, usize)> {
+    let bad = || anyhow::anyhow!("--shard \"{s}\": expected K/N with 0 <= K < N");
+    let (k, n) = s.split_once('/').ok_or_else(bad)?;
+    let (k, n): (usize, usize) = (
+        k.trim().parse().map_err(|_| bad())?,
+        n.trim().parse().map_err(|_| bad())?,
+    );
+    if n == 0 || k >= n {
+        return Err(bad());
+    }
+    Ok((k, n))
+}
+
+/// Runs `f` with a progress bar of `n` steps on stderr (hidden when stderr is not a terminal).
+fn with_progress<T>(n: u64, what: &str, f: impl FnOnce(&(dyn Fn() + Sync)) -> T) -> T {
+    let bar = indicatif::ProgressBar::new(n);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {what} ({{per_sec}}, ETA {{eta}})"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let out = f(&|| bar.inc(1));
+    bar.finish_and_clear();
+    out
+}
+
+fn fmt_list(v: &[f64]) -> String {
+    v.iter()
+        .map(|x| format!("{x:.3}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn stats_row(name: &str, s: &Stats) -> String {
+    let y: Vec<String> = s
+        .yield_below
+        .iter()
+        .map(|r| format!("{:.3}", r[1]))
+        .collect();
+    format!(
+        "{name:>14} {:>10.3} {:>10.3} {:>10.3} {:>10.3}   {}\n",
+        s.mean,
+        s.std,
+        s.min,
+        s.max,
+        y.join("  ")
+    )
+}
+
+fn tolerance_text(r: &McReport) -> String {
+    let o = &r.options;
+    let mut s = format!(
+        "Monte Carlo tolerance analysis of {}: {} trials (seed {}){}, pupil {:?}, {} nm{}\n",
+        r.lens,
+        o.trials,
+        o.seed,
+        r.shard.map_or(String::new(), |[k, n]| format!(
+            ", shard {k}/{n}: trials {}..{}",
+            k * o.trials / n,
+            (k + 1) * o.trials / n
+        )),
+        o.pupil.pattern,
+        fmt_list(&o.wavelengths_nm),
+        if o.compensate_focus {
+            ", compensator: best focus"
+        } else {
+            ""
+        }
+    );
+    let fields: Vec<String> = o.fields.iter().map(|f| f.label()).collect();
+    s.push_str(&format!(
+        "nominal RMS spot per field ({}): {} um\n",
+        fields.join(", "),
+        fmt_list(&r.nominal_rms_um)
+    ));
+    let Some(sm) = &r.summary else {
+        s.push_str(&format!(
+            "partial report: {} trials; merge the shards with `tolray merge` for statistics\n",
+            r.trials.len()
+        ));
+        return s;
+    };
+    s.push_str(&format!("\nRMS spot (um)    {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n", "mean", "std", "min", "max"));
+    for (f, st) in o.fields.iter().zip(&sm.per_field) {
+        s.push_str(&stats_row(&format!("field {}", f.label()), st));
+    }
+    s.push_str(&stats_row("field mean", &sm.mean_over_fields));
+    if let Some(fs) = &sm.focus_shift_mm {
+        s.push_str(&format!(
+            "refocus (mm): mean {:.4}, std {:.4}, min {:.4}, max {:.4} (nominal {:.4})\n",
+            fs.mean,
+            fs.std,
+            fs.min,
+            fs.max,
+            r.nominal_focus_shift_mm.unwrap_or(0.0)
+        ));
+    }
+    s
 }
 
 /// The main job on built-in defaults.
