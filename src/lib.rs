@@ -13,6 +13,8 @@
 //! degrees for angles in files. Surfaces are counted from 0. Frame: z is the optical axis, light
 //! travels toward +z, the first vertex is at z = 0, y is the meridional axis.
 
+#![warn(missing_docs)]
+
 pub mod analysis;
 pub mod error;
 pub mod figures;
