@@ -20,6 +20,7 @@ pub mod error;
 pub mod figures;
 pub mod lens;
 pub mod math;
+pub mod optim;
 pub mod plot;
 pub mod real;
 pub mod tolerance;

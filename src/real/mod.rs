@@ -5,6 +5,9 @@
 //! the value part only ([`Real::value`]), so the same code path is taken for every number type
 //! and derivatives flow through the arithmetic unchanged.
 
+mod dual;
+pub use dual::Dual;
+
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
 
