@@ -303,3 +303,72 @@ pub fn tolerance_figure(report: &crate::tolerance::McReport) -> Canvas {
     ));
     cv
 }
+
+/// A PSF (or a mosaic of PSFs) as a heat map, each tile normalized to its own peak.
+/// `tiles` are `ks x ks` row-major images laid out `cols` per row.
+pub fn psf_figure(tiles: &[Vec<f64>], ks: usize, cols: usize, title: &str) -> Canvas {
+    let cols = cols.max(1);
+    let rows = tiles.len().div_ceil(cols).max(1);
+    let scale = (600 / (cols * ks)).clamp(1, 12) as u32;
+    let tile = ks as u32 * scale;
+    let mut cv = Canvas::new(cols as u32 * (tile + 2) + 40, rows as u32 * (tile + 2) + 70);
+    cv.set_view(
+        (0, 0, cv.image().width(), 40),
+        (0.0, 1.0),
+        (0.0, 1.0),
+        false,
+    );
+    cv.title(title);
+    for (k, t) in tiles.iter().enumerate() {
+        let (c, r) = ((k % cols) as u32, (k / cols) as u32);
+        let peak = t.iter().copied().fold(0.0, f64::max);
+        cv.heatmap_px(
+            (20 + c * (tile + 2), 50 + r * (tile + 2), tile, tile),
+            t,
+            ks,
+            ks,
+            peak,
+        );
+    }
+    cv
+}
+
+/// Writes a single-channel linear image (e.g. a PSF map mosaic) as OpenEXR, atomically.
+///
+/// # Errors
+/// [`crate::ErrorKind::Io`] naming the path.
+pub fn save_exr(path: &Path, width: usize, height: usize, values: &[f64]) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.{}.tmp.exr", std::process::id()));
+    let r = exr::prelude::write_rgb_file(&tmp, width, height, |x, y| {
+        let v = values.get(y * width + x).copied().unwrap_or(0.0) as f32;
+        (v, v, v)
+    });
+    let r = r
+        .map_err(|e| std::io::Error::other(e.to_string()))
+        .and_then(|_| std::fs::rename(&tmp, path));
+    if let Err(e) = r {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    Ok(())
+}
+
+/// Lays `tiles` (`ks x ks` each) out in a `cols`-wide mosaic: (width, height, values).
+pub fn mosaic(tiles: &[Vec<f64>], ks: usize, cols: usize) -> (usize, usize, Vec<f64>) {
+    let rows = tiles.len().div_ceil(cols.max(1));
+    let (w, h) = (cols * ks, rows * ks);
+    let mut out = vec![0.0; w * h];
+    for (k, t) in tiles.iter().enumerate() {
+        let (c, r) = (k % cols, k / cols);
+        for j in 0..ks {
+            for i in 0..ks {
+                out[(r * ks + j) * w + c * ks + i] = t[j * ks + i];
+            }
+        }
+    }
+    (w, h, out)
+}

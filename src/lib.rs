@@ -22,6 +22,7 @@ pub mod lens;
 pub mod math;
 pub mod optim;
 pub mod plot;
+pub mod psf;
 pub mod real;
 pub mod tolerance;
 pub mod trace;

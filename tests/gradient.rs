@@ -149,3 +149,67 @@ fn passes_of_different_width_agree() {
         );
     }
 }
+
+/// PSF-similarity loss of a perturbed lens against the nominal PSFs: exact gradient against a
+/// central difference. The bilinear splat is smooth while no ray changes pixel, so the step is
+/// halved until every ray keeps its pixel between x - 2h and x + 2h (checked through the loss's
+/// own piecewise-quadratic behaviour: the 2nd- and 4th-order differences must agree).
+#[test]
+fn psf_similarity_loss_gradient_matches_finite_differences() {
+    use tolray::optim::PsfLoss;
+    use tolray::psf::{PsfOptions, PsfRays};
+    for name in ["lens2", "cooke-triplet"] {
+        let mut lens = Lens::load(name).unwrap();
+        lens.object = Object::Infinite;
+        let mut opts = PsfOptions::for_lens(&lens);
+        opts.ks = 31;
+        opts.pitch_mm *= 4.0;
+        opts.pupil = Pupil::grid(6);
+        let pairs = [
+            (Field::fraction(0.0), LAMBDA_D_NM),
+            (Field::fraction(0.7), 486.1327),
+        ];
+        let rays = PsfRays::new(&lens, &pairs, &opts.pupil).unwrap();
+        let nominal = lens.compile();
+        let loss = PsfLoss::new(rays, &nominal, opts, TraceOptions { apertures: false });
+        let pattern = ToleranceSpec::default().sample(&lens, 3, 0).unwrap();
+        let (plens, adj) = pattern.apply(&lens).unwrap();
+        let vars = vec![
+            Param::Curvature(0),
+            Param::Curvature(2),
+            Param::Gap(1),
+            Param::Gap(lens.surfaces.len() - 1),
+        ];
+        let (v, g) = gradient::<_, 8>(&loss, &plens, &adj, &vars).unwrap();
+        assert!(v > 0.0 && v < 1.0, "{name}: loss {v}");
+        for (k, &p) in vars.iter().enumerate() {
+            let x0 = param_value(&plens, p).unwrap();
+            let f = |dx: f64| {
+                let mut l = plens.clone();
+                set_param(&mut l, p, x0 + dx).unwrap();
+                value(&loss, &l, &adj)
+            };
+            let mut h = if matches!(p, Param::Curvature(_)) {
+                1e-7
+            } else {
+                1e-5
+            };
+            let mut fd = f64::NAN;
+            for _ in 0..12 {
+                let d2 = (f(h) - f(-h)) / (2.0 * h);
+                let d4 = (-f(2.0 * h) + 8.0 * f(h) - 8.0 * f(-h) + f(-2.0 * h)) / (12.0 * h);
+                fd = d4;
+                if (d2 - d4).abs() <= 1e-7 * d4.abs() {
+                    break;
+                }
+                h *= 0.5;
+            }
+            let rel = (g[k] - fd).abs() / fd.abs().max(1e-9);
+            assert!(
+                rel < 1e-6,
+                "{name} {p:?}: dual {} vs FD {fd} (rel {rel:e})",
+                g[k]
+            );
+        }
+    }
+}

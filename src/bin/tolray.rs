@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use tolray::analysis::{spot_diagram, SpotOptions, SpotResult};
 use tolray::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
 use tolray::lens::{json, Paraxial};
+use tolray::psf::{PsfCentre, PsfOptions, PsfRays};
 use tolray::tolerance::analysis::Stats;
 use tolray::tolerance::{
     merge_reports, monte_carlo, sensitivity, McOptions, McReport, Perturbation, ToleranceSpec,
@@ -93,6 +94,50 @@ enum Command {
         #[arg(long, default_value_t = 20)]
         top: usize,
     },
+    /// Geometric PSF of one field (bilinear splat at the sensor pixel pitch, unit sum).
+    Psf {
+        #[command(flatten)]
+        lens: LensArgs,
+        /// Field (fraction, 5deg angle or 2.5mm height; x:y pairs allowed).
+        #[arg(long, default_value = "0")]
+        field: String,
+        /// Wavelengths in nm, or d, F, C, rgb (one PSF each).
+        #[arg(long, value_delimiter = ',', default_value = "d")]
+        wavelengths: Vec<String>,
+        #[command(flatten)]
+        psf: PsfArgs,
+        /// Trace the lens perturbed by this tolerance pattern.
+        #[arg(long, value_name = "PATTERN.json")]
+        perturb: Option<PathBuf>,
+        /// Write the PSF picture.
+        #[arg(long, value_name = "FILE.png")]
+        png: Option<PathBuf>,
+        /// Write the linear PSF(s) as OpenEXR.
+        #[arg(long, value_name = "FILE.exr")]
+        exr: Option<PathBuf>,
+        /// Print the PSF values as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// PSF map: PSFs over a grid of fields covering the sensor.
+    PsfMap {
+        #[command(flatten)]
+        lens: LensArgs,
+        /// Fields per side of the grid.
+        #[arg(long, default_value_t = 8)]
+        grid: usize,
+        /// Wavelength, nm (or d, F, C).
+        #[arg(long, default_value = "d")]
+        wavelength: String,
+        #[command(flatten)]
+        psf: PsfArgs,
+        /// Write the map picture (each PSF normalized to its peak).
+        #[arg(long, value_name = "FILE.png")]
+        png: Option<PathBuf>,
+        /// Write the linear mosaic as OpenEXR.
+        #[arg(long, value_name = "FILE.exr")]
+        exr: Option<PathBuf>,
+    },
     /// Merge shard reports of one Monte Carlo study into the report a single run gives.
     Merge {
         /// Shard reports (JSON).
@@ -170,6 +215,64 @@ struct RayArgs {
     /// Ignore clear apertures and the stop.
     #[arg(long)]
     no_apertures: bool,
+}
+
+#[derive(Args)]
+struct PsfArgs {
+    /// Kernel size, pixels (odd).
+    #[arg(long, default_value_t = 51)]
+    ks: usize,
+    /// Rays per PSF (uniform random over the entrance pupil).
+    #[arg(long, default_value_t = 8192)]
+    spp: usize,
+    /// Pixel pitch in um (default: the sensor's).
+    #[arg(long, value_name = "UM")]
+    pitch_um: Option<f64>,
+    /// Centre the PSF on the chief ray or on the centroid.
+    #[arg(long, default_value = "chief", value_parser = ["chief", "centroid"])]
+    centre: String,
+    /// Seed of the pupil samples.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+impl PsfArgs {
+    fn options(&self, lens: &Lens) -> anyhow::Result<PsfOptions> {
+        let mut o = PsfOptions::for_lens(lens);
+        o.ks = self.ks;
+        if let Some(p) = self.pitch_um {
+            o.pitch_mm = p * 1e-3;
+        }
+        o.centre = if self.centre == "centroid" {
+            PsfCentre::Centroid
+        } else {
+            PsfCentre::Chief
+        };
+        o.pupil = Pupil {
+            pattern: tolray::trace::PupilPattern::Random {
+                n: self.spp.max(1),
+                seed: self.seed,
+            },
+            scale: 1.0,
+            aim: false,
+        };
+        tolray::psf::check_options(&o)?;
+        Ok(o)
+    }
+}
+
+fn perturbed_system(
+    lens: &Lens,
+    perturb: Option<&Path>,
+) -> anyhow::Result<tolray::lens::System<f64>> {
+    Ok(match perturb {
+        None => lens.compile(),
+        Some(p) => {
+            let pattern = Perturbation::read(p)?;
+            let (pl, adj) = pattern.apply(lens).map_err(|e| e.context(p.display()))?;
+            tolray::lens::System::compile(&pl, &adj, &|_, v| v)
+        }
+    })
 }
 
 #[derive(Args)]
@@ -605,6 +708,97 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             write_text(&json, &(serde_json::to_string_pretty(&merged)? + "\n"))?;
             if let Some(p) = png {
                 figures::save(&figures::tolerance_figure(&merged), &p)?;
+            }
+        }
+        Command::Psf {
+            lens,
+            field,
+            wavelengths,
+            psf,
+            perturb,
+            png,
+            exr,
+            json,
+        } => {
+            let l = lens.load()?;
+            let opts = psf.options(&l)?;
+            let field = Field::parse(&field)?;
+            let wls = parse_wavelengths(&wavelengths, &l)?;
+            let sys = perturbed_system(&l, perturb.as_deref())?;
+            let pairs: Vec<(Field, f64)> = wls.iter().map(|&w| (field, w)).collect();
+            let rays = PsfRays::new(&l, &pairs, &opts.pupil)?;
+            let psfs: Vec<Vec<f64>> = (0..pairs.len())
+                .map(|k| tolray::psf::psf_of(&sys, &rays, k, &opts, TraceOptions::default()).0)
+                .collect();
+            for (w, p) in wls.iter().zip(&psfs) {
+                let c = p[(opts.ks / 2) * opts.ks + opts.ks / 2];
+                let ee: f64 = (0..opts.ks * opts.ks)
+                    .filter(|k| {
+                        ((k / opts.ks) as isize - (opts.ks / 2) as isize).abs() <= 1
+                            && ((k % opts.ks) as isize - (opts.ks / 2) as isize).abs() <= 1
+                    })
+                    .map(|k| p[k])
+                    .sum();
+                emit_line(&format!("PSF at field {}, {w:.2} nm: {}x{} px of {:.3} um, sum {:.6}, centre pixel {:.4}, central 3x3 {:.4}", field.label(), opts.ks, opts.ks, opts.pitch_mm * 1e3, p.iter().sum::<f64>(), c, ee));
+            }
+            if json {
+                emit_line(&serde_json::to_string(
+                    &serde_json::json!({"ks": opts.ks, "pitch_mm": opts.pitch_mm, "wavelengths_nm": wls, "psf": psfs}),
+                )?);
+            }
+            if let Some(p) = png {
+                figures::save(
+                    &figures::psf_figure(
+                        &psfs,
+                        opts.ks,
+                        psfs.len(),
+                        &format!("PSF {} field {}", lens.lens, field.label()),
+                    ),
+                    &p,
+                )?;
+                eprintln!("wrote {}", p.display());
+            }
+            if let Some(p) = exr {
+                let (w, h, v) = figures::mosaic(&psfs, opts.ks, psfs.len());
+                figures::save_exr(&p, w, h, &v)?;
+                eprintln!("wrote {}", p.display());
+            }
+        }
+        Command::PsfMap {
+            lens,
+            grid,
+            wavelength,
+            psf,
+            png,
+            exr,
+        } => {
+            let l = lens.load()?;
+            let opts = psf.options(&l)?;
+            if grid == 0 || grid > 64 {
+                bail!("--grid {grid}: give 1 to 64 fields per side");
+            }
+            let wl = parse_wavelengths(&[wavelength], &l)?[0];
+            let map = tolray::psf::psf_map(&l, &l.compile(), grid, wl, &opts)?;
+            emit_line(&format!(
+                "PSF map of {}: {grid}x{grid} fields, {}x{} px kernels, {} rays each, {wl:.2} nm",
+                lens.lens, opts.ks, opts.ks, psf.spp
+            ));
+            if let Some(p) = png {
+                figures::save(
+                    &figures::psf_figure(
+                        &map,
+                        opts.ks,
+                        grid,
+                        &format!("PSF map {} ({grid}x{grid})", lens.lens),
+                    ),
+                    &p,
+                )?;
+                eprintln!("wrote {}", p.display());
+            }
+            if let Some(p) = exr {
+                let (w, h, v) = figures::mosaic(&map, opts.ks, grid);
+                figures::save_exr(&p, w, h, &v)?;
+                eprintln!("wrote {}", p.display());
             }
         }
         Command::Demo { out } => demo(&out)?,

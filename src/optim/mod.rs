@@ -205,3 +205,48 @@ impl Objective for SpotLoss {
         total
     }
 }
+
+/// The paper's PSF-similarity loss: 1 − mean over PSFs of the similarity between each PSF and
+/// its ideal PSF (a constant, e.g. from the nominal lens at the same field and wavelength).
+#[derive(Clone, Debug)]
+pub struct PsfLoss {
+    /// Rays of each PSF.
+    pub rays: crate::psf::PsfRays,
+    /// The ideal PSF of each ray set (constant).
+    pub ideal: Vec<Vec<f64>>,
+    /// PSF settings.
+    pub opts: crate::psf::PsfOptions,
+    /// Trace options.
+    pub trace: TraceOptions,
+}
+
+impl PsfLoss {
+    /// A PSF loss whose ideal PSFs are those of `ideal_sys` (typically the nominal design).
+    pub fn new(
+        rays: crate::psf::PsfRays,
+        ideal_sys: &System<f64>,
+        opts: crate::psf::PsfOptions,
+        trace: TraceOptions,
+    ) -> PsfLoss {
+        let ideal = (0..rays.sets.len())
+            .map(|k| crate::psf::psf_of(ideal_sys, &rays, k, &opts, trace).0)
+            .collect();
+        PsfLoss {
+            rays,
+            ideal,
+            opts,
+            trace,
+        }
+    }
+}
+
+impl Objective for PsfLoss {
+    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+        let mut sim = S::cst(0.0);
+        for k in 0..self.rays.sets.len() {
+            let (psf, _) = crate::psf::psf_of(sys, &self.rays, k, &self.opts, self.trace);
+            sim += crate::psf::psf_similarity(&self.ideal[k], &psf, self.opts.ks);
+        }
+        S::cst(1.0) - sim * S::cst(1.0 / self.rays.sets.len().max(1) as f64)
+    }
+}

@@ -1,0 +1,353 @@
+//! Geometric point-spread functions: rays splatted bilinearly onto the sensor pixel grid (so the
+//! PSF is differentiable in the ray positions), normalized to unit sum; PSF maps over a grid of
+//! fields; and the paper's PSF similarity (maximum normalized cross-correlation over shifts).
+//!
+//! Layout: a PSF is `ks x ks`, row-major, row 0 at the top (+y on the sensor), column 0 at the
+//! left (-x); the centre pixel `(ks/2, ks/2)` holds the reference point (the chief ray or the
+//! centroid).
+
+use crate::error::{Error, Result};
+use crate::lens::{Lens, System};
+use crate::real::Real;
+use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable};
+use rayon::prelude::*;
+use rustfft::num_complex::Complex;
+use serde::{Deserialize, Serialize};
+
+/// Which point sits in the centre pixel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PsfCentre {
+    /// The chief ray (through the pupil centre) at the first wavelength; the centroid if lost.
+    #[default]
+    Chief,
+    /// The centroid of the arriving rays.
+    Centroid,
+}
+
+/// PSF settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PsfOptions {
+    /// Kernel size in pixels (odd; default 51, as in the paper).
+    pub ks: usize,
+    /// Pixel pitch, mm (default: the sensor's).
+    pub pitch_mm: f64,
+    /// Centre.
+    pub centre: PsfCentre,
+    /// Pupil sampling (default: 8192 uniform random rays).
+    pub pupil: Pupil,
+}
+
+impl PsfOptions {
+    /// The defaults for `lens`: 51 x 51 pixels at the sensor pitch, chief-ray centred, 8192 random
+    /// rays seeded with 0.
+    pub fn for_lens(lens: &Lens) -> PsfOptions {
+        PsfOptions {
+            ks: 51,
+            pitch_mm: lens.sensor.pixel_pitch_mm(),
+            centre: PsfCentre::Chief,
+            pupil: Pupil {
+                pattern: crate::trace::PupilPattern::Random { n: 8192, seed: 0 },
+                scale: 1.0,
+                aim: false,
+            },
+        }
+    }
+}
+
+/// Splats `pts` (sensor mm) bilinearly into a `ks x ks` grid of pitch `pitch_mm` centred on
+/// `centre`, and normalizes it to unit sum. Points whose footprint leaves the window are dropped.
+/// Returns all zeros when nothing lands.
+pub fn splat<S: Real>(pts: &[[S; 2]], centre: [S; 2], ks: usize, pitch_mm: f64) -> Vec<S> {
+    let mut img = vec![S::cst(0.0); ks * ks];
+    let half = (ks as f64 - 1.0) / 2.0;
+    let inv = S::cst(1.0 / pitch_mm);
+    let mut total = S::cst(0.0);
+    for p in pts {
+        let u = (p[0] - centre[0]) * inv + S::cst(half);
+        let v = S::cst(half) - (p[1] - centre[1]) * inv;
+        let (uf, vf) = (u.value().floor(), v.value().floor());
+        if !(uf >= 0.0 && vf >= 0.0 && uf + 1.0 < ks as f64 && vf + 1.0 < ks as f64) {
+            continue;
+        }
+        let (i, j) = (uf as usize, vf as usize);
+        let (fu, fv) = (u - S::cst(uf), v - S::cst(vf));
+        let one = S::cst(1.0);
+        img[j * ks + i] += (one - fu) * (one - fv);
+        img[j * ks + i + 1] += fu * (one - fv);
+        img[(j + 1) * ks + i] += (one - fu) * fv;
+        img[(j + 1) * ks + i + 1] += fu * fv;
+        total += one;
+    }
+    if total.value() > 0.0 {
+        let s = S::cst(1.0) / total;
+        for x in img.iter_mut() {
+            *x *= s;
+        }
+    }
+    img
+}
+
+/// Rays for PSFs, generated once from the nominal lens.
+#[derive(Clone, Debug)]
+pub struct PsfRays {
+    /// (field, wavelength, rays) per PSF.
+    pub sets: Vec<(Field, f64, RaySet)>,
+}
+
+impl PsfRays {
+    /// Rays for each (field, wavelength) pair.
+    ///
+    /// # Errors
+    /// Paraxial and ray-generation errors.
+    pub fn new(lens: &Lens, pairs: &[(Field, f64)], pupil: &Pupil) -> Result<PsfRays> {
+        let para = lens.paraxial(lens.primary_wavelength_nm)?;
+        let sets = pairs
+            .iter()
+            .map(|&(f, wl)| Ok((f, wl, RaySet::generate(lens, &para, f, pupil, wl)?)))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(PsfRays { sets })
+    }
+}
+
+/// The PSF of ray set `k` of `rays` through `sys`, in any number type; `centre_ref` overrides
+/// the centre (e.g. the chief ray of another wavelength).
+pub fn psf_of<S: Traceable>(
+    sys: &System<S>,
+    rays: &PsfRays,
+    k: usize,
+    opts: &PsfOptions,
+    trace: TraceOptions,
+) -> (Vec<S>, Option<[S; 2]>) {
+    let (_, wl, set) = &rays.sets[k];
+    let mut b: RayBatch<S> = set.batch();
+    b.push(set.chief.0, set.chief.1);
+    trace_serial(sys, *wl, &mut b, trace);
+    let n = set.origins.len();
+    let to_sensor = |o| {
+        let p = sys.image.point_to_local(o);
+        [p.x, p.y]
+    };
+    let pts: Vec<[S; 2]> = (0..n)
+        .map(|i| b.get(i))
+        .filter(|r| r.status.is_alive())
+        .map(|r| to_sensor(r.o))
+        .collect();
+    let chief = b.get(n);
+    let chief = chief.status.is_alive().then(|| to_sensor(chief.o));
+    let centroid = || {
+        let inv = S::cst(1.0 / pts.len().max(1) as f64);
+        let (mut x, mut y) = (S::cst(0.0), S::cst(0.0));
+        for p in &pts {
+            x += p[0];
+            y += p[1];
+        }
+        [x * inv, y * inv]
+    };
+    let c = match (opts.centre, chief) {
+        (PsfCentre::Chief, Some(c)) => c,
+        _ => centroid(),
+    };
+    (splat(&pts, c, opts.ks, opts.pitch_mm), chief)
+}
+
+/// A PSF map: `grid x grid` fields spread over the sensor (cell centres of a square grid over
+/// the sensor's width and height), each PSF `ks x ks`, at `wavelength_nm`, value-only, in
+/// parallel over fields. Row 0 of the grid is the top of the sensor (+y).
+///
+/// # Errors
+/// Ray-generation errors.
+pub fn psf_map(
+    lens: &Lens,
+    sys: &System<f64>,
+    grid: usize,
+    wavelength_nm: f64,
+    opts: &PsfOptions,
+) -> Result<Vec<Vec<f64>>> {
+    let fields = grid_fields(lens, grid);
+    let pairs: Vec<(Field, f64)> = fields.iter().map(|&f| (f, wavelength_nm)).collect();
+    let rays = PsfRays::new(lens, &pairs, &opts.pupil)?;
+    let sys32: System<f32> = sys.convert();
+    Ok((0..pairs.len())
+        .into_par_iter()
+        .map(|k| {
+            psf_of(&sys32, &rays, k, opts, TraceOptions::default())
+                .0
+                .iter()
+                .map(|&v| v as f64)
+                .collect()
+        })
+        .collect())
+}
+
+/// Fields at the cell centres of a `grid x grid` partition of the sensor, row 0 at the top.
+pub fn grid_fields(lens: &Lens, grid: usize) -> Vec<Field> {
+    let [w, h] = lens.sensor.size_mm();
+    let r = lens.sensor.half_diagonal_mm();
+    let mut out = Vec::with_capacity(grid * grid);
+    for row in 0..grid {
+        for col in 0..grid {
+            let fx = ((2 * col + 1) as f64 / grid as f64 - 1.0) * 0.5 * w / r;
+            let fy = (1.0 - (2 * row + 1) as f64 / grid as f64) * 0.5 * h / r;
+            out.push(Field::Fraction { x: fx, y: fy });
+        }
+    }
+    out
+}
+
+/// Shift `(dx, dy)` in pixels, |dx|, |dy| <= ks/2, that maximizes the cross-correlation
+/// Σ a[p] b[p + shift] (zero padding), found by FFT.
+pub fn best_shift(a: &[f64], b: &[f64], ks: usize) -> (isize, isize) {
+    let n = 2 * ks;
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let fwd = planner.plan_fft_forward(n);
+    let inv = planner.plan_fft_inverse(n);
+    let fft2 = |img: &[f64], f: &std::sync::Arc<dyn rustfft::Fft<f64>>| {
+        let mut m = vec![Complex::new(0.0, 0.0); n * n];
+        for j in 0..ks {
+            for i in 0..ks {
+                m[j * n + i] = Complex::new(img[j * ks + i], 0.0);
+            }
+        }
+        transform2(&mut m, n, f);
+        m
+    };
+    let (fa, fb) = (fft2(a, &fwd), fft2(b, &fwd));
+    // corr(s) = IFFT(conj(FA) FB)(s).
+    let mut c: Vec<Complex<f64>> = fa.iter().zip(&fb).map(|(x, y)| x.conj() * y).collect();
+    transform2(&mut c, n, &inv);
+    let h = (ks / 2) as isize;
+    let mut best = (0, 0);
+    let mut best_v = f64::MIN;
+    for dy in -h..=h {
+        for dx in -h..=h {
+            let v =
+                c[(dy.rem_euclid(n as isize) as usize) * n + dx.rem_euclid(n as isize) as usize].re;
+            // Prefer the smallest shift among (numerically) equal maxima, deterministically.
+            if v > best_v + 1e-12 * best_v.abs().min(f64::MAX / 2.0) {
+                best_v = v;
+                best = (dx, dy);
+            }
+        }
+    }
+    best
+}
+
+fn transform2(m: &mut [Complex<f64>], n: usize, f: &std::sync::Arc<dyn rustfft::Fft<f64>>) {
+    for row in m.chunks_exact_mut(n) {
+        f.process(row);
+    }
+    let mut col = vec![Complex::new(0.0, 0.0); n];
+    for i in 0..n {
+        for j in 0..n {
+            col[j] = m[j * n + i];
+        }
+        f.process(&mut col);
+        for j in 0..n {
+            m[j * n + i] = col[j];
+        }
+    }
+}
+
+/// The paper's PSF similarity: both PSFs scaled to unit L2 norm, then the maximum over shifts
+/// (|shift| <= ks/2, zero padding) of their cross-correlation, in [0, 1]. `ideal` is a constant;
+/// derivatives flow through `psf` at the best shift.
+pub fn psf_similarity<S: Real>(ideal: &[f64], psf: &[S], ks: usize) -> S {
+    let values: Vec<f64> = psf.iter().map(|v| v.value()).collect();
+    let na = ideal.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if na == 0.0 || values.iter().all(|&v| v == 0.0) {
+        return S::cst(0.0);
+    }
+    let (dx, dy) = best_shift(ideal, &values, ks);
+    let mut dot = S::cst(0.0);
+    let mut nb2 = S::cst(0.0);
+    for p in psf {
+        nb2 += *p * *p;
+    }
+    for j in 0..ks as isize {
+        for i in 0..ks as isize {
+            let (i2, j2) = (i + dx, j + dy);
+            if i2 >= 0 && j2 >= 0 && i2 < ks as isize && j2 < ks as isize {
+                let a = ideal[(j * ks as isize + i) as usize];
+                if a != 0.0 {
+                    dot += psf[(j2 * ks as isize + i2) as usize] * S::cst(a);
+                }
+            }
+        }
+    }
+    dot / (nb2.sqrt() * S::cst(na))
+}
+
+/// Checks PSF options.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for an even or zero kernel size or a non-positive pitch.
+pub fn check_options(opts: &PsfOptions) -> Result<()> {
+    if opts.ks == 0 || opts.ks % 2 == 0 || opts.ks > 1025 {
+        return Err(Error::argument(format!(
+            "PSF kernel size {} must be odd, 1 to 1025",
+            opts.ks
+        )));
+    }
+    if !(opts.pitch_mm > 0.0) {
+        return Err(Error::argument(format!(
+            "PSF pixel pitch {} mm must be positive",
+            opts.pitch_mm
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splat_is_bilinear_and_sums_to_one() {
+        // A point a quarter pixel right of the centre: 3/4 in the centre pixel, 1/4 right of it.
+        let p = splat(&[[0.25e-3, 0.0]], [0.0, 0.0], 5, 1e-3);
+        assert!((p[2 * 5 + 2] - 0.75).abs() < 1e-12 && (p[2 * 5 + 3] - 0.25).abs() < 1e-12);
+        let q = splat(
+            &[[0.0, 0.0], [1e-3, 1e-3], [-0.3e-3, 0.7e-3]],
+            [0.0, 0.0],
+            5,
+            1e-3,
+        );
+        assert!((q.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(
+            (q[1 * 5 + 3] - 1.0 / 3.0).abs() < 1e-12,
+            "+y is up: one pixel up and right"
+        );
+    }
+
+    #[test]
+    fn similarity_is_one_for_identical_and_finds_shifts() {
+        let ks = 9;
+        let mut a = vec![0.0; ks * ks];
+        a[4 * ks + 4] = 0.5;
+        a[4 * ks + 5] = 0.3;
+        a[3 * ks + 4] = 0.2;
+        assert!((psf_similarity(&a, &a, ks) - 1.0).abs() < 1e-12);
+        // Shifted by (+2, -1): same shape, similarity 1, shift found.
+        let mut b = vec![0.0; ks * ks];
+        for j in 0..ks {
+            for i in 0..ks {
+                if i + 2 < ks && j >= 1 {
+                    b[(j - 1) * ks + i + 2] = a[j * ks + i];
+                }
+            }
+        }
+        assert_eq!(best_shift(&a, &b, ks), (2, -1));
+        assert!((psf_similarity(&a, &b, ks) - 1.0).abs() < 1e-12);
+        // Blurred: below 1.
+        let c: Vec<f64> = (0..ks * ks)
+            .map(|k| if a[k] > 0.0 { 0.2 } else { 0.01 })
+            .collect();
+        let s = psf_similarity(&a, &c, ks);
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        assert!(
+            (s - 0.2 / (norm(&a) * norm(&c))).abs() < 1e-12 && s < 0.91,
+            "{s}"
+        );
+    }
+}

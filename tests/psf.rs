@@ -1,0 +1,70 @@
+//! PSFs of real lenses: a near-perfect case lands in the centre pixel, every PSF sums to 1, the
+//! similarity of a PSF with itself is 1 and drops for a perturbed lens.
+
+use tolray::lens::material::LAMBDA_D_NM;
+use tolray::psf::{psf_map, psf_of, psf_similarity, PsfOptions, PsfRays};
+use tolray::tolerance::ToleranceSpec;
+use tolray::trace::{Field, TraceOptions};
+use tolray::{Lens, Object};
+
+#[test]
+fn stopped_down_lens_focuses_into_the_centre_pixel() {
+    // lens2 at infinity stopped down to a 0.2 mm stop (about F/110): the geometric spot is far
+    // below a pixel ...
+    let mut l = Lens::load("lens2").unwrap();
+    l.object = Object::Infinite;
+    l.surfaces[4].semi_aperture_mm = 0.1;
+    // ... with the sensor at the paraxial focus.
+    let bfd = l.paraxial(LAMBDA_D_NM).unwrap().bfd_mm;
+    l.surfaces.last_mut().unwrap().d_next_mm = bfd;
+    let opts = PsfOptions::for_lens(&l);
+    let rays = PsfRays::new(&l, &[(Field::fraction(0.0), LAMBDA_D_NM)], &opts.pupil).unwrap();
+    let (p, chief) = psf_of(&l.compile(), &rays, 0, &opts, TraceOptions::default());
+    let c = p[25 * 51 + 25];
+    assert!(chief.is_some());
+    assert!(c > 0.99, "centre pixel holds {c}");
+    assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn psf_map_sums_and_similarities() {
+    let mut l = Lens::load("cooke-triplet").unwrap();
+    l.object = Object::Infinite;
+    let mut opts = PsfOptions::for_lens(&l);
+    opts.pupil.pattern = tolray::trace::PupilPattern::Random { n: 2048, seed: 1 };
+    let map = psf_map(&l, &l.compile(), 4, LAMBDA_D_NM, &opts).unwrap();
+    assert_eq!(map.len(), 16);
+    for p in &map {
+        assert!(
+            (p.iter().sum::<f64>() - 1.0).abs() < 1e-5,
+            "f32 map sums to 1"
+        );
+        assert!((psf_similarity(p, p, 51) - 1.0).abs() < 1e-12);
+    }
+    // Symmetric fields (left/right mirror) have mirrored PSFs: similarity of one with the
+    // mirror of the other is ~1 (same rays mirrored, up to f32 rounding).
+    let mirror = |p: &Vec<f64>| -> Vec<f64> {
+        (0..51 * 51)
+            .map(|k| p[(k / 51) * 51 + 50 - k % 51])
+            .collect()
+    };
+    assert!(psf_similarity(&map[5], &mirror(&map[6]), 51) > 0.999);
+    // A perturbed lens has a less similar PSF than the nominal one.
+    let rays = PsfRays::new(&l, &[(Field::fraction(0.7), LAMBDA_D_NM)], &opts.pupil).unwrap();
+    let nominal = psf_of(&l.compile(), &rays, 0, &opts, TraceOptions::default()).0;
+    let mut spec = ToleranceSpec::default();
+    for op in spec.operands.iter_mut() {
+        op.max *= 10.0;
+    }
+    let (pl, adj) = spec.sample(&l, 1, 0).unwrap().apply(&l).unwrap();
+    let perturbed = psf_of(
+        &tolray::lens::System::<f64>::compile(&pl, &adj, &|_, v| v),
+        &rays,
+        0,
+        &opts,
+        TraceOptions::default(),
+    )
+    .0;
+    let s = psf_similarity(&nominal, &perturbed, 51);
+    assert!(s < 0.99 && s > 0.0, "{s}");
+}
