@@ -372,3 +372,55 @@ pub fn mosaic(tiles: &[Vec<f64>], ks: usize, cols: usize) -> (usize, usize, Vec<
     }
     (w, h, out)
 }
+
+/// Training curve: loss per iteration (and spot size on a second panel), stages marked.
+pub fn training_figure(logs: &[crate::optim::train::IterLog], title: &str) -> Canvas {
+    let mut cv = Canvas::new(900, 640);
+    cv.set_view((0, 0, 900, 40), (0.0, 1.0), (0.0, 1.0), false);
+    cv.title(title);
+    let n = logs.len().max(2) as f64;
+    let panel =
+        |cv: &mut Canvas, rect: (u32, u32, u32, u32), ys: Vec<(f64, f64)>, label: &str, colour| {
+            let (lo, hi) = ys
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                    (a.min(p.1), b.max(p.1))
+                });
+            let (lo, hi) = if lo.is_finite() && hi > lo {
+                (lo, hi)
+            } else {
+                (0.0, 1.0)
+            };
+            cv.set_view(
+                rect,
+                (0.0, n),
+                (lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo)),
+                false,
+            );
+            cv.polyline(&ys, colour);
+            if let Some(b) = logs
+                .iter()
+                .position(|l| l.stage == crate::optim::train::Stage::Tolerance)
+            {
+                if b > 0 {
+                    cv.line((b as f64, lo), (b as f64, hi), [150, 150, 150]);
+                }
+            }
+            cv.axes("iteration", label);
+        };
+    panel(
+        &mut cv,
+        (80, 60, 780, 230),
+        logs.iter().map(|l| (l.iter as f64, l.loss)).collect(),
+        "loss",
+        PALETTE[0],
+    );
+    panel(
+        &mut cv,
+        (80, 360, 780, 230),
+        logs.iter().map(|l| (l.iter as f64, l.spot_um)).collect(),
+        "spot (um): RMS in stage 1, mean distance in stage 2",
+        PALETTE[1],
+    );
+    cv
+}

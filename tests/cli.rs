@@ -307,3 +307,73 @@ fn tolerance_shards_merge_and_patterns_retrace() {
     assert_eq!(code, 0);
     assert_eq!(out.lines().count(), 5);
 }
+
+#[test]
+fn training_resumes_exactly_and_reports() {
+    let dir = tmp("train");
+    let s = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    let common = [
+        "--iters",
+        "3",
+        "--samples",
+        "4",
+        "--psf-spp",
+        "64",
+        "--eval-trials",
+        "8",
+        "--checkpoint-every",
+        "2",
+    ];
+    // One uninterrupted run of 3 + 3 iterations.
+    let (code, out, err) =
+        tolray(&[&["train", "lens1", "--out", &s("full")][..], &common].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("Held-out evaluation") && out.contains("stage 1") && out.contains("final"),
+        "{out}"
+    );
+    let ck: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s("full/checkpoint.json")).unwrap()).unwrap();
+    assert_eq!(ck["next_iter"], 6);
+    // A run stopped after 2 iterations (as Ctrl-C or a killed job leaves it), then resumed.
+    let config = serde_json::from_value(ck["config"].clone()).unwrap();
+    let initial = std::fs::read_to_string(s("full/lens-initial.json")).unwrap();
+    let mut state = tolray::optim::train::TrainState::new(
+        &tolray::lens::json::from_str(&initial).unwrap(),
+        config,
+    );
+    for _ in 0..2 {
+        tolray::optim::train::step(&mut state).unwrap();
+    }
+    let resume_dir = dir.join("resumed");
+    std::fs::create_dir_all(&resume_dir).unwrap();
+    std::fs::write(
+        resume_dir.join("checkpoint.json"),
+        serde_json::to_string(&state).unwrap(),
+    )
+    .unwrap();
+    std::fs::write(resume_dir.join("lens-initial.json"), &initial).unwrap();
+    let (code, _, err) = tolray(&[
+        "train",
+        "--resume",
+        &s("resumed"),
+        "--out",
+        &s("resumed"),
+        "--eval-trials",
+        "8",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let a = std::fs::read_to_string(s("full/lens-final.json")).unwrap();
+    let b = std::fs::read_to_string(s("resumed/lens-final.json")).unwrap();
+    assert!(a == b, "a resumed run ends in exactly the same design");
+    let log: Vec<&str> = std::fs::read_to_string(s("full/log.jsonl"))
+        .unwrap()
+        .leak()
+        .lines()
+        .collect();
+    assert_eq!(log.len(), 6);
+    assert!(dir.join("full/training.png").exists() && dir.join("full/lens-iter2.json").exists());
+    let (code, _, err) = tolray(&["train", "--out", &s("x")]);
+    assert_eq!(code, 1);
+    assert!(err.contains("needs a LENS"), "{err}");
+}

@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use tolray::analysis::{spot_diagram, SpotOptions, SpotResult};
 use tolray::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
 use tolray::lens::{json, Paraxial};
+use tolray::optim::train::{held_out, step, IterLog, TrainConfig, TrainState};
 use tolray::psf::{PsfCentre, PsfOptions, PsfRays};
 use tolray::tolerance::analysis::Stats;
 use tolray::tolerance::{
@@ -137,6 +138,58 @@ enum Command {
         /// Write the linear mosaic as OpenEXR.
         #[arg(long, value_name = "FILE.exr")]
         exr: Option<PathBuf>,
+    },
+    /// Two-stage optimization: stage 1 (pretrain) minimizes the RMS spot without tolerances;
+    /// stage 2 (tolerance) samples tolerance patterns each iteration and minimizes the spot and
+    /// PSF-similarity losses.
+    Train {
+        /// Lens JSON file or built-in name (ignored with --resume).
+        lens: Option<String>,
+        /// Object distance from the first vertex in mm, or "inf".
+        #[arg(long, value_name = "MM|inf")]
+        object: Option<String>,
+        /// Which stages to run.
+        #[arg(long, default_value = "both", value_parser = ["pretrain", "tolerance", "both"])]
+        stage: String,
+        /// Iterations per stage.
+        #[arg(long, default_value_t = 100)]
+        iters: usize,
+        /// Tolerance patterns per stage-2 iteration.
+        #[arg(long, default_value_t = 64)]
+        samples: usize,
+        /// Seed of patterns and pupil samples.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output directory: log.jsonl, checkpoint.json, lens-*.json, report, pictures.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Continue the run saved in DIR exactly where it stopped.
+        #[arg(long, value_name = "DIR")]
+        resume: Option<PathBuf>,
+        /// Write a checkpoint every K iterations (and always at the end or on Ctrl-C).
+        #[arg(long, default_value_t = 10, value_name = "K")]
+        checkpoint_every: usize,
+        /// Tolerance spec for stage 2 (default: the paper's Table A1).
+        #[arg(long, value_name = "SPEC.json")]
+        spec: Option<PathBuf>,
+        /// Weight of the spot loss (per mm).
+        #[arg(long, default_value_t = 10.0)]
+        lambda_spot: f64,
+        /// Weight of the PSF-similarity loss.
+        #[arg(long, default_value_t = 1.0)]
+        lambda_psf: f64,
+        /// Rays per PSF in stage 2.
+        #[arg(long, default_value_t = 256)]
+        psf_spp: usize,
+        /// Maximum total track, mm.
+        #[arg(long, value_name = "MM")]
+        max_track: Option<f64>,
+        /// Target effective focal length, mm.
+        #[arg(long, value_name = "MM")]
+        target_efl: Option<f64>,
+        /// Held-out patterns for the final report (seed differs from training).
+        #[arg(long, default_value_t = 100)]
+        eval_trials: usize,
     },
     /// Merge shard reports of one Monte Carlo study into the report a single run gives.
     Merge {
@@ -801,8 +854,233 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 eprintln!("wrote {}", p.display());
             }
         }
+        Command::Train {
+            lens,
+            object,
+            stage,
+            iters,
+            samples,
+            seed,
+            out,
+            resume,
+            checkpoint_every,
+            spec,
+            lambda_spot,
+            lambda_psf,
+            psf_spp,
+            max_track,
+            target_efl,
+            eval_trials,
+        } => {
+            let state = match &resume {
+                Some(dir) => {
+                    let p = dir.join("checkpoint.json");
+                    let text = std::fs::read_to_string(&p)
+                        .with_context(|| format!("{}: cannot read the checkpoint", p.display()))?;
+                    serde_json::from_str::<TrainState>(&text)
+                        .with_context(|| format!("{}: not a tolray checkpoint", p.display()))?
+                }
+                None => {
+                    let Some(name) = lens.as_deref() else {
+                        bail!("train needs a LENS (or --resume DIR)")
+                    };
+                    let mut l = Lens::load(name)?;
+                    if let Some(o) = &object {
+                        l.object = Object::parse(o)?;
+                    }
+                    let mut cfg = TrainConfig::for_lens(&l);
+                    cfg.pretrain_iters = if stage == "tolerance" { 0 } else { iters };
+                    cfg.tolerance_iters = if stage == "pretrain" { 0 } else { iters };
+                    cfg.samples = samples.max(1);
+                    cfg.seed = seed;
+                    cfg.lambda_spot = lambda_spot;
+                    cfg.lambda_psf = lambda_psf;
+                    cfg.psf_spp = psf_spp.max(1);
+                    cfg.constraints.max_total_track_mm = max_track;
+                    cfg.constraints.target_efl_mm = target_efl;
+                    if let Some(p) = &spec {
+                        cfg.spec = ToleranceSpec::read(p)?;
+                        cfg.spec.validate(&l).map_err(|e| e.context(p.display()))?;
+                    }
+                    std::fs::create_dir_all(&out)
+                        .with_context(|| format!("{}: cannot create directory", out.display()))?;
+                    json::write_file(&l, &out.join("lens-initial.json"))?;
+                    TrainState::new(&l, cfg)
+                }
+            };
+            train(
+                state,
+                &out,
+                resume.is_some(),
+                checkpoint_every.max(1),
+                eval_trials,
+            )?;
+        }
         Command::Demo { out } => demo(&out)?,
     }
+    Ok(())
+}
+
+fn save_checkpoint(state: &TrainState, out: &Path) -> anyhow::Result<()> {
+    write_text(
+        &out.join("checkpoint.json"),
+        &(serde_json::to_string(state)? + "\n"),
+    )?;
+    write_text(&out.join("lens-latest.json"), &state.lens_json)?;
+    Ok(())
+}
+
+/// Runs (or continues) training, with a progress bar, a JSON-lines log, checkpoints, Ctrl-C
+/// handling and the final report.
+fn train(
+    mut state: TrainState,
+    out: &Path,
+    resumed: bool,
+    every: usize,
+    eval_trials: usize,
+) -> anyhow::Result<()> {
+    use std::io::Write;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("{}: cannot create directory", out.display()))?;
+    let log_path = out.join("log.jsonl");
+    // The log holds exactly one line per finished iteration: on resume, cut it to the checkpoint.
+    let mut logs: Vec<IterLog> = if resumed {
+        std::fs::read_to_string(&log_path)
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .take(state.next_iter)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let body: String = logs
+        .iter()
+        .map(|l| serde_json::to_string(l).unwrap_or_default() + "\n")
+        .collect();
+    write_text(&log_path, &body)?;
+    let mut log = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("{}: cannot open", log_path.display()))?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    let total = state.total_iters();
+    let bar = indicatif::ProgressBar::new(total as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} (ETA {eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_position(state.next_iter as u64);
+    while state.next_iter < total {
+        let l = step(&mut state)?;
+        writeln!(log, "{}", serde_json::to_string(&l)?)
+            .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        bar.set_message(format!(
+            "{:?} loss {:.5} spot {:.2} um{}",
+            l.stage,
+            l.loss,
+            l.spot_um,
+            l.psf_similarity
+                .map_or(String::new(), |s| format!(" sim {s:.4}"))
+        ));
+        bar.inc(1);
+        logs.push(l);
+        let done = state.next_iter == total;
+        if done || state.next_iter % every == 0 || stop.load(Ordering::SeqCst) {
+            save_checkpoint(&state, out)?;
+            write_text(
+                &out.join(format!("lens-iter{}.json", state.next_iter)),
+                &state.lens_json,
+            )?;
+        }
+        if stop.load(Ordering::SeqCst) && !done {
+            bar.abandon();
+            eprintln!(
+                "interrupted: checkpoint at iteration {} in {}; continue with --resume {}",
+                state.next_iter,
+                out.display(),
+                out.display()
+            );
+            std::process::exit(130);
+        }
+    }
+    bar.finish_and_clear();
+    figures::save(
+        &figures::training_figure(&logs, "Training"),
+        &out.join("training.png"),
+    )?;
+    // Final report: initial, stage-1 and final designs; held-out patterns with another seed.
+    let initial = json::read_file(&out.join("lens-initial.json")).or_else(|_| state.lens())?;
+    let final_lens = state.lens()?;
+    let stage1 = state
+        .stage1_lens_json
+        .as_deref()
+        .map(json::from_str)
+        .transpose()?;
+    let cfg = &state.config;
+    let eval_seed = cfg.seed.wrapping_add(1_000_003);
+    let mut designs: Vec<(&str, &Lens)> = vec![("initial", &initial)];
+    if let Some(s1) = &stage1 {
+        designs.push(("stage 1", s1));
+    }
+    designs.push(("final", &final_lens));
+    let mut text = format!("Training report ({} iterations: {} pretrain + {} tolerance-aware, {} patterns per iteration, seed {})\n\n", total, cfg.pretrain_iters, cfg.tolerance_iters, cfg.samples, cfg.seed);
+    let mut evals = Vec::new();
+    text.push_str(&format!("Held-out evaluation: {eval_trials} tolerance patterns of seed {eval_seed} (training used seed {}), no refocus\n", cfg.seed));
+    text.push_str(&format!(
+        "{:>10} {:>28} {:>12} {:>12} {:>14} {:>16}\n",
+        "design", "nominal RMS per field (um)", "MC mean", "MC std", "90 % below", "PSF similarity"
+    ));
+    for (name, l) in &designs {
+        let h = held_out(l, cfg, eval_trials, eval_seed)?;
+        text.push_str(&format!(
+            "{name:>10} {:>28} {:>12.3} {:>12.3} {:>14.3} {:>16.4}\n",
+            fmt_list(&h.nominal_rms_um),
+            h.rms_mean_um,
+            h.rms_std_um,
+            h.rms_yield90_um,
+            h.psf_similarity_mean
+        ));
+        evals.push(serde_json::json!({"design": name, "held_out": h, "lens": json::to_value(l)}));
+    }
+    text.push_str("\nPrescription (radius / gap in mm): initial -> final\n");
+    for (i, (a, b)) in initial
+        .surfaces
+        .iter()
+        .zip(&final_lens.surfaces)
+        .enumerate()
+    {
+        let r = |c: f64| {
+            if c == 0.0 {
+                "inf".to_string()
+            } else {
+                format!("{:.4}", 1.0 / c)
+            }
+        };
+        text.push_str(&format!(
+            "  {i:>3}  R {:>12} -> {:>12}   gap {:>9.4} -> {:>9.4}\n",
+            r(a.c),
+            r(b.c),
+            a.d_next_mm,
+            b.d_next_mm
+        ));
+    }
+    emit(&text);
+    write_text(&out.join("report.txt"), &text)?;
+    write_text(
+        &out.join("report.json"),
+        &(serde_json::to_string_pretty(&serde_json::json!({"config": cfg, "designs": evals}))?
+            + "\n"),
+    )?;
+    json::write_file(&final_lens, &out.join("lens-final.json"))?;
+    eprintln!(
+        "wrote {}/report.txt, report.json, lens-final.json, training.png, log.jsonl",
+        out.display()
+    );
     Ok(())
 }
 

@@ -16,7 +16,7 @@ pub enum SurfaceKind {
 }
 
 /// A design parameter of a lens, for compiling with overridden (e.g. dual-number) values.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum Param {
     /// Curvature of surface `i`, 1/mm.
     Curvature(usize),

@@ -2,6 +2,7 @@
 //! the paper's losses, and (in [`adam`]) the optimizer.
 
 pub mod adam;
+pub mod train;
 
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, System};

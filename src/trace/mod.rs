@@ -284,3 +284,9 @@ mod tests {
         assert_eq!(b.get(2).status, RayStatus::Invalid);
     }
 }
+
+/// Sag (mm) of a compiled surface at squared radius `u` (mm²): conic plus even-asphere terms,
+/// in any number type (used for edge-thickness constraints).
+pub fn kernel_sag<S: Real>(row: &crate::lens::SurfaceRow<S>, u: S) -> S {
+    kernel::asphere_sag(row, u).0
+}
