@@ -154,6 +154,9 @@ enum Command {
         /// Iterations per stage.
         #[arg(long, default_value_t = 100)]
         iters: usize,
+        /// Iterations of stage 1 when it should differ from --iters.
+        #[arg(long)]
+        pretrain_iters: Option<usize>,
         /// Tolerance patterns per stage-2 iteration.
         #[arg(long, default_value_t = 64)]
         samples: usize,
@@ -859,6 +862,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             object,
             stage,
             iters,
+            pretrain_iters,
             samples,
             seed,
             out,
@@ -889,7 +893,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         l.object = Object::parse(o)?;
                     }
                     let mut cfg = TrainConfig::for_lens(&l);
-                    cfg.pretrain_iters = if stage == "tolerance" { 0 } else { iters };
+                    cfg.pretrain_iters = if stage == "tolerance" {
+                        0
+                    } else {
+                        pretrain_iters.unwrap_or(iters)
+                    };
                     cfg.tolerance_iters = if stage == "pretrain" { 0 } else { iters };
                     cfg.samples = samples.max(1);
                     cfg.seed = seed;
@@ -1024,7 +1032,7 @@ fn train(
     let cfg = &state.config;
     let eval_seed = cfg.seed.wrapping_add(1_000_003);
     let mut designs: Vec<(&str, &Lens)> = vec![("initial", &initial)];
-    if let Some(s1) = &stage1 {
+    if let (Some(s1), true) = (&stage1, cfg.pretrain_iters > 0 && cfg.tolerance_iters > 0) {
         designs.push(("stage 1", s1));
     }
     designs.push(("final", &final_lens));
