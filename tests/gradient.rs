@@ -27,6 +27,10 @@ fn all_vars(lens: &Lens) -> Vec<Param> {
             }
         }
         v.push(Param::Gap(i));
+        if matches!(s.material, Material::Model { .. }) {
+            v.push(Param::GlassNd(i));
+            v.push(Param::GlassVd(i));
+        }
     }
     v
 }
@@ -63,6 +67,8 @@ fn step(lens: &Lens, p: Param) -> f64 {
         Param::Conic(_) => 1e-6 * v.max(1.0),
         Param::Asphere(_, j) => 1e-5 * v.max(1e-12 / 10f64.powi(j as i32)),
         Param::Gap(_) => 1e-5 * v.max(1.0),
+        Param::GlassNd(_) => 1e-7,
+        Param::GlassVd(_) => 1e-4,
     }
 }
 
@@ -74,10 +80,11 @@ fn check(name: &str, lens: &Lens, perturbed: bool) {
         Adjustments::none(lens.surfaces.len())
     };
     let fields = [0.0, 0.7, 1.0].map(Field::fraction);
+    // Two wavelengths, so that Abbe-number derivatives are not zero.
     let bundles = Bundles::new(
         lens,
         &fields,
-        &[LAMBDA_D_NM],
+        &[LAMBDA_D_NM, 486.1327],
         &Pupil::grid(8),
         TraceOptions { apertures: false },
     )
@@ -141,7 +148,7 @@ fn passes_of_different_width_agree() {
     let (_, g8) = gradient::<_, 8>(&obj, &lens, &adj, &vars).unwrap();
     let (_, g16) = gradient::<_, 16>(&obj, &lens, &adj, &vars).unwrap();
     let (_, g1) = gradient::<_, 1>(&obj, &lens, &adj, &vars).unwrap();
-    assert_eq!(g8.len(), 21, "10 curvatures and 11 gaps");
+    assert_eq!(g8.len(), 31, "10 curvatures, 11 gaps, 5 model glasses");
     for k in 0..vars.len() {
         assert!(
             (g8[k] - g16[k]).abs() <= 1e-14 * g8[k].abs().max(1e-12)

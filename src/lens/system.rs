@@ -26,6 +26,10 @@ pub enum Param {
     Asphere(usize, usize),
     /// Gap after surface `i`, mm (the last surface's gap is the image distance).
     Gap(usize),
+    /// n_d of the model glass after surface `i`.
+    GlassNd(usize),
+    /// V_d of the model glass after surface `i`.
+    GlassVd(usize),
 }
 
 /// Rigid motions and curvature offsets applied to a nominal lens (tolerances, placements).
@@ -89,6 +93,9 @@ pub struct System<S> {
     pub image_rotated: bool,
     /// Medium after each surface.
     pub materials: Vec<Material>,
+    /// Lifted (n_d, V_d) of each model glass (None for other materials), so that indices carry
+    /// glass derivatives.
+    pub model_glass: Vec<Option<(S, S)>>,
     /// Index of the aperture-stop surface, if any.
     pub stop: Option<usize>,
 }
@@ -177,15 +184,38 @@ impl<S: Real> System<S> {
             image,
             image_rotated: !is_identity(&m.rotation),
             materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
+            model_glass: lens
+                .surfaces
+                .iter()
+                .enumerate()
+                .map(|(i, s)| match s.material {
+                    Material::Model { nd, vd } => Some((
+                        lift(Param::GlassNd(i), S::cst(nd)),
+                        lift(Param::GlassVd(i), S::cst(vd)),
+                    )),
+                    _ => None,
+                })
+                .collect(),
             stop: lens.stop_index(),
         }
     }
 
     /// Refractive index after each surface at `wavelength_nm` (the object space is air).
     pub fn indices(&self, wavelength_nm: f64) -> Vec<S> {
+        use crate::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
+        let inv2 = |l: f64| 1.0 / (l * l);
         self.materials
             .iter()
-            .map(|m| S::cst(m.index(wavelength_nm)))
+            .zip(&self.model_glass)
+            .map(|(m, g)| match g {
+                // The model glass' Cauchy law, n = A + B / λ², evaluated in S.
+                Some((nd, vd)) => {
+                    let b = (*nd - S::cst(1.0)) / *vd
+                        * S::cst(1.0 / (inv2(LAMBDA_F_NM) - inv2(LAMBDA_C_NM)));
+                    *nd + b * S::cst(inv2(wavelength_nm) - inv2(LAMBDA_D_NM))
+                }
+                None => S::cst(m.index(wavelength_nm)),
+            })
             .collect()
     }
 
@@ -217,6 +247,11 @@ impl<S: Real> System<S> {
             },
             image_rotated: self.image_rotated,
             materials: self.materials.clone(),
+            model_glass: self
+                .model_glass
+                .iter()
+                .map(|g| g.map(|(n, v)| (T::cst(n.value()), T::cst(v.value()))))
+                .collect(),
             stop: self.stop,
         }
     }

@@ -37,6 +37,20 @@ pub fn param_value(lens: &Lens, p: Param) -> Result<f64> {
             .get(j)
             .ok_or_else(|| Error::argument(format!("{p:?}: asphere term {j} does not exist")))?,
         Param::Gap(i) => s(i)?.d_next_mm,
+        Param::GlassNd(i) | Param::GlassVd(i) => match s(i)?.material {
+            crate::lens::Material::Model { nd, vd } => {
+                if matches!(p, Param::GlassNd(_)) {
+                    nd
+                } else {
+                    vd
+                }
+            }
+            _ => {
+                return Err(Error::argument(format!(
+                    "{p:?}: the material after surface {i} is not a model glass (n_d/V_d)"
+                )))
+            }
+        },
     })
 }
 
@@ -51,6 +65,15 @@ pub fn set_param(lens: &mut Lens, p: Param, v: f64) -> Result<()> {
         Param::Conic(i) => lens.surfaces[i].k = v,
         Param::Asphere(i, j) => lens.surfaces[i].asph[j] = v,
         Param::Gap(i) => lens.surfaces[i].d_next_mm = v,
+        Param::GlassNd(i) | Param::GlassVd(i) => {
+            if let crate::lens::Material::Model { nd, vd } = &mut lens.surfaces[i].material {
+                if matches!(p, Param::GlassNd(_)) {
+                    *nd = v;
+                } else {
+                    *vd = v;
+                }
+            }
+        }
     }
     Ok(())
 }
