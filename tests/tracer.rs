@@ -239,3 +239,36 @@ fn results_do_not_depend_on_thread_count() {
     };
     assert_eq!(run(1), run(3));
 }
+
+#[test]
+fn aimed_rays_cross_the_real_stop_where_asked() {
+    use tolray::trace::{Field, Pupil, RaySet};
+    for name in ["lens2", "cooke-triplet"] {
+        let lens = Lens::load(name).unwrap();
+        let para = lens.paraxial(LAMBDA_D_NM).unwrap();
+        let stop = para.stop_surface;
+        let r_stop = lens.surfaces[stop].semi_aperture_mm;
+        let pupil = Pupil {
+            pattern: tolray::trace::PupilPattern::Hex(3),
+            scale: 1.0,
+            aim: true,
+        };
+        let set =
+            RaySet::generate(&lens, &para, Field::fraction(1.0), &pupil, LAMBDA_D_NM).unwrap();
+        let sys = lens.compile();
+        let n = sys.indices(LAMBDA_D_NM);
+        for ((o, d), q) in set.origins.iter().zip(&set.directions).zip(&set.pupil) {
+            let r = trace_ray(&sys, &n, *o, *d, false, Some(stop));
+            let p = r.o - sys.rows[stop].pos;
+            assert!(
+                (p.x - q[0] * r_stop).abs() < 1e-9 && (p.y - q[1] * r_stop).abs() < 1e-9,
+                "{name}: {p:?} vs {q:?}"
+            );
+        }
+        let r = trace_ray(&sys, &n, set.chief.0, set.chief.1, false, Some(stop));
+        assert!(
+            (r.o - sys.rows[stop].pos).norm() < 1e-9,
+            "{name}: the aimed chief ray passes the stop centre"
+        );
+    }
+}

@@ -345,7 +345,8 @@ fn aim_ray(
             Error::numerical("ray aiming: a ray missed a surface before the stop")
         })?;
         let r = [f[0] - target[0], f[1] - target[1]];
-        if r[0].abs().max(r[1].abs()) < 1e-12 {
+        // 0.1 nm at the stop: well above the trace's rounding (~1e-14 x 100 mm), far below any use.
+        if r[0].abs().max(r[1].abs()) < 1e-10 {
             return Ok(e);
         }
         let h = 1e-6;
