@@ -62,6 +62,25 @@ impl Error {
     }
 }
 
+/// Reads a JSON file into `T`.
+///
+/// # Errors
+/// [`ErrorKind::Io`] naming the path, or [`ErrorKind::Parse`] naming the path, line and column.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| {
+        Error::new(
+            ErrorKind::Parse,
+            format!(
+                "{}: line {}, column {}: {e}",
+                path.display(),
+                e.line(),
+                e.column()
+            ),
+        )
+    })
+}
+
 /// Writes `bytes` to `path` atomically: a temporary file in the same directory, then a rename,
 /// so a reader never sees a half-written file.
 ///

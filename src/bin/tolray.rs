@@ -579,14 +579,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         } => {
             let l = lens.load()?;
             let opts = rays.options(&l)?;
-            let sys = match &perturb {
-                None => l.compile(),
-                Some(p) => {
-                    let pattern = Perturbation::read(p)?;
-                    let (pl, adj) = pattern.apply(&l).map_err(|e| e.context(p.display()))?;
-                    tolray::lens::System::compile(&pl, &adj, &|_, v| v)
-                }
-            };
+            let sys = perturbed_system(&l, perturb.as_deref())?;
             let results = spot_diagram(&l, &sys, &opts)?;
             if json {
                 emit_line(&format!("{}", serde_json::to_string_pretty(&results)?));

@@ -16,7 +16,7 @@ pub use analysis::{
 };
 pub use spec::{Distribution, Operand, OperandKind, ToleranceSpec};
 
-use crate::error::{Error, ErrorKind, Result};
+use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Material};
 use crate::math::{Mat3, Rigid, Vec3};
 use serde::{Deserialize, Serialize};
@@ -117,18 +117,7 @@ impl Perturbation {
     /// # Errors
     /// I/O and JSON errors naming the file, line and column.
     pub fn read(path: &Path) -> Result<Perturbation> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        serde_json::from_str(&text).map_err(|e| {
-            Error::new(
-                ErrorKind::Parse,
-                format!(
-                    "{}: line {}, column {}: {e}",
-                    path.display(),
-                    e.line(),
-                    e.column()
-                ),
-            )
-        })
+        crate::error::read_json(path)
     }
 
     /// Checks element and surface indices and values against `lens`.

@@ -1,7 +1,7 @@
 //! Tolerance specs: which operands, their ranges and distributions; and the seeded sampler.
 
 use super::{find_elements, ElementPerturbation, Perturbation, Pivot, SurfacePerturbation};
-use crate::error::{Error, ErrorKind, Result};
+use crate::error::{Error, Result};
 use crate::lens::Lens;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -188,18 +188,7 @@ impl ToleranceSpec {
     /// # Errors
     /// I/O and JSON errors naming the file, line and column (unknown operands are named).
     pub fn read(path: &Path) -> Result<ToleranceSpec> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        serde_json::from_str(&text).map_err(|e| {
-            Error::new(
-                ErrorKind::Parse,
-                format!(
-                    "{}: line {}, column {}: {e}",
-                    path.display(),
-                    e.line(),
-                    e.column()
-                ),
-            )
-        })
+        crate::error::read_json(path)
     }
 
     /// JSON text of the spec.
