@@ -17,6 +17,7 @@
 
 pub mod analysis;
 pub mod error;
+pub mod ffi;
 pub mod figures;
 pub mod lens;
 pub mod math;

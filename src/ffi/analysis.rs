@@ -1,0 +1,607 @@
+//! Tracing, spot statistics, PSFs and gradients through the C ABI.
+
+use super::handles::{check_wavelength, tolray_param, tolray_system};
+use super::{boundary, c_slice, nonnull, tolray_status, FfiError, FfiResult};
+use crate::analysis::spot::{spot_diagram, SpotOptions};
+use crate::lens::System;
+use crate::math::Vec3;
+use crate::optim::{self, Bundles, PsfLoss, SpotLoss, SpotMeasure};
+use crate::psf::{self, PsfCentre, PsfOptions, PsfRays};
+use crate::trace::{self, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
+
+/// A field point.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct tolray_field {
+    /// One of the `TOLRAY_FIELD_*` values: how `x` and `y` are measured.
+    pub kind: u32,
+    /// Field along x (sagittal).
+    pub x: f64,
+    /// Field along y (meridional). Positive values put the object above the axis.
+    pub y: f64,
+}
+
+/// `x`, `y` are fractions of the full field (tan of the angle scaled to the sensor half-diagonal).
+pub const TOLRAY_FIELD_FRACTION: u32 = 0;
+/// `x`, `y` are field angles, degrees.
+pub const TOLRAY_FIELD_ANGLE_DEG: u32 = 1;
+/// `x`, `y` are object heights, mm (finite objects only).
+pub const TOLRAY_FIELD_HEIGHT_MM: u32 = 2;
+
+/// Pupil sampling.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct tolray_pupil {
+    /// One of the `TOLRAY_PUPIL_*` values.
+    pub pattern: u32,
+    /// Grid: n x n points (those inside the disk are kept); hex: n rings; random: n points.
+    pub n: u32,
+    /// Seed of the random pattern (ignored by the others).
+    pub seed: u64,
+    /// Radius of the sampled disk relative to the paraxial entrance pupil (1 = full pupil).
+    pub scale: f64,
+    /// Nonzero: aim every ray at the real stop (iteratively) instead of the paraxial pupil.
+    pub aim: u32,
+}
+
+/// Cell-centred square grid.
+pub const TOLRAY_PUPIL_GRID: u32 = 0;
+/// Hexapolar rings.
+pub const TOLRAY_PUPIL_HEX: u32 = 1;
+/// Uniform random points over the disk, seeded.
+pub const TOLRAY_PUPIL_RANDOM: u32 = 2;
+
+/// Spot statistics of one field; sizes in micrometres, sensor positions in millimetres.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct tolray_spot_stats {
+    /// Rays launched.
+    pub n_launched: u64,
+    /// Rays that reached the image plane.
+    pub n_valid: u64,
+    /// Centroid of the arriving rays on the sensor, mm.
+    pub centroid_mm: [f64; 2],
+    /// RMS radius about the centroid, um.
+    pub rms_um: f64,
+    /// RMS radius about the chief ray, um (0 when `chief_valid` is 0).
+    pub rms_chief_um: f64,
+    /// Largest distance from the centroid, um.
+    pub geo_radius_um: f64,
+    /// Fraction of the launched rays that did not arrive.
+    pub vignetted_fraction: f64,
+    /// Chief-ray position on the sensor at the first wavelength, mm (0 when lost).
+    pub chief_mm: [f64; 2],
+    /// 1 if the chief ray reached the sensor, else 0.
+    pub chief_valid: u32,
+}
+
+/// PSF settings.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct tolray_psf_options {
+    /// Kernel size in pixels, odd (the PSF is `kernel_px` x `kernel_px`, row-major, row 0 at +y).
+    pub kernel_px: u32,
+    /// Pixel pitch, mm.
+    pub pitch_mm: f64,
+    /// `TOLRAY_PSF_CENTRE_CHIEF` or `TOLRAY_PSF_CENTRE_CENTROID`.
+    pub centre: u32,
+    /// Pupil sampling of each PSF.
+    pub pupil: tolray_pupil,
+}
+
+/// The chief ray sits in the centre pixel.
+pub const TOLRAY_PSF_CENTRE_CHIEF: u32 = 0;
+/// The centroid sits in the centre pixel.
+pub const TOLRAY_PSF_CENTRE_CENTROID: u32 = 1;
+
+/// Spot measure of the spot loss: the paper's mean distance from the centroid.
+pub const TOLRAY_SPOT_MEAN: u32 = 0;
+/// Spot measure of the spot loss: RMS radius about the centroid.
+pub const TOLRAY_SPOT_RMS: u32 = 1;
+
+/// Trace flag: clip rays at clear apertures and the stop.
+pub const TOLRAY_TRACE_APERTURES: u32 = 1;
+/// Trace flag: return positions and directions in the sensor's own frame (origin at the sensor
+/// centre, z along its normal) instead of the global frame.
+pub const TOLRAY_TRACE_SENSOR_FRAME: u32 = 2;
+
+/// Ray status value: reached the image plane. Other statuses carry a surface index (from 0; the
+/// image plane is surface N) in their low 24 bits: `status & TOLRAY_RAY_SURFACE_MASK`.
+pub const TOLRAY_RAY_ALIVE: u32 = 0;
+/// Ray status kind: outside the clear aperture or stop of a surface.
+pub const TOLRAY_RAY_VIGNETTED: u32 = 1 << 24;
+/// Ray status kind: did not meet a surface.
+pub const TOLRAY_RAY_MISSED: u32 = 2 << 24;
+/// Ray status kind: total internal reflection.
+pub const TOLRAY_RAY_TIR: u32 = 3 << 24;
+/// Ray status kind: the input ray was invalid (non-finite, zero direction).
+pub const TOLRAY_RAY_INVALID: u32 = 4 << 24;
+/// Mask of the kind bits of a ray status.
+pub const TOLRAY_RAY_KIND_MASK: u32 = 0xff00_0000;
+/// Mask of the surface-index bits of a ray status.
+pub const TOLRAY_RAY_SURFACE_MASK: u32 = 0x00ff_ffff;
+
+/// Input rays, structure of arrays: `n` origins (mm, global frame) and directions (any length
+/// but 0; normalized on input).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct tolray_rays_in {
+    /// Origin x, mm.
+    pub x: *const f64,
+    /// Origin y, mm.
+    pub y: *const f64,
+    /// Origin z, mm.
+    pub z: *const f64,
+    /// Direction x.
+    pub dx: *const f64,
+    /// Direction y.
+    pub dy: *const f64,
+    /// Direction z.
+    pub dz: *const f64,
+}
+
+/// Output rays, structure of arrays of `n` each: positions on the image plane (mm), unit
+/// directions, optical path lengths from the origin (mm) and status. `opl` may be NULL. They may
+/// be the same arrays as the input (in-place tracing).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct tolray_rays_out {
+    /// Position x, mm.
+    pub x: *mut f64,
+    /// Position y, mm.
+    pub y: *mut f64,
+    /// Position z, mm.
+    pub z: *mut f64,
+    /// Direction x.
+    pub dx: *mut f64,
+    /// Direction y.
+    pub dy: *mut f64,
+    /// Direction z.
+    pub dz: *mut f64,
+    /// Optical path length, mm (NULL: not returned).
+    pub opl: *mut f64,
+    /// Status (`TOLRAY_RAY_*`).
+    pub status: *mut u32,
+}
+
+impl tolray_field {
+    fn to_field(self) -> FfiResult<Field> {
+        let (x, y) = (self.x, self.y);
+        if !x.is_finite() || !y.is_finite() {
+            return Err(FfiError::argument(format!(
+                "field ({x}, {y}) is not finite"
+            )));
+        }
+        Ok(match self.kind {
+            TOLRAY_FIELD_FRACTION => Field::Fraction { x, y },
+            TOLRAY_FIELD_ANGLE_DEG => Field::AngleDeg { x, y },
+            TOLRAY_FIELD_HEIGHT_MM => Field::HeightMm { x, y },
+            k => {
+                return Err(FfiError::argument(format!(
+                    "unknown field kind {k} (expected TOLRAY_FIELD_*: 0 to 2)"
+                )))
+            }
+        })
+    }
+}
+
+impl tolray_pupil {
+    fn to_pupil(self) -> FfiResult<Pupil> {
+        let n = self.n as usize;
+        if n == 0 || n > 100_000_000 {
+            return Err(FfiError::argument(format!(
+                "pupil: n = {n} (give 1 to 100000000)"
+            )));
+        }
+        if !(self.scale.is_finite() && self.scale > 0.0 && self.scale <= 10.0) {
+            return Err(FfiError::argument(format!(
+                "pupil: scale {} must be in (0, 10]",
+                self.scale
+            )));
+        }
+        let pattern = match self.pattern {
+            TOLRAY_PUPIL_GRID => PupilPattern::Grid(n),
+            TOLRAY_PUPIL_HEX => PupilPattern::Hex(n),
+            TOLRAY_PUPIL_RANDOM => PupilPattern::Random { n, seed: self.seed },
+            k => {
+                return Err(FfiError::argument(format!(
+                    "unknown pupil pattern {k} (expected TOLRAY_PUPIL_*: 0 to 2)"
+                )))
+            }
+        };
+        Ok(Pupil {
+            pattern,
+            scale: self.scale,
+            aim: self.aim != 0,
+        })
+    }
+}
+
+impl tolray_psf_options {
+    fn to_options(self) -> FfiResult<PsfOptions> {
+        let centre = match self.centre {
+            TOLRAY_PSF_CENTRE_CHIEF => PsfCentre::Chief,
+            TOLRAY_PSF_CENTRE_CENTROID => PsfCentre::Centroid,
+            k => {
+                return Err(FfiError::argument(format!(
+                    "unknown PSF centre {k} (expected TOLRAY_PSF_CENTRE_*: 0 or 1)"
+                )))
+            }
+        };
+        let opts = PsfOptions {
+            ks: self.kernel_px as usize,
+            pitch_mm: self.pitch_mm,
+            centre,
+            pupil: self.pupil.to_pupil()?,
+        };
+        psf::check_options(&opts)?;
+        Ok(opts)
+    }
+}
+
+fn wavelengths(p: *const f64, n: usize) -> FfiResult<Vec<f64>> {
+    // SAFETY: caller's promise of `n` readable doubles.
+    let w = unsafe { c_slice(p, n, "wavelengths_nm") }?;
+    if w.is_empty() {
+        return Err(FfiError::size("n_wavelengths is 0"));
+    }
+    for &wl in w {
+        check_wavelength(wl)?;
+    }
+    Ok(w.to_vec())
+}
+
+fn fields(p: *const tolray_field, n: usize) -> FfiResult<Vec<Field>> {
+    // SAFETY: caller's promise of `n` readable fields.
+    let f = unsafe { c_slice(p, n, "fields") }?;
+    if f.is_empty() {
+        return Err(FfiError::size("n_fields is 0"));
+    }
+    f.iter().map(|f| f.to_field()).collect()
+}
+
+fn params(
+    p: *const tolray_param,
+    n: usize,
+    sys: &tolray_system,
+) -> FfiResult<Vec<crate::lens::Param>> {
+    // SAFETY: caller's promise of `n` readable params.
+    let v = unsafe { c_slice(p, n, "vars") }?;
+    v.iter()
+        .map(|q| {
+            let p = q.to_param()?;
+            optim::param_value(&sys.lens, p)?;
+            Ok(p)
+        })
+        .collect()
+}
+
+/// Traces `n` caller rays of one wavelength through `system`, in parallel (rayon; results do not
+/// depend on the thread count). `flags` combines `TOLRAY_TRACE_*`. Every output array receives `n`
+/// values; rays that did not arrive keep the position and direction where they stopped, and their
+/// status says why.
+///
+/// # Safety
+/// `system`, `rays`, `out` are valid pointers; the arrays they name hold `n` doubles (`status`:
+/// `n` uint32) and are readable (inputs) or writable (outputs).
+#[no_mangle]
+pub unsafe extern "C" fn tolray_trace(
+    system: *const tolray_system,
+    wavelength_nm: f64,
+    flags: u32,
+    n: usize,
+    rays: *const tolray_rays_in,
+    out: *const tolray_rays_out,
+) -> tolray_status {
+    boundary("tolray_trace", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let rin = unsafe { nonnull(rays, "rays") }?;
+        let rout = unsafe { nonnull(out, "out") }?;
+        check_wavelength(wavelength_nm)?;
+        if flags & !(TOLRAY_TRACE_APERTURES | TOLRAY_TRACE_SENSOR_FRAME) != 0 {
+            return Err(FfiError::argument(format!(
+                "unknown trace flags {flags:#x}"
+            )));
+        }
+        let outs = [rout.x, rout.y, rout.z, rout.dx, rout.dy, rout.dz];
+        let names = [
+            "out->x", "out->y", "out->z", "out->dx", "out->dy", "out->dz",
+        ];
+        for (p, name) in outs.iter().zip(names) {
+            if n > 0 && p.is_null() {
+                return Err(FfiError::null(name));
+            }
+        }
+        if n > 0 && rout.status.is_null() {
+            return Err(FfiError::null("out->status"));
+        }
+        // Read every input before writing any output: the arrays may alias.
+        let mut batch: RayBatch<f64> = RayBatch::with_capacity(n);
+        {
+            let col = |p, name| unsafe { c_slice(p, n, name) };
+            let (x, y, z) = (
+                col(rin.x, "rays->x")?,
+                col(rin.y, "rays->y")?,
+                col(rin.z, "rays->z")?,
+            );
+            let (dx, dy, dz) = (
+                col(rin.dx, "rays->dx")?,
+                col(rin.dy, "rays->dy")?,
+                col(rin.dz, "rays->dz")?,
+            );
+            for i in 0..n {
+                batch.push(Vec3::new(x[i], y[i], z[i]), Vec3::new(dx[i], dy[i], dz[i]));
+            }
+        }
+        let opts = TraceOptions {
+            apertures: flags & TOLRAY_TRACE_APERTURES != 0,
+        };
+        trace::trace(&s.sys, wavelength_nm, &mut batch, opts);
+        let sensor = flags & TOLRAY_TRACE_SENSOR_FRAME != 0;
+        for i in 0..n {
+            let r = batch.get(i);
+            let (o, d) = if sensor {
+                let img = &s.sys.image;
+                (img.point_to_local(r.o), img.rotation.apply_t(r.d))
+            } else {
+                (r.o, r.d)
+            };
+            // SAFETY: every output array holds `n` writable elements (checked non-NULL above).
+            unsafe {
+                *rout.x.add(i) = o.x;
+                *rout.y.add(i) = o.y;
+                *rout.z.add(i) = o.z;
+                *rout.dx.add(i) = d.x;
+                *rout.dy.add(i) = d.y;
+                *rout.dz.add(i) = d.z;
+                if !rout.opl.is_null() {
+                    *rout.opl.add(i) = r.opl;
+                }
+                *rout.status.add(i) = r.status.code();
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Spot statistics of one field over `n_wavelengths` wavelengths (polychromatic when more than
+/// one: all arriving rays together, about the first wavelength's chief ray). Rays are aimed at
+/// the nominal lens' entrance pupil; apertures clip when `apertures` is nonzero.
+///
+/// # Safety
+/// `system`, `field`, `pupil` are valid pointers; `wavelengths_nm` holds `n_wavelengths`
+/// doubles; `out` points to a writable `tolray_spot_stats`.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spot(
+    system: *const tolray_system,
+    field: *const tolray_field,
+    wavelengths_nm: *const f64,
+    n_wavelengths: usize,
+    pupil: *const tolray_pupil,
+    apertures: u32,
+    out: *mut tolray_spot_stats,
+) -> tolray_status {
+    boundary("tolray_spot", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let field = unsafe { nonnull(field, "field") }?.to_field()?;
+        let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        if out.is_null() {
+            return Err(FfiError::null("out"));
+        }
+        let opts = SpotOptions {
+            fields: vec![field],
+            wavelengths_nm: wl,
+            pupil,
+            trace: TraceOptions {
+                apertures: apertures != 0,
+            },
+        };
+        let res = spot_diagram(&s.nominal, &s.sys, &opts)?;
+        let r = res
+            .last()
+            .ok_or_else(|| FfiError::new(tolray_status::TOLRAY_ERROR_NUMERICAL, "no spot"))?;
+        let st = &r.stats;
+        let value = tolray_spot_stats {
+            n_launched: st.n_launched as u64,
+            n_valid: st.n_valid as u64,
+            centroid_mm: st.centroid_mm,
+            rms_um: st.rms_um,
+            rms_chief_um: st.rms_chief_um.unwrap_or(0.0),
+            geo_radius_um: st.geo_radius_um,
+            vignetted_fraction: st.vignetted_fraction,
+            chief_mm: r.chief_mm.unwrap_or([0.0, 0.0]),
+            chief_valid: r.chief_mm.is_some() as u32,
+        };
+        // SAFETY: checked non-NULL.
+        unsafe { *out = value };
+        Ok(())
+    })
+}
+
+/// The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch,
+/// chief-ray centred, 8192 uniform random pupil rays with seed 0.
+///
+/// # Safety
+/// `system` is a live handle; `out` points to a writable `tolray_psf_options`.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_psf_options_default(
+    system: *const tolray_system,
+    out: *mut tolray_psf_options,
+) -> tolray_status {
+    boundary("tolray_psf_options_default", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        if out.is_null() {
+            return Err(FfiError::null("out"));
+        }
+        let o = PsfOptions::for_lens(&s.nominal);
+        let (n, seed) = match o.pupil.pattern {
+            PupilPattern::Random { n, seed } => (n, seed),
+            _ => (8192, 0),
+        };
+        let value = tolray_psf_options {
+            kernel_px: o.ks as u32,
+            pitch_mm: o.pitch_mm,
+            centre: TOLRAY_PSF_CENTRE_CHIEF,
+            pupil: tolray_pupil {
+                pattern: TOLRAY_PUPIL_RANDOM,
+                n: n as u32,
+                seed,
+                scale: o.pupil.scale,
+                aim: o.pupil.aim as u32,
+            },
+        };
+        // SAFETY: checked non-NULL.
+        unsafe { *out = value };
+        Ok(())
+    })
+}
+
+/// The geometric PSF of one field at one wavelength: `kernel_px`² values, row-major with row 0
+/// at +y, summing to 1 (all zeros if no ray lands in the window). `out_len` must equal
+/// `kernel_px * kernel_px`.
+///
+/// # Safety
+/// `system`, `field`, `opts` are valid pointers; `out` holds `out_len` writable doubles.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_psf(
+    system: *const tolray_system,
+    field: *const tolray_field,
+    wavelength_nm: f64,
+    opts: *const tolray_psf_options,
+    out: *mut f64,
+    out_len: usize,
+) -> tolray_status {
+    boundary("tolray_psf", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let field = unsafe { nonnull(field, "field") }?.to_field()?;
+        let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
+        check_wavelength(wavelength_nm)?;
+        if out.is_null() {
+            return Err(FfiError::null("out"));
+        }
+        if out_len != opts.ks * opts.ks {
+            return Err(FfiError::size(format!(
+                "out_len is {out_len}; a {k} x {k} PSF needs {}",
+                opts.ks * opts.ks,
+                k = opts.ks
+            )));
+        }
+        let rays = PsfRays::new(&s.nominal, &[(field, wavelength_nm)], &opts.pupil)?;
+        let (img, _) = psf::psf_of(&s.sys, &rays, 0, &opts, TraceOptions::default());
+        // SAFETY: `out` holds `out_len` == img.len() writable doubles.
+        unsafe { std::ptr::copy_nonoverlapping(img.as_ptr(), out, img.len()) };
+        Ok(())
+    })
+}
+
+fn write_gradient(
+    sys: &tolray_system,
+    obj: &impl optim::Objective,
+    vars: &[crate::lens::Param],
+    value_out: *mut f64,
+    grad_out: *mut f64,
+) -> FfiResult<()> {
+    if value_out.is_null() {
+        return Err(FfiError::null("value_out"));
+    }
+    if !vars.is_empty() && grad_out.is_null() {
+        return Err(FfiError::null("grad_out"));
+    }
+    let (v, g) = optim::gradient::<_, { optim::GRAD_WIDTH }>(obj, &sys.lens, &sys.adj, vars)?;
+    if !v.is_finite() || g.iter().any(|x| !x.is_finite()) {
+        return Err(FfiError::new(
+            tolray_status::TOLRAY_ERROR_NUMERICAL,
+            "the loss or its gradient is not finite (did every bundle lose all its rays?)",
+        ));
+    }
+    // SAFETY: both checked non-NULL; `grad_out` holds `vars.len()` writable doubles.
+    unsafe {
+        *value_out = v;
+        std::ptr::copy_nonoverlapping(g.as_ptr(), grad_out, g.len());
+    }
+    Ok(())
+}
+
+/// The paper's spot loss of `system` - the sum over fields and wavelengths of each bundle's spot
+/// size in mm (`measure`: `TOLRAY_SPOT_MEAN` or `TOLRAY_SPOT_RMS`) - and its exact gradient with
+/// respect to `vars` (forward-mode dual numbers through the tracer), in `*value_out` and
+/// `grad_out[0..n_vars]`. Apertures clip.
+///
+/// # Safety
+/// Pointers valid as named; arrays hold the given counts; outputs writable.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spot_loss_gradient(
+    system: *const tolray_system,
+    fields: *const tolray_field,
+    n_fields: usize,
+    wavelengths_nm: *const f64,
+    n_wavelengths: usize,
+    pupil: *const tolray_pupil,
+    measure: u32,
+    vars: *const tolray_param,
+    n_vars: usize,
+    value_out: *mut f64,
+    grad_out: *mut f64,
+) -> tolray_status {
+    boundary("tolray_spot_loss_gradient", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let f = self::fields(fields, n_fields)?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
+        let measure = match measure {
+            TOLRAY_SPOT_MEAN => SpotMeasure::Mean,
+            TOLRAY_SPOT_RMS => SpotMeasure::Rms,
+            m => {
+                return Err(FfiError::argument(format!(
+                    "unknown spot measure {m} (expected TOLRAY_SPOT_MEAN or TOLRAY_SPOT_RMS)"
+                )))
+            }
+        };
+        let vars = params(vars, n_vars, s)?;
+        let bundles = Bundles::new(&s.nominal, &f, &wl, &pupil, TraceOptions::default())?;
+        write_gradient(
+            s,
+            &SpotLoss { bundles, measure },
+            &vars,
+            value_out,
+            grad_out,
+        )
+    })
+}
+
+/// The paper's PSF-similarity loss of `system` - 1 - the mean over fields × wavelengths of the
+/// similarity between each PSF and the nominal lens' PSF at the same field and wavelength - and
+/// its exact gradient with respect to `vars`.
+///
+/// # Safety
+/// Pointers valid as named; arrays hold the given counts; outputs writable.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_psf_loss_gradient(
+    system: *const tolray_system,
+    fields: *const tolray_field,
+    n_fields: usize,
+    wavelengths_nm: *const f64,
+    n_wavelengths: usize,
+    opts: *const tolray_psf_options,
+    vars: *const tolray_param,
+    n_vars: usize,
+    value_out: *mut f64,
+    grad_out: *mut f64,
+) -> tolray_status {
+    boundary("tolray_psf_loss_gradient", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let f = self::fields(fields, n_fields)?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
+        let vars = params(vars, n_vars, s)?;
+        let pairs: Vec<(Field, f64)> = f
+            .iter()
+            .flat_map(|&f| wl.iter().map(move |&w| (f, w)))
+            .collect();
+        let rays = PsfRays::new(&s.nominal, &pairs, &opts.pupil)?;
+        let ideal: System<f64> = s.nominal.compile();
+        let loss = PsfLoss::new(rays, &ideal, opts, TraceOptions::default());
+        write_gradient(s, &loss, &vars, value_out, grad_out)
+    })
+}

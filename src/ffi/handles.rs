@@ -1,0 +1,484 @@
+//! Opaque handles: lens, tolerance spec, tolerance pattern, and the traced system.
+
+use super::{boundary, c_str, copy_text, nonnull, tolray_status, FfiError, FfiResult};
+use crate::lens::{self, Adjustments, Lens, Param, System};
+use crate::tolerance::{Perturbation, ToleranceSpec};
+use crate::Error;
+use std::ffi::c_char;
+
+/// A lens prescription (immutable; shareable between threads).
+pub struct tolray_lens {
+    pub(crate) lens: Lens,
+}
+
+/// A tolerance spec: operands, ranges and distributions (immutable; shareable).
+pub struct tolray_spec {
+    pub(crate) spec: ToleranceSpec,
+}
+
+/// A tolerance pattern: the perturbation values of one fabricated lens (immutable; shareable).
+pub struct tolray_pattern {
+    pub(crate) pattern: Perturbation,
+}
+
+/// A lens as traced: a nominal lens compiled with a tolerance pattern applied (or none). Rays are
+/// aimed at the nominal lens' entrance pupil, as a fabricated lens is used. Immutable; shareable.
+pub struct tolray_system {
+    /// The nominal lens (ray generation, ideal PSFs).
+    pub(crate) nominal: Lens,
+    /// The lens with the pattern's material changes.
+    pub(crate) lens: Lens,
+    /// The pattern's geometric adjustments.
+    pub(crate) adj: Adjustments,
+    /// The compiled table.
+    pub(crate) sys: System<f64>,
+}
+
+/// A design variable of a lens, for gradients.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct tolray_param {
+    /// One of the `TOLRAY_PARAM_*` values.
+    pub kind: u32,
+    /// Surface index, from 0 (for glass variables: the surface the glass follows).
+    pub surface: u32,
+    /// Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16).
+    pub term: u32,
+}
+
+/// Curvature of a surface, 1/mm.
+pub const TOLRAY_PARAM_CURVATURE: u32 = 0;
+/// Conic constant of a surface.
+pub const TOLRAY_PARAM_CONIC: u32 = 1;
+/// Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
+pub const TOLRAY_PARAM_ASPHERE: u32 = 2;
+/// Gap after a surface (thickness or air space), mm.
+pub const TOLRAY_PARAM_GAP: u32 = 3;
+/// n_d of the model glass after a surface.
+pub const TOLRAY_PARAM_GLASS_ND: u32 = 4;
+/// V_d of the model glass after a surface.
+pub const TOLRAY_PARAM_GLASS_VD: u32 = 5;
+
+impl tolray_param {
+    pub(crate) fn to_param(self) -> FfiResult<Param> {
+        let s = self.surface as usize;
+        Ok(match self.kind {
+            TOLRAY_PARAM_CURVATURE => Param::Curvature(s),
+            TOLRAY_PARAM_CONIC => Param::Conic(s),
+            TOLRAY_PARAM_ASPHERE => Param::Asphere(s, self.term as usize),
+            TOLRAY_PARAM_GAP => Param::Gap(s),
+            TOLRAY_PARAM_GLASS_ND => Param::GlassNd(s),
+            TOLRAY_PARAM_GLASS_VD => Param::GlassVd(s),
+            k => {
+                return Err(FfiError::argument(format!(
+                    "unknown parameter kind {k} (expected 0 to 5, TOLRAY_PARAM_*)"
+                )))
+            }
+        })
+    }
+}
+
+/// First-order properties of a lens at one wavelength; lengths in mm, axial positions are
+/// global z (first vertex at 0, light toward +z).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct tolray_paraxial {
+    /// Wavelength of the analysis, nm.
+    pub wavelength_nm: f64,
+    /// Effective focal length, mm.
+    pub efl_mm: f64,
+    /// Back focal distance (last vertex to the infinity focus), mm.
+    pub bfd_mm: f64,
+    /// Last vertex to the paraxial image of the stated object, mm.
+    pub image_distance_mm: f64,
+    /// Axial position of the entrance pupil, mm.
+    pub entrance_pupil_z_mm: f64,
+    /// Entrance pupil diameter, mm.
+    pub entrance_pupil_diameter_mm: f64,
+    /// Axial position of the exit pupil, mm.
+    pub exit_pupil_z_mm: f64,
+    /// Exit pupil diameter, mm.
+    pub exit_pupil_diameter_mm: f64,
+    /// F-number for an object at infinity, EFL / EPD.
+    pub fnum: f64,
+    /// Working F-number for the stated object.
+    pub working_fnum: f64,
+    /// Lateral magnification for the stated object (0 at infinity).
+    pub magnification: f64,
+    /// Half field of view from the sensor's half-diagonal, degrees.
+    pub half_fov_deg: f64,
+    /// Total track: first vertex to the image plane, mm.
+    pub total_track_mm: f64,
+    /// Index of the aperture-stop surface.
+    pub stop_surface: u32,
+    /// Number of surfaces of the lens (the image plane not counted).
+    pub num_surfaces: u32,
+}
+
+fn give<T>(out: *mut *mut T, value: T) -> FfiResult<()> {
+    if out.is_null() {
+        return Err(FfiError::null("out"));
+    }
+    // SAFETY: `out` is non-NULL and points to a writable pointer (caller's promise).
+    unsafe { *out = Box::into_raw(Box::new(value)) };
+    Ok(())
+}
+
+unsafe fn free<T>(p: *mut T) {
+    if !p.is_null() {
+        // SAFETY: `p` came from `give` (Box::into_raw) and is freed once (caller's promise).
+        drop(unsafe { Box::from_raw(p) });
+    }
+}
+
+fn parse_json<T: serde::de::DeserializeOwned>(text: &str, what: &str) -> FfiResult<T> {
+    serde_json::from_str(text).map_err(|e| {
+        FfiError::new(
+            tolray_status::TOLRAY_ERROR_PARSE,
+            format!("{what} JSON: line {}, column {}: {e}", e.line(), e.column()),
+        )
+    })
+}
+
+/// Loads a lens from a built-in name (`lens1`, `lens2`, `cooke-triplet`) or a DeepLens JSON file
+/// path; `*out` receives a new handle to free with [`tolray_lens_free`].
+///
+/// # Safety
+/// `name_or_path` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_load(
+    name_or_path: *const c_char,
+    out: *mut *mut tolray_lens,
+) -> tolray_status {
+    boundary("tolray_lens_load", || {
+        let name = unsafe { c_str(name_or_path, "name_or_path") }?;
+        let lens = Lens::load(name)?;
+        give(out, tolray_lens { lens })
+    })
+}
+
+/// Parses a lens from DeepLens JSON text; `*out` receives a new handle.
+///
+/// # Safety
+/// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_from_json(
+    json: *const c_char,
+    out: *mut *mut tolray_lens,
+) -> tolray_status {
+    boundary("tolray_lens_from_json", || {
+        let text = unsafe { c_str(json, "json") }?;
+        let lens = lens::json::from_str(text)?;
+        give(out, tolray_lens { lens })
+    })
+}
+
+/// Writes the lens as DeepLens JSON into `buf` (`cap` bytes, NUL-terminated) and its length
+/// without the NUL into `*len_out`. Call with `buf` NULL and `cap` 0 to learn the length; a `cap`
+/// smaller than length + 1 gives `TOLRAY_ERROR_BUFFER_SIZE` and writes nothing.
+///
+/// # Safety
+/// `lens` is a live handle; `buf` has `cap` writable bytes or is NULL with `cap` 0; `len_out`
+/// points to a writable `size_t`.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_to_json(
+    lens: *const tolray_lens,
+    buf: *mut c_char,
+    cap: usize,
+    len_out: *mut usize,
+) -> tolray_status {
+    boundary("tolray_lens_to_json", || {
+        let lens = unsafe { nonnull(lens, "lens") }?;
+        unsafe { copy_text(&lens::json::to_string(&lens.lens), buf, cap, len_out) }
+    })
+}
+
+/// Frees a lens handle; NULL is ignored.
+///
+/// # Safety
+/// `lens` is NULL or a handle not yet freed.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_free(lens: *mut tolray_lens) {
+    unsafe { free(lens) }
+}
+
+/// Paraxial (first-order) data of the lens at `wavelength_nm`.
+///
+/// # Safety
+/// `lens` is a live handle; `out` points to a writable `tolray_paraxial`.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_paraxial(
+    lens: *const tolray_lens,
+    wavelength_nm: f64,
+    out: *mut tolray_paraxial,
+) -> tolray_status {
+    boundary("tolray_lens_paraxial", || {
+        let lens = unsafe { nonnull(lens, "lens") }?;
+        check_wavelength(wavelength_nm)?;
+        if out.is_null() {
+            return Err(FfiError::null("out"));
+        }
+        let p = lens.lens.paraxial(wavelength_nm)?;
+        let value = tolray_paraxial {
+            wavelength_nm: p.wavelength_nm,
+            efl_mm: p.efl_mm,
+            bfd_mm: p.bfd_mm,
+            image_distance_mm: p.image_distance_mm,
+            entrance_pupil_z_mm: p.entrance_pupil_z_mm,
+            entrance_pupil_diameter_mm: p.entrance_pupil_diameter_mm,
+            exit_pupil_z_mm: p.exit_pupil_z_mm,
+            exit_pupil_diameter_mm: p.exit_pupil_diameter_mm,
+            fnum: p.fnum,
+            working_fnum: p.working_fnum,
+            magnification: p.magnification,
+            half_fov_deg: p.half_fov_deg,
+            total_track_mm: p.total_track_mm,
+            stop_surface: p.stop_surface as u32,
+            num_surfaces: lens.lens.surfaces.len() as u32,
+        };
+        // SAFETY: checked non-NULL; the caller promises it is writable.
+        unsafe { *out = value };
+        Ok(())
+    })
+}
+
+/// The current value of a design variable of the lens.
+///
+/// # Safety
+/// `lens` and `param` are valid pointers; `value_out` points to a writable `double`.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_param_get(
+    lens: *const tolray_lens,
+    param: *const tolray_param,
+    value_out: *mut f64,
+) -> tolray_status {
+    boundary("tolray_lens_param_get", || {
+        let lens = unsafe { nonnull(lens, "lens") }?;
+        let p = unsafe { nonnull(param, "param") }?.to_param()?;
+        if value_out.is_null() {
+            return Err(FfiError::null("value_out"));
+        }
+        let v = crate::optim::param_value(&lens.lens, p)?;
+        // SAFETY: checked non-NULL.
+        unsafe { *value_out = v };
+        Ok(())
+    })
+}
+
+/// A new lens equal to `lens` with one design variable set to `value` (lenses are immutable;
+/// this is how an optimizer steps). The new lens is validated.
+///
+/// # Safety
+/// `lens` and `param` are valid pointers; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_lens_with_param(
+    lens: *const tolray_lens,
+    param: *const tolray_param,
+    value: f64,
+    out: *mut *mut tolray_lens,
+) -> tolray_status {
+    boundary("tolray_lens_with_param", || {
+        let lens = unsafe { nonnull(lens, "lens") }?;
+        let p = unsafe { nonnull(param, "param") }?.to_param()?;
+        if !value.is_finite() {
+            return Err(FfiError::argument(format!(
+                "{p:?}: value {value} is not finite"
+            )));
+        }
+        let mut new = lens.lens.clone();
+        crate::optim::set_param(&mut new, p, value)?;
+        new.validate()?;
+        give(out, tolray_lens { lens: new })
+    })
+}
+
+/// The default tolerance spec: the paper's Table A1 (element decenter ±0.04 mm, tilt ±0.05°,
+/// axial shift ±0.04 mm, surface curvature ±0.3 %; normal with sigma = max / 3, clamped).
+///
+/// # Safety
+/// `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spec_default(out: *mut *mut tolray_spec) -> tolray_status {
+    boundary("tolray_spec_default", || {
+        give(
+            out,
+            tolray_spec {
+                spec: ToleranceSpec::default(),
+            },
+        )
+    })
+}
+
+/// Reads a tolerance spec file (JSON, the format of `tolray tolerance --spec`).
+///
+/// # Safety
+/// `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spec_load(
+    path: *const c_char,
+    out: *mut *mut tolray_spec,
+) -> tolray_status {
+    boundary("tolray_spec_load", || {
+        let path = unsafe { c_str(path, "path") }?;
+        let spec = ToleranceSpec::read(std::path::Path::new(path))?;
+        give(out, tolray_spec { spec })
+    })
+}
+
+/// Parses a tolerance spec from JSON text.
+///
+/// # Safety
+/// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spec_from_json(
+    json: *const c_char,
+    out: *mut *mut tolray_spec,
+) -> tolray_status {
+    boundary("tolray_spec_from_json", || {
+        let text = unsafe { c_str(json, "json") }?;
+        let spec = parse_json(text, "tolerance spec")?;
+        give(out, tolray_spec { spec })
+    })
+}
+
+/// Frees a spec handle; NULL is ignored.
+///
+/// # Safety
+/// `spec` is NULL or a handle not yet freed.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_spec_free(spec: *mut tolray_spec) {
+    unsafe { free(spec) }
+}
+
+/// Samples tolerance pattern `index` of `seed` for `lens`: the same pattern on every machine and
+/// thread count (ChaCha8 seeded with `seed`, stream `index`), identical to the CLI's trial `index`.
+///
+/// # Safety
+/// `spec` and `lens` are live handles; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_pattern_sample(
+    spec: *const tolray_spec,
+    lens: *const tolray_lens,
+    seed: u64,
+    index: u64,
+    out: *mut *mut tolray_pattern,
+) -> tolray_status {
+    boundary("tolray_pattern_sample", || {
+        let spec = unsafe { nonnull(spec, "spec") }?;
+        let lens = unsafe { nonnull(lens, "lens") }?;
+        let pattern = spec.spec.sample(&lens.lens, seed, index)?;
+        give(out, tolray_pattern { pattern })
+    })
+}
+
+/// Reads a tolerance pattern file (JSON, the format of `--perturb`).
+///
+/// # Safety
+/// `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_pattern_load(
+    path: *const c_char,
+    out: *mut *mut tolray_pattern,
+) -> tolray_status {
+    boundary("tolray_pattern_load", || {
+        let path = unsafe { c_str(path, "path") }?;
+        let pattern = Perturbation::read(std::path::Path::new(path))?;
+        give(out, tolray_pattern { pattern })
+    })
+}
+
+/// Parses a tolerance pattern from JSON text.
+///
+/// # Safety
+/// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_pattern_from_json(
+    json: *const c_char,
+    out: *mut *mut tolray_pattern,
+) -> tolray_status {
+    boundary("tolray_pattern_from_json", || {
+        let text = unsafe { c_str(json, "json") }?;
+        let pattern = parse_json(text, "tolerance pattern")?;
+        give(out, tolray_pattern { pattern })
+    })
+}
+
+/// Writes the pattern as JSON; the buffer protocol of [`tolray_lens_to_json`].
+///
+/// # Safety
+/// As [`tolray_lens_to_json`].
+#[no_mangle]
+pub unsafe extern "C" fn tolray_pattern_to_json(
+    pattern: *const tolray_pattern,
+    buf: *mut c_char,
+    cap: usize,
+    len_out: *mut usize,
+) -> tolray_status {
+    boundary("tolray_pattern_to_json", || {
+        let p = unsafe { nonnull(pattern, "pattern") }?;
+        unsafe { copy_text(&p.pattern.to_json(), buf, cap, len_out) }
+    })
+}
+
+/// Frees a pattern handle; NULL is ignored.
+///
+/// # Safety
+/// `pattern` is NULL or a handle not yet freed.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_pattern_free(pattern: *mut tolray_pattern) {
+    unsafe { free(pattern) }
+}
+
+/// Compiles `lens` for tracing with the tolerance pattern `pattern` applied, or nominal when
+/// `pattern` is NULL. The lens handle is not changed and may be freed afterwards.
+///
+/// # Safety
+/// `lens` is a live handle; `pattern` is NULL or a live handle; `out` points to writable
+/// storage for a pointer.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_system_new(
+    lens: *const tolray_lens,
+    pattern: *const tolray_pattern,
+    out: *mut *mut tolray_system,
+) -> tolray_status {
+    boundary("tolray_system_new", || {
+        let nominal = unsafe { nonnull(lens, "lens") }?.lens.clone();
+        // SAFETY: NULL is allowed (nominal); otherwise a live handle (caller's promise).
+        let pattern = unsafe { pattern.as_ref() };
+        let (lens, adj) = match pattern {
+            Some(p) => p.pattern.apply(&nominal)?,
+            None => (nominal.clone(), Adjustments::none(nominal.surfaces.len())),
+        };
+        let sys = System::compile(&lens, &adj, &|_, v| v);
+        give(
+            out,
+            tolray_system {
+                nominal,
+                lens,
+                adj,
+                sys,
+            },
+        )
+    })
+}
+
+/// Frees a system handle; NULL is ignored.
+///
+/// # Safety
+/// `system` is NULL or a handle not yet freed.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_system_free(system: *mut tolray_system) {
+    unsafe { free(system) }
+}
+
+/// Checks a wavelength in nm.
+pub(crate) fn check_wavelength(wl: f64) -> FfiResult<()> {
+    if wl.is_finite() && wl > 100.0 && wl < 20_000.0 {
+        Ok(())
+    } else {
+        Err(Error::argument(format!(
+            "wavelength {wl} nm is outside 100 to 20000 nm (give nanometres, e.g. 587.56)"
+        ))
+        .into())
+    }
+}
