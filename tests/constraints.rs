@@ -1,0 +1,109 @@
+//! The optimizer keeps the manufacturability constraints users set: centre thicknesses and air
+//! gaps by projection (exactly), edge thickness, total track and a target EFL by penalties (to a
+//! stated tolerance). Each case makes its constraint active: the unconstrained stage-1 design
+//! would break it.
+
+use tolray::lens::material::LAMBDA_D_NM;
+use tolray::optim::train::{step, Constraints, TrainConfig, TrainState};
+use tolray::Lens;
+
+/// Runs `iters` stage-1 iterations on `lens` with `constraints` and returns the design.
+fn pretrain(lens: &Lens, iters: usize, constraints: Constraints) -> Lens {
+    let mut cfg = TrainConfig::for_lens(lens);
+    cfg.pretrain_iters = iters;
+    cfg.tolerance_iters = 0;
+    cfg.constraints = constraints;
+    let mut state = TrainState::new(lens, cfg);
+    while state.next_iter < state.total_iters() {
+        step(&mut state).unwrap();
+    }
+    state.lens().unwrap()
+}
+
+/// (centre thickness or air gap, edge thickness or gap, is glass) of each pair of neighbouring
+/// surfaces, the edge taken at the smaller clear aperture.
+fn gaps(lens: &Lens) -> Vec<(f64, f64, bool)> {
+    lens.surfaces
+        .windows(2)
+        .map(|w| {
+            let r = w[0].semi_aperture_mm.min(w[1].semi_aperture_mm);
+            let edge = w[0].d_next_mm + w[1].sag(r).unwrap() - w[0].sag(r).unwrap();
+            (w[0].d_next_mm, edge, !w[0].material.is_air())
+        })
+        .collect()
+}
+
+fn efl(lens: &Lens) -> f64 {
+    lens.paraxial(LAMBDA_D_NM).unwrap().efl_mm
+}
+
+fn track(lens: &Lens) -> f64 {
+    lens.paraxial(LAMBDA_D_NM).unwrap().total_track_mm
+}
+
+/// lens1's free stage-1 design (150 iterations, default constraints) thins the air gap after
+/// surface 3 from 1.0 to 0.88 mm and the glass after surface 5 to 2.75 mm centre and 0.79 mm edge,
+/// shortens the EFL from 48.5 to 47.6 mm and keeps the track near 60.4 mm. Each test sets a
+/// constraint the free design breaks.
+const ITERS: usize = 150;
+
+#[test]
+fn centre_thickness_and_air_gaps_hold_exactly() {
+    let lens = Lens::load("lens1").unwrap();
+    let c = Constraints {
+        min_center_thickness_mm: 1.2, // the glass after surface 2 is 1.0 mm
+        min_air_gap_mm: 1.1,          // the air gap after surface 3 is 1.0 mm
+        ..Constraints::default()
+    };
+    let nominal = gaps(&lens);
+    assert!(nominal[2].0 < 1.2 && nominal[2].2 && nominal[3].0 < 1.1 && !nominal[3].2);
+    let out = pretrain(&lens, ITERS, c.clone());
+    for (i, &(centre, _, glass)) in gaps(&out).iter().enumerate() {
+        let min = if glass {
+            c.min_center_thickness_mm
+        } else {
+            c.min_air_gap_mm
+        };
+        assert!(centre >= min, "gap after surface {i}: {centre} < {min}");
+    }
+}
+
+#[test]
+fn edge_thickness_holds() {
+    let lens = Lens::load("lens1").unwrap();
+    let c = Constraints {
+        min_edge_thickness_mm: 0.9, // the free design takes surface 5's glass edge to 0.79
+        ..Constraints::default()
+    };
+    let out = pretrain(&lens, ITERS, c.clone());
+    for (i, &(_, edge, glass)) in gaps(&out).iter().enumerate() {
+        if glass {
+            println!("edge thickness after surface {i}: {edge:.4} mm");
+            assert!(edge >= 0.9 - 0.01, "edge after surface {i}: {edge}");
+        }
+    }
+}
+
+#[test]
+fn maximum_total_track_holds() {
+    let lens = Lens::load("lens1").unwrap();
+    let c = Constraints {
+        max_total_track_mm: Some(60.0),
+        ..Constraints::default()
+    };
+    let out = pretrain(&lens, ITERS, c);
+    println!("track {:.4} mm", track(&out));
+    assert!(track(&out) <= 60.0 + 0.01, "track {}", track(&out));
+}
+
+#[test]
+fn target_efl_is_reached() {
+    let lens = Lens::load("lens1").unwrap();
+    let c = Constraints {
+        target_efl_mm: Some(50.0),
+        ..Constraints::default()
+    };
+    let out = pretrain(&lens, ITERS, c);
+    println!("efl {:.4} mm", efl(&out));
+    assert!((efl(&out) - 50.0).abs() < 0.05, "EFL {}", efl(&out));
+}
