@@ -102,9 +102,13 @@ impl PsfRays {
     /// Paraxial and ray-generation errors.
     pub fn new(lens: &Lens, pairs: &[(Field, f64)], pupil: &Pupil) -> Result<PsfRays> {
         let para = lens.paraxial(lens.primary_wavelength_nm)?;
+        let pts = pupil.points();
         let sets = pairs
-            .iter()
-            .map(|&(f, wl)| Ok((f, wl, RaySet::generate(lens, &para, f, pupil, wl)?)))
+            .par_iter()
+            .map(|&(f, wl)| {
+                let set = RaySet::generate_at(lens, &para, f, &pts, pupil.aim, wl)?;
+                Ok((f, wl, set))
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok(PsfRays { sets })
     }

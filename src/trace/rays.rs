@@ -254,6 +254,22 @@ impl RaySet {
         pupil: &Pupil,
         wavelength_nm: f64,
     ) -> Result<RaySet> {
+        Self::generate_at(lens, para, field, &pupil.points(), pupil.aim, wavelength_nm)
+    }
+
+    /// As [`RaySet::generate`], through the normalized pupil points `pts` of a [`Pupil`]
+    /// (computed once when many fields share one pupil).
+    ///
+    /// # Errors
+    /// As [`RaySet::generate`].
+    pub fn generate_at(
+        lens: &Lens,
+        para: &Paraxial,
+        field: Field,
+        pts: &[[f64; 2]],
+        aim: bool,
+        wavelength_nm: f64,
+    ) -> Result<RaySet> {
         let (tx, ty) = field.tangents(lens, para)?;
         let r_ep = 0.5 * para.entrance_pupil_diameter_mm;
         let z_ep = para.entrance_pupil_z_mm;
@@ -276,14 +292,13 @@ impl RaySet {
                 }
             }
         };
-        let pts = pupil.points();
         let mut set = RaySet {
             origins: Vec::with_capacity(pts.len()),
             directions: Vec::with_capacity(pts.len()),
-            pupil: pts.clone(),
+            pupil: pts.to_vec(),
             chief: make(0.0, 0.0),
         };
-        if pupil.aim {
+        if aim {
             let sys = lens.compile();
             let stop = para.stop_surface;
             let n = sys.indices(wavelength_nm);
@@ -292,7 +307,7 @@ impl RaySet {
                 |target: [f64; 2], guess: [f64; 2]| aim_ray(&sys, &n, stop, &make, target, guess);
             let c = aim([0.0, 0.0], [0.0, 0.0])?;
             set.chief = make(c[0], c[1]);
-            for q in &pts {
+            for q in pts {
                 let guess = [c[0] + q[0] * r_ep, c[1] + q[1] * r_ep];
                 let e = aim([q[0] * r_stop, q[1] * r_stop], guess)?;
                 let (o, d) = make(e[0], e[1]);
@@ -300,7 +315,7 @@ impl RaySet {
                 set.directions.push(d);
             }
         } else {
-            for q in &pts {
+            for q in pts {
                 let (o, d) = make(q[0] * r_ep, q[1] * r_ep);
                 set.origins.push(o);
                 set.directions.push(d);
