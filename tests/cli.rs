@@ -377,3 +377,106 @@ fn training_resumes_exactly_and_reports() {
     assert_eq!(code, 1);
     assert!(err.contains("needs a LENS"), "{err}");
 }
+
+#[test]
+fn convert_between_zmx_and_json() {
+    let fixture = |n: &str| format!("{}/tests/data/zemax/{n}", env!("CARGO_MANIFEST_DIR"));
+    let dir = tmp("convert");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    // JSON -> .zmx -> JSON is exact.
+    let (code, _, err) = tolray(&["convert", "lens1", &p("lens1.zmx")]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("wrote"), "{err}");
+    let (code, _, err) = tolray(&["convert", &p("lens1.zmx"), &p("lens1.json")]);
+    assert_eq!(code, 0, "{err}");
+    let back = tolray::lens::json::read_file(std::path::Path::new(&p("lens1.json"))).unwrap();
+    assert_eq!(back, tolray::Lens::load("lens1").unwrap());
+    // Every command reads .zmx files.
+    let (code, out, err) = tolray(&["info", &fixture("lens2.zmx")]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("50.277907 mm") && err.is_empty(),
+        "{out}\n{err}"
+    );
+    // A perturbed lens becomes coordinate breaks.
+    let pattern = dir.join("pattern.json");
+    std::fs::write(
+        &pattern,
+        r#"{"elements": [{"element": 1, "decenter_mm": [0, 0.05], "tilt_deg": [0.1, 0, 0]}]}"#,
+    )
+    .unwrap();
+    let (code, _, err) = tolray(&[
+        "convert",
+        "lens2",
+        &p("fabricated.zmx"),
+        "--perturb",
+        pattern.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(p("fabricated.zmx"))
+            .unwrap()
+            .matches("COORDBRK")
+            .count(),
+        4
+    );
+    // Warnings go to stderr and name the line.
+    let text = std::fs::read_to_string(fixture("asphere.zmx")).unwrap();
+    std::fs::write(
+        p("odd.zmx"),
+        text.replace("GCAT SCHOTT", "GCAT SCHOTT\nFOOB 1"),
+    )
+    .unwrap();
+    let (code, _, err) = tolray(&["convert", &p("odd.zmx"), &p("odd.json")]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning: ") && err.contains("odd.zmx: line 7: unknown command FOOB"),
+        "{err}"
+    );
+    // User glass catalogs.
+    std::fs::write(
+        p("user.zmx"),
+        text.replace("GLAS N-BK7 0 0 1.5168 64.17", "GLAS NBK7-S5"),
+    )
+    .unwrap();
+    let (code, _, err) = tolray(&["convert", &p("user.zmx"), &p("user.json")]);
+    assert_eq!(code, 1);
+    assert!(err.contains("unknown glass \"NBK7-S5\""), "{err}");
+    let (code, _, err) = tolray(&[
+        "info",
+        &p("user.zmx"),
+        "--glass-catalog",
+        &fixture("test-catalog.agf"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    // A malformed file: exit 1, the message names the file and the line, no output is left.
+    std::fs::write(p("broken.zmx"), text.replace("CURV 0.05", "CURV 0.05x")).unwrap();
+    let (code, _, err) = tolray(&["convert", &p("broken.zmx"), &p("never.json")]);
+    assert_eq!(code, 1);
+    let n = text.lines().position(|l| l.trim() == "CURV 0.05").unwrap() + 1;
+    assert!(
+        err.contains(&format!("broken.zmx: line {n}: CURV")),
+        "{err}"
+    );
+    assert!(!dir.join("never.json").exists());
+    let (code, _, err) = tolray(&[
+        "convert",
+        "lens1",
+        &p("never.zmx"),
+        "--glass-catalog",
+        &p("missing.agf"),
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("missing.agf"), "{err}");
+    assert!(!dir.join("never.zmx").exists());
+    let names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
+    // Only .zmx and .json outputs: a usage error.
+    let (code, _, err) = tolray(&["convert", "lens1", &p("lens1.txt")]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(".zmx or .json"), "{err}");
+}

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use tolray::analysis::{spot_diagram, SpotOptions, SpotResult};
 use tolray::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
-use tolray::lens::{json, Paraxial};
+use tolray::lens::{json, zemax, GlassCatalogs, Paraxial};
 use tolray::optim::train::{held_out, step, IterLog, TrainConfig, TrainState};
 use tolray::psf::{PsfCentre, PsfOptions, PsfRays};
 use tolray::tolerance::analysis::Stats;
@@ -21,7 +21,7 @@ use tolray::{figures, Lens, Object};
 #[command(
     name = "tolray",
     version,
-    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in um, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file or a built-in name: lens1, lens2, cooke-triplet."
+    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in um, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -234,6 +234,21 @@ enum Command {
         #[arg(long, default_value_t = 7)]
         rays: usize,
     },
+    /// Convert a lens between Zemax .zmx and DeepLens JSON (the formats follow the extensions).
+    Convert {
+        /// Input lens: a .zmx or .json file, or a built-in name.
+        input: String,
+        /// Output file, ending in .zmx or .json.
+        #[arg(value_parser = lens_output_path)]
+        output: PathBuf,
+        /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
+        #[arg(long = "glass-catalog", value_name = "FILE.agf")]
+        glass_catalog: Vec<PathBuf>,
+        /// Write the lens perturbed by this tolerance pattern (surface decenters and tilts become
+        /// coordinate breaks in a .zmx file).
+        #[arg(long, value_name = "PATTERN.json")]
+        perturb: Option<PathBuf>,
+    },
     /// The main job on built-in defaults: info, spots and pictures for every built-in lens.
     Demo {
         /// Output directory for the pictures and JSON reports.
@@ -244,11 +259,34 @@ enum Command {
 
 #[derive(Args)]
 struct LensArgs {
-    /// Lens JSON file or built-in name (lens1, lens2, cooke-triplet).
+    /// Lens JSON or Zemax .zmx file, or a built-in name (lens1, lens2, cooke-triplet).
     lens: String,
     /// Object distance from the first vertex in mm, or "inf" (default: from the lens file).
     #[arg(long, value_name = "MM|inf")]
     object: Option<String>,
+    /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
+    #[arg(long = "glass-catalog", value_name = "FILE.agf")]
+    glass_catalog: Vec<PathBuf>,
+}
+
+/// Accepts an output lens path ending in .zmx or .json.
+fn lens_output_path(s: &str) -> Result<PathBuf, String> {
+    let p = PathBuf::from(s);
+    match p.extension().map(|e| e.to_ascii_lowercase()) {
+        Some(e) if e == "zmx" || e == "json" => Ok(p),
+        _ => Err(format!(
+            "\"{s}\": give an output file ending in .zmx or .json"
+        )),
+    }
+}
+
+/// Reads the user's AGF catalogs; their warnings go to stderr.
+fn load_catalogs(paths: &[PathBuf]) -> anyhow::Result<GlassCatalogs> {
+    let (catalogs, warnings) = GlassCatalogs::from_files(paths)?;
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(catalogs)
 }
 
 #[derive(Args)]
@@ -386,7 +424,11 @@ impl TolArgs {
 
 impl LensArgs {
     fn load(&self) -> anyhow::Result<Lens> {
-        let mut lens = Lens::load(&self.lens)?;
+        let catalogs = load_catalogs(&self.glass_catalog)?;
+        let (mut lens, warnings) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
         if let Some(o) = &self.object {
             lens.object = Object::parse(o)?;
         }
@@ -918,6 +960,36 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             )?;
         }
         Command::Demo { out } => demo(&out)?,
+        Command::Convert {
+            input,
+            output,
+            glass_catalog,
+            perturb,
+        } => {
+            let catalogs = load_catalogs(&glass_catalog)?;
+            let in_path = Path::new(&input);
+            let (mut lens, extras) = if zemax::is_zmx_path(in_path) && in_path.exists() {
+                let z = zemax::read_file(in_path, &catalogs)?;
+                for w in &z.warnings {
+                    eprintln!("warning: {w}");
+                }
+                (z.lens, Some(z.extras))
+            } else {
+                (Lens::load_with_catalogs(&input, &catalogs)?.0, None)
+            };
+            if let Some(p) = perturb {
+                let (perturbed, adj) = Perturbation::read(&p)?.apply(&lens)?;
+                lens = perturbed
+                    .with_adjustments(&adj)
+                    .with_context(|| format!("{}: cannot write this perturbation", p.display()))?;
+            }
+            if zemax::is_zmx_path(&output) {
+                zemax::write_file(&lens, extras.as_ref(), &output)?;
+            } else {
+                json::write_file(&lens, &output)?;
+            }
+            eprintln!("wrote {}", output.display());
+        }
     }
     Ok(())
 }

@@ -6,7 +6,7 @@
 //! informational and ignored, except `"(object)": "inf"`, tolray's marker for an object at
 //! infinity (DeepLens ignores it too). Unknown surface types are errors, never skipped.
 
-use super::{Lens, Material, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use super::{GlassCatalogs, Lens, Material, Object, Sensor, Surface, SurfaceRole, N_ASPH};
 use crate::error::{Error, ErrorKind, Result};
 use serde_json::{json, Map, Value};
 use std::path::Path;
@@ -17,8 +17,16 @@ use std::path::Path;
 /// I/O errors, JSON syntax errors (with line and column), and prescription errors naming the
 /// surface index and key.
 pub fn read_file(path: &Path) -> Result<Lens> {
+    read_file_with(path, &GlassCatalogs::builtin())
+}
+
+/// As [`read_file`], looking glass names up in `catalogs` (the user's AGF catalogs first).
+///
+/// # Errors
+/// As [`read_file`].
+pub fn read_file_with(path: &Path, catalogs: &GlassCatalogs) -> Result<Lens> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    from_str(&text).map_err(|e| e.context(path.display()))
+    from_str_with(&text, catalogs).map_err(|e| e.context(path.display()))
 }
 
 /// Parses lens JSON text.
@@ -26,6 +34,14 @@ pub fn read_file(path: &Path) -> Result<Lens> {
 /// # Errors
 /// As [`read_file`], without the file name.
 pub fn from_str(text: &str) -> Result<Lens> {
+    from_str_with(text, &GlassCatalogs::builtin())
+}
+
+/// As [`from_str`], looking glass names up in `catalogs`.
+///
+/// # Errors
+/// As [`from_str`].
+pub fn from_str_with(text: &str, catalogs: &GlassCatalogs) -> Result<Lens> {
     let v: Value = serde_json::from_str(text).map_err(|e| {
         Error::new(
             ErrorKind::Parse,
@@ -36,7 +52,7 @@ pub fn from_str(text: &str) -> Result<Lens> {
             ),
         )
     })?;
-    from_value(&v)
+    from_value_with(&v, catalogs)
 }
 
 fn num(obj: &Map<String, Value>, key: &str, at: &str) -> Result<Option<f64>> {
@@ -86,6 +102,14 @@ fn finite(v: f64, at: &str, key: &str) -> Result<f64> {
 /// # Errors
 /// As [`from_str`].
 pub fn from_value(v: &Value) -> Result<Lens> {
+    from_value_with(v, &GlassCatalogs::builtin())
+}
+
+/// As [`from_value`], looking glass names up in `catalogs`.
+///
+/// # Errors
+/// As [`from_str`].
+pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
     let top = v
         .as_object()
         .ok_or_else(|| Error::new(ErrorKind::Parse, "the top level must be a JSON object"))?;
@@ -103,7 +127,7 @@ pub fn from_value(v: &Value) -> Result<Lens> {
         let s = sv
             .as_object()
             .ok_or_else(|| Error::invalid(format!("{at}must be a JSON object")))?;
-        let (surface, d_abs) = surface_from(s, &at)?;
+        let (surface, d_abs) = surface_from(s, &at, catalogs)?;
         surfaces.push(surface);
         abs_d.push(d_abs);
     }
@@ -189,7 +213,11 @@ pub fn from_value(v: &Value) -> Result<Lens> {
     Ok(lens)
 }
 
-fn surface_from(s: &Map<String, Value>, at: &str) -> Result<(Surface, Option<f64>)> {
+fn surface_from(
+    s: &Map<String, Value>,
+    at: &str,
+    catalogs: &GlassCatalogs,
+) -> Result<(Surface, Option<f64>)> {
     let ty = s.get("type").and_then(Value::as_str).ok_or_else(|| {
         Error::invalid(format!(
             "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop or Plane)"
@@ -260,7 +288,7 @@ fn surface_from(s: &Map<String, Value>, at: &str) -> Result<(Surface, Option<f64
         }
     }
     let material = match s.get("mat2") {
-        Some(Value::String(m)) => Material::parse(m).map_err(|e| {
+        Some(Value::String(m)) => Material::parse_with(m, catalogs).map_err(|e| {
             e.context(format!(
                 "surface {}",
                 at.trim_end_matches(": ").trim_start_matches("surface ")
@@ -315,14 +343,10 @@ pub fn to_value(lens: &Lens) -> Value {
         top.insert("foclen".into(), json!(p.efl_mm));
         top.insert("fnum".into(), json!(p.fnum));
     }
-    top.insert(
-        "primary_wvln".into(),
-        json!(lens.primary_wavelength_nm * 1e-3),
-    );
-    top.insert(
-        "wvln_rgb".into(),
-        json!(lens.rgb_wavelengths_nm.map(|w| w * 1e-3)),
-    );
+    // µm values that read back to the same nm (exact round trips).
+    let um = super::material::um_from_nm;
+    top.insert("primary_wvln".into(), json!(um(lens.primary_wavelength_nm)));
+    top.insert("wvln_rgb".into(), json!(lens.rgb_wavelengths_nm.map(um)));
     match lens.object {
         Object::Finite { distance_mm } => {
             top.insert("obj_depth".into(), json!(-distance_mm));

@@ -1,6 +1,10 @@
-//! Optical materials: air, model glasses given by (n_d, V_d), and catalog glasses.
+//! Optical materials: air, model glasses given by (n_d, V_d), catalog glasses (built in, or from
+//! the user's Zemax AGF catalogs).
 
+use super::agf::{AgfCatalog, AgfGlass};
 use crate::error::{Error, Result};
+use std::path::Path;
+use std::sync::Arc;
 
 /// The d line (helium), nm: the wavelength at which n_d is defined.
 pub const LAMBDA_D_NM: f64 = 587.5618;
@@ -9,57 +13,150 @@ pub const LAMBDA_F_NM: f64 = 486.1327;
 /// The C line (hydrogen), nm.
 pub const LAMBDA_C_NM: f64 = 656.2725;
 
-/// A dispersion formula of a catalog glass; wavelengths in micrometres.
+/// The wavelength in µm that reads back (times 1000) to exactly `nm` when such an `f64` exists
+/// (`nm * 1e-3` is sometimes one unit in the last place off), else `nm / 1000`. Files store µm.
+pub(crate) fn um_from_nm(nm: f64) -> f64 {
+    let mut um = nm / 1e3;
+    for _ in 0..4 {
+        if um * 1e3 == nm || !um.is_finite() || um <= 0.0 {
+            break;
+        }
+        let bits = um.to_bits();
+        um = f64::from_bits(if um * 1e3 < nm { bits + 1 } else { bits - 1 });
+    }
+    if um * 1e3 == nm {
+        um
+    } else {
+        nm / 1e3
+    }
+}
+
+/// A dispersion formula of a catalog glass; wavelengths λ in micrometres.
+///
+/// Each variant notes the Zemax AGF formula id it reads (see [`crate::lens::agf`]); Zemax's
+/// "Sellmeier 2" and "Sellmeier 4" are not n-term Sellmeier sums, hence their own names.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Dispersion {
-    /// n² − 1 = Σ b_i λ² / (λ² − c_i), c in µm².
+    /// Three-term Sellmeier, n² − 1 = Σ b_i λ² / (λ² − c_i), c in µm² (Zemax 2, "Sellmeier 1").
     Sellmeier3 {
         /// Numerator coefficients.
         b: [f64; 3],
         /// Resonance coefficients (µm²).
         c: [f64; 3],
     },
-    /// Four-term Sellmeier, as [`Dispersion::Sellmeier3`].
+    /// Four-term Sellmeier, as [`Dispersion::Sellmeier3`] (Zemax 6, "Sellmeier 3").
     Sellmeier4 {
         /// Numerator coefficients.
         b: [f64; 4],
         /// Resonance coefficients (µm²).
         c: [f64; 4],
     },
-    /// Schott formula: n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸.
+    /// Five-term Sellmeier, as [`Dispersion::Sellmeier3`] (Zemax 11, "Sellmeier 5").
+    Sellmeier5 {
+        /// Numerator coefficients.
+        b: [f64; 5],
+        /// Resonance coefficients (µm²).
+        c: [f64; 5],
+    },
+    /// Schott formula: n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸ (Zemax 1).
     Schott {
         /// Coefficients a0..a5.
         a: [f64; 6],
     },
-    /// Extended formula (Hikari): n² = a0 + a1 λ² + a2 λ⁴ + a3 λ⁻² + a4 λ⁻⁴ + a5 λ⁻⁶ + a6 λ⁻⁸
-    /// + a7 λ⁻¹⁰ + a8 λ⁻¹².
+    /// Extended formula (Hikari; Zemax 13, "Extended 3"): n² = a0 + a1 λ² + a2 λ⁴ + a3 λ⁻²
+    /// + a4 λ⁻⁴ + a5 λ⁻⁶ + a6 λ⁻⁸ + a7 λ⁻¹⁰ + a8 λ⁻¹².
     Extended {
         /// Coefficients a0..a8.
         a: [f64; 9],
     },
+    /// Zemax 10, "Extended": n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸ + a6 λ⁻¹⁰
+    /// + a7 λ⁻¹².
+    ExtendedSchott {
+        /// Coefficients a0..a7.
+        a: [f64; 8],
+    },
+    /// Zemax 12, "Extended 2": n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸ + a6 λ⁴
+    /// + a7 λ⁶.
+    Extended2 {
+        /// Coefficients a0..a7.
+        a: [f64; 8],
+    },
+    /// Zemax 3, Herzberger: n = a0 + a1 L + a2 L² + a3 λ² + a4 λ⁴ + a5 λ⁶ with
+    /// L = 1 / (λ² − 0.028).
+    Herzberger {
+        /// Coefficients a0..a5.
+        a: [f64; 6],
+    },
+    /// Zemax 4, "Sellmeier 2": n² − 1 = A + B1 λ² / (λ² − λ1²) + B2 / (λ² − λ2²), coefficients
+    /// `[A, B1, λ1, B2, λ2]` (λ1, λ2 in µm).
+    ZemaxSellmeier2 {
+        /// `[A, B1, λ1, B2, λ2]`.
+        a: [f64; 5],
+    },
+    /// Zemax 5, Conrady: n = n0 + A / λ + B / λ^3.5, coefficients `[n0, A, B]`.
+    Conrady {
+        /// `[n0, A, B]`.
+        a: [f64; 3],
+    },
+    /// Zemax 7, "Handbook of Optics 1": n² = A + B / (λ² − C) − D λ².
+    Handbook1 {
+        /// `[A, B, C, D]`.
+        a: [f64; 4],
+    },
+    /// Zemax 8, "Handbook of Optics 2": n² = A + B λ² / (λ² − C) − D λ².
+    Handbook2 {
+        /// `[A, B, C, D]`.
+        a: [f64; 4],
+    },
+    /// Zemax 9, "Sellmeier 4": n² = A + B λ² / (λ² − C) + D λ² / (λ² − E).
+    ZemaxSellmeier4 {
+        /// `[A, B, C, D, E]`.
+        a: [f64; 5],
+    },
+}
+
+fn sellmeier(l2: f64, b: &[f64], c: &[f64]) -> f64 {
+    1.0 + b.iter().zip(c).map(|(b, c)| b * l2 / (l2 - c)).sum::<f64>()
 }
 
 impl Dispersion {
-    /// Refractive index at `lambda_um` micrometres.
+    /// Refractive index at `lambda_um` micrometres (NaN where the formula has no real index).
     pub fn index(&self, lambda_um: f64) -> f64 {
         let l2 = lambda_um * lambda_um;
+        let il2 = 1.0 / l2;
+        // Negative powers a_k λ^-2k as a Horner polynomial in λ^-2.
+        let neg = |a: &[f64]| a.iter().rev().fold(0.0, |acc, x| (acc + x) * il2);
         let n2 = match self {
-            Dispersion::Sellmeier3 { b, c } => {
-                1.0 + (0..3).map(|i| b[i] * l2 / (l2 - c[i])).sum::<f64>()
-            }
-            Dispersion::Sellmeier4 { b, c } => {
-                1.0 + (0..4).map(|i| b[i] * l2 / (l2 - c[i])).sum::<f64>()
-            }
+            Dispersion::Sellmeier3 { b, c } => sellmeier(l2, b, c),
+            Dispersion::Sellmeier4 { b, c } => sellmeier(l2, b, c),
+            Dispersion::Sellmeier5 { b, c } => sellmeier(l2, b, c),
             Dispersion::Schott { a } => {
-                let il2 = 1.0 / l2;
                 a[0] + a[1] * l2 + il2 * (a[2] + il2 * (a[3] + il2 * (a[4] + il2 * a[5])))
             }
             Dispersion::Extended { a } => {
-                let il2 = 1.0 / l2;
                 let neg = il2
                     * (a[3]
                         + il2 * (a[4] + il2 * (a[5] + il2 * (a[6] + il2 * (a[7] + il2 * a[8])))));
                 a[0] + l2 * (a[1] + l2 * a[2]) + neg
+            }
+            Dispersion::ExtendedSchott { a } => a[0] + a[1] * l2 + neg(&a[2..8]),
+            Dispersion::Extended2 { a } => {
+                a[0] + l2 * (a[1] + l2 * (a[6] + l2 * a[7])) + neg(&a[2..6])
+            }
+            Dispersion::Herzberger { a } => {
+                let l = 1.0 / (l2 - 0.028);
+                return a[0] + l * (a[1] + l * a[2]) + l2 * (a[3] + l2 * (a[4] + l2 * a[5]));
+            }
+            Dispersion::ZemaxSellmeier2 { a } => {
+                1.0 + a[0] + a[1] * l2 / (l2 - a[2] * a[2]) + a[3] / (l2 - a[4] * a[4])
+            }
+            Dispersion::Conrady { a } => {
+                return a[0] + a[1] / lambda_um + a[2] / lambda_um.powf(3.5);
+            }
+            Dispersion::Handbook1 { a } => a[0] + a[1] / (l2 - a[2]) - a[3] * l2,
+            Dispersion::Handbook2 { a } => a[0] + a[1] * l2 / (l2 - a[2]) - a[3] * l2,
+            Dispersion::ZemaxSellmeier4 { a } => {
+                a[0] + a[1] * l2 / (l2 - a[2]) + a[3] * l2 / (l2 - a[4])
             }
         };
         n2.sqrt()
@@ -100,6 +197,8 @@ pub enum Material {
     },
     /// A catalog glass.
     Catalog(&'static CatalogGlass),
+    /// A glass from a user's Zemax AGF catalog (see [`GlassCatalogs`]).
+    Agf(Arc<AgfGlass>),
     /// A glass with a tolerance applied: n(λ) = `nd_new` + (base(λ) − `nd`) · `scale`.
     Perturbed {
         /// The nominal glass.
@@ -126,6 +225,7 @@ impl Material {
                 a + b * inv2(wavelength_nm)
             }
             Material::Catalog(g) => g.dispersion.index(wavelength_nm * 1e-3),
+            Material::Agf(g) => g.dispersion.index(wavelength_nm * 1e-3),
             Material::Perturbed {
                 base,
                 nd,
@@ -147,6 +247,7 @@ impl Material {
             Material::Constant(n) => format!("{n}"),
             Material::Model { nd, vd } => format!("{nd}/{vd}"),
             Material::Catalog(g) => g.name.to_ascii_lowercase(),
+            Material::Agf(g) => g.name.to_ascii_lowercase(),
             Material::Perturbed { nd_new, scale, .. } => {
                 let disp = self.index(LAMBDA_F_NM) - self.index(LAMBDA_C_NM);
                 let _ = scale;
@@ -155,13 +256,43 @@ impl Material {
         }
     }
 
+    /// The catalog glass' name as its catalog writes it (`N-BK7`), or `None` for other materials.
+    pub fn catalog_name(&self) -> Option<&str> {
+        match self {
+            Material::Catalog(g) => Some(g.name),
+            Material::Agf(g) => Some(&g.name),
+            _ => None,
+        }
+    }
+
+    /// The wavelength range, µm, in which a catalog glass' dispersion formula is valid (the
+    /// catalog's stated range), or `None` for materials without one.
+    pub fn range_um(&self) -> Option<(f64, f64)> {
+        match self {
+            Material::Catalog(g) => Some(g.range_um),
+            Material::Agf(g) => Some(g.range_um),
+            Material::Perturbed { base, .. } => base.range_um(),
+            _ => None,
+        }
+    }
+
     /// Parses a material name as DeepLens writes it: `air` (also `vacuum`, `occluder`), a catalog
     /// name in any case (`n-bk7`, `N-BK7`), a model glass `"n_d/V_d"`, or a constant index `"1.5"`.
+    /// Only the built-in catalog is searched; see [`Material::parse_with`].
     ///
     /// # Errors
     /// [`crate::ErrorKind::Invalid`] for an unknown glass (with the closest catalog names), an
     /// index below 1, or a non-positive Abbe number.
     pub fn parse(name: &str) -> Result<Material> {
+        Material::parse_with(name, &GlassCatalogs::builtin())
+    }
+
+    /// As [`Material::parse`], looking glass names up in `catalogs` (the user's AGF catalogs
+    /// first, then the built-in catalog).
+    ///
+    /// # Errors
+    /// As [`Material::parse`].
+    pub fn parse_with(name: &str, catalogs: &GlassCatalogs) -> Result<Material> {
         let s = name.trim();
         let lower = s.to_ascii_lowercase();
         if matches!(lower.as_str(), "air" | "vacuum" | "occluder") {
@@ -180,10 +311,10 @@ impl Material {
             check_index(n, s)?;
             return Ok(Material::Constant(n));
         }
-        if let Some(g) = find_glass(s) {
-            return Ok(Material::Catalog(g));
+        if let Some(m) = catalogs.find(s) {
+            return Ok(m);
         }
-        let close = suggest_glasses(s, 3);
+        let close = catalogs.suggest(s, 3);
         let hint = if close.is_empty() {
             String::new()
         } else {
@@ -214,6 +345,75 @@ impl Material {
             });
         }
         Ok(Material::Model { nd, vd })
+    }
+}
+
+/// Where glass names are looked up: the user's Zemax AGF catalogs, searched first and in the
+/// order given, then the built-in catalog (with DeepLens' short aliases such as `bk7`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GlassCatalogs {
+    /// User catalogs, searched in order before the built-in one.
+    pub user: Vec<AgfCatalog>,
+}
+
+impl GlassCatalogs {
+    /// Only the built-in catalog.
+    pub fn builtin() -> GlassCatalogs {
+        GlassCatalogs::default()
+    }
+
+    /// Reads AGF catalog files (searched in the order given, before the built-in catalog).
+    /// Returns the catalogs and the readers' warnings.
+    ///
+    /// # Errors
+    /// As [`AgfCatalog::read_file`], naming the file and the line.
+    pub fn from_files<P: AsRef<Path>>(paths: &[P]) -> Result<(GlassCatalogs, Vec<String>)> {
+        let mut out = GlassCatalogs::default();
+        let mut warnings = Vec::new();
+        for p in paths {
+            let (cat, w) = AgfCatalog::read_file(p.as_ref())?;
+            warnings.extend(w);
+            out.user.push(cat);
+        }
+        Ok((out, warnings))
+    }
+
+    /// Looks a glass up by name, ignoring case: user catalogs first, then the built-in catalog
+    /// and its aliases.
+    pub fn find(&self, name: &str) -> Option<Material> {
+        self.find_exact(name)
+            .or_else(|| find_glass(name).map(Material::Catalog))
+    }
+
+    /// As [`GlassCatalogs::find`] but without DeepLens' aliases (`bk7` is not `N-BK7` here).
+    pub fn find_exact(&self, name: &str) -> Option<Material> {
+        self.user
+            .iter()
+            .find_map(|c| c.find(name))
+            .map(|g| Material::Agf(g.clone()))
+            .or_else(|| {
+                catalog()
+                    .iter()
+                    .find(|g| g.name.eq_ignore_ascii_case(name))
+                    .map(Material::Catalog)
+            })
+    }
+
+    /// Up to `max` glass names closest to `name` in all catalogs (edit distance, case-insensitive).
+    pub fn suggest(&self, name: &str, max: usize) -> Vec<String> {
+        let q = name.to_ascii_uppercase();
+        let names = self
+            .user
+            .iter()
+            .flat_map(|c| c.glasses.iter().map(|g| g.name.clone()))
+            .chain(catalog().iter().map(|g| g.name.to_string()));
+        let mut scored: Vec<(usize, String)> = names
+            .map(|n| (edit_distance(&q, &n.to_ascii_uppercase()), n))
+            .filter(|(d, _)| *d <= 3.max(q.len() / 3))
+            .collect();
+        scored.sort();
+        scored.dedup_by(|a, b| a.1.eq_ignore_ascii_case(&b.1));
+        scored.into_iter().take(max).map(|(_, n)| n).collect()
     }
 }
 

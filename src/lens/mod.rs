@@ -4,20 +4,27 @@
 //! follows it (`material`) and the gap to the next surface (`d_next_mm`); the last gap reaches the
 //! image plane. Surfaces are counted from 0. Compiling a lens ([`Lens::compile`]) yields an
 //! immutable flat table in one number type, with every surface's rigid placement resolved.
+//!
+//! Files: DeepLens JSON ([`json`]) and Zemax OpticStudio .zmx ([`zemax`]); glass catalogs are
+//! built in ([`material::catalog`]) or read from Zemax AGF files ([`agf`]).
 
+pub mod agf;
 mod builtin;
 mod catalog_data;
 pub mod json;
 pub mod material;
 pub mod paraxial;
 mod system;
+mod text;
+pub mod zemax;
 
 pub use builtin::{builtin, builtin_names};
-pub use material::Material;
+pub use material::{GlassCatalogs, Material};
 pub use paraxial::Paraxial;
 pub use system::{Adjustments, Param, SurfaceKind, SurfaceRow, System};
 
 use crate::error::{Error, Result};
+use crate::math::{Mat3, Vec3};
 use std::path::Path;
 
 /// Number of even-asphere coefficients stored per surface: a2, a4, ..., a16.
@@ -185,13 +192,28 @@ pub struct Lens {
 }
 
 impl Lens {
-    /// Loads a lens from a file path or a built-in name (`lens1`, `lens2`, `cooke-triplet`).
+    /// Loads a lens from a file path (DeepLens JSON, or Zemax .zmx by its extension) or a
+    /// built-in name (`lens1`, `lens2`, `cooke-triplet`), with the built-in glass catalog.
+    /// Warnings of the .zmx reader are dropped; see [`Lens::load_with_catalogs`].
     ///
     /// # Errors
-    /// I/O, JSON and validation errors, each naming the file and the place.
+    /// I/O, JSON, .zmx and validation errors, each naming the file and the place.
     pub fn load(name_or_path: &str) -> Result<Lens> {
+        Lens::load_with_catalogs(name_or_path, &GlassCatalogs::builtin()).map(|(l, _)| l)
+    }
+
+    /// As [`Lens::load`], looking glasses up in `catalogs` (the user's AGF catalogs first), and
+    /// returning the reader's warnings (skipped .zmx commands, approximations), each naming the
+    /// file and the line.
+    ///
+    /// # Errors
+    /// As [`Lens::load`].
+    pub fn load_with_catalogs(
+        name_or_path: &str,
+        catalogs: &GlassCatalogs,
+    ) -> Result<(Lens, Vec<String>)> {
         if let Some(lens) = builtin(name_or_path) {
-            return Ok(lens);
+            return Ok((lens, Vec::new()));
         }
         let path = Path::new(name_or_path);
         if !path.exists() {
@@ -203,7 +225,11 @@ impl Lens {
                 ),
             ));
         }
-        json::read_file(path)
+        if zemax::is_zmx_path(path) {
+            let z = zemax::read_file(path, catalogs)?;
+            return Ok((z.lens, z.warnings));
+        }
+        Ok((json::read_file_with(path, catalogs)?, Vec::new()))
     }
 
     /// Index of the aperture stop surface, if one is marked.
@@ -313,7 +339,95 @@ impl Lens {
                 }
             }
         }
+        let mut waves = vec![self.primary_wavelength_nm];
+        for w in self.rgb_wavelengths_nm {
+            if !waves.contains(&w) {
+                waves.push(w);
+            }
+        }
+        for (i, s) in self.surfaces.iter().enumerate() {
+            let (Some((lo, hi)), Some(name)) = (s.material.range_um(), s.material.catalog_name())
+            else {
+                continue;
+            };
+            let outside: Vec<String> = waves
+                .iter()
+                .filter(|&&w| w * 1e-3 < lo || w * 1e-3 > hi)
+                .map(|w| format!("{w} nm"))
+                .collect();
+            if !outside.is_empty() {
+                out.push(format!(
+                    "surface {i}: glass {name} is defined from {lo} to {hi} µm; {} outside that range",
+                    outside.join(", ")
+                ));
+            }
+        }
         out
+    }
+
+    /// The lens with `adj` folded into its prescription: each surface's moved vertex and axis
+    /// become its `pos_xy_mm`, `vec_local` and gaps, and curvature offsets are added to the
+    /// curvatures. Compiling the result without adjustments traces the same rays as compiling
+    /// `self` with `adj` (a rotation of a surface about its own axis is dropped: surfaces and
+    /// their clear apertures are round). Gaps that no surface moves are kept bit for bit. The first
+    /// vertex stays at z = 0, so an axial move of the first surface becomes a change of the object
+    /// distance (and the global frame moves with it). This is how a fabricated (perturbed) lens is
+    /// exported, e.g. to Zemax.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Invalid`] if the image plane is tilted or moved sideways, or a surface
+    /// ends up behind the previous one.
+    pub fn with_adjustments(&self, adj: &Adjustments) -> Result<Lens> {
+        let n = self.surfaces.len();
+        if adj.surface_motion.len() != n || adj.curvature_offset.len() != n {
+            return Err(Error::argument(format!(
+                "the adjustments are for {} surfaces; the lens has {n}",
+                adj.surface_motion.len()
+            )));
+        }
+        let im = &adj.image_motion;
+        if im.rotation != Mat3::identity() || im.translation.x != 0.0 || im.translation.y != 0.0 {
+            return Err(Error::invalid(
+                "the adjustments tilt or decenter the image plane; a lens file cannot hold that",
+            ));
+        }
+        let z = self.vertex_z_mm();
+        let mut out = self.clone();
+        // Displacement of every vertex (and last, of the image plane) from its nominal place.
+        let mut disp = Vec::with_capacity(n + 1);
+        for (i, s) in out.surfaces.iter_mut().enumerate() {
+            let m = &adj.surface_motion[i];
+            let p = Vec3::new(s.pos_xy_mm[0], s.pos_xy_mm[1], z[i]);
+            let d = if m.rotation == Mat3::identity() {
+                m.translation
+            } else {
+                m.translation + (m.rotation.apply(p) - p)
+            };
+            if m.rotation != Mat3::identity() {
+                let v = s.vec_local;
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let a = m
+                    .rotation
+                    .apply(Vec3::new(v[0] / len, v[1] / len, v[2] / len));
+                s.vec_local = [a.x, a.y, a.z];
+            }
+            s.pos_xy_mm = [p.x + d.x, p.y + d.y];
+            s.c += adj.curvature_offset[i];
+            disp.push(d.z);
+        }
+        disp.push(im.translation.z);
+        for i in 0..n {
+            let dz = disp[i + 1] - disp[i];
+            if dz != 0.0 {
+                out.surfaces[i].d_next_mm += dz;
+            }
+        }
+        // The first vertex stays at z = 0: moving it along z moves the lens away from the object.
+        if let Object::Finite { distance_mm } = &mut out.object {
+            *distance_mm += disp[0];
+        }
+        out.validate()?;
+        Ok(out)
     }
 
     /// Compiles the prescription with no adjustments into an `f64` table.

@@ -1,0 +1,1623 @@
+//! Zemax OpticStudio sequential lens files (.zmx): reading and writing.
+//!
+//! # Reading
+//! The file is decoded from UTF-16 (little or big endian, with or without a byte-order mark, as
+//! OpticStudio writes it), UTF-8 or ASCII. tolray reads:
+//!
+//! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
+//! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH` and `COORDBRK`; `CURV` (1/lens unit), `CONI`,
+//!   `PARM` (even-asphere terms r² .. r¹⁶, or the coordinate break's decenters, tilts and order),
+//!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter, used as the clear
+//!   aperture; `MEMA` when there is no `DIAM`), `STOP`, `GLAS` (a catalog name, `___BLANK` model
+//!   glasses with n_d and V_d, where V_d = 0 means a constant index);
+//! - the aperture `ENPD`, `FNUM`, `OBNA` or `FLOA`; fields `FTYP`, `XFLN`/`YFLN`/`FWGN` (or the
+//!   older `XFLD`/`YFLD`/`FWGT`); wavelengths `WAVM` (or `WAVL`) and `PWAV`; `NAME`; `GCAT`.
+//!
+//! SURF 0 is the object; the last SURF is the image plane, whose semi-diameter is the sensor's
+//! half-diagonal. tolray sizes the aperture by the stop's semi-aperture, so an `ENPD`, `FNUM` or
+//! `OBNA` aperture is turned into the stop semi-diameter that gives that paraxial entrance pupil
+//! at the primary wavelength (`FNUM` = EFL / EPD; `OBNA`: the marginal ray from the axial object
+//! point has slope tan(asin NA)); with `FLOA` (or no aperture line) the stop's `DIAM` is used.
+//!
+//! Coordinate breaks are followed exactly as OpticStudio does (decenter x, y then tilt about x,
+//! y, z with order flag 0; tilt z, y, x then decenter with order flag 1; right-handed, degrees;
+//! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
+//! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`]. A surface turned by 90° or more,
+//! surfaces out of order along z, and a tilted image plane cannot be represented and are errors.
+//! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
+//! semi-diameter) are the construction ("dummy") surfaces of coordinate-break sequences; they do
+//! not become tolray surfaces (OpticStudio does not clip there either).
+//!
+//! Commands that change nothing tolray models (display, optimization, tolerancing, coatings,
+//! ...) are skipped silently; any other command is skipped with a warning naming its line;
+//! surface types tolray cannot trace, mirrors, non-sequential files and malformed numbers are
+//! errors naming the line.
+//!
+//! # Writing
+//! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
+//! `SURF` per tolray surface (`STANDARD` or `EVENASPH`), with a `COORDBRK` pair around every
+//! surface that carries a decenter or a tilt, so perturbed lenses survive the round trip. Model
+//! glasses are written as `___BLANK` model glasses (tolray's dispersion law between the lines
+//! differs slightly from OpticStudio's model glass; n_d and V_d are exact), catalog glasses by
+//! name. A `NOTE 0 tolray ...` line records what Zemax has no place for (the exact primary and
+//! RGB wavelengths in nm and the sensor resolution), so JSON → .zmx → JSON is exact.
+
+use super::material::{GlassCatalogs, Material, LAMBDA_D_NM};
+use super::text::decode;
+use super::{Lens, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use crate::error::{Error, ErrorKind, Result};
+use crate::math::{Mat3, Vec3};
+use std::path::Path;
+
+/// How a .zmx file defines the system aperture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ZmxAperture {
+    /// `ENPD`: entrance pupil diameter, mm.
+    EntrancePupilDiameter(f64),
+    /// `FNUM`: image-space F-number, EFL / EPD.
+    ImageSpaceFnum(f64),
+    /// `OBNA`: object-space numerical aperture n sin θ of the marginal ray (finite objects).
+    ObjectSpaceNa(f64),
+    /// `FLOA`: float by stop size (the stop's semi-diameter).
+    FloatByStop,
+}
+
+/// The field type of a .zmx file (`FTYP`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ZmxFieldType {
+    /// 0: angle, degrees.
+    AngleDeg,
+    /// 1: object height, mm.
+    ObjectHeightMm,
+    /// 2: paraxial image height, mm.
+    ParaxialImageHeightMm,
+    /// 3: real image height, mm.
+    RealImageHeightMm,
+    /// Another OpticStudio field type, kept by number (its values are not converted).
+    Other(i64),
+}
+
+impl ZmxFieldType {
+    fn code(self) -> i64 {
+        match self {
+            ZmxFieldType::AngleDeg => 0,
+            ZmxFieldType::ObjectHeightMm => 1,
+            ZmxFieldType::ParaxialImageHeightMm => 2,
+            ZmxFieldType::RealImageHeightMm => 3,
+            ZmxFieldType::Other(c) => c,
+        }
+    }
+    fn is_length(self) -> bool {
+        matches!(
+            self,
+            ZmxFieldType::ObjectHeightMm
+                | ZmxFieldType::ParaxialImageHeightMm
+                | ZmxFieldType::RealImageHeightMm
+        )
+    }
+}
+
+/// One field point of a .zmx file, in the units of its [`ZmxFieldType`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ZmxField {
+    /// x value.
+    pub x: f64,
+    /// y value.
+    pub y: f64,
+    /// Weight.
+    pub weight: f64,
+}
+
+/// One wavelength of a .zmx file.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ZmxWavelength {
+    /// Wavelength, µm (as Zemax writes it).
+    pub um: f64,
+    /// Weight.
+    pub weight: f64,
+}
+
+/// What a .zmx file holds beyond the [`Lens`]: kept so that a file read and written again keeps
+/// its fields, wavelengths and aperture type.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ZmxExtras {
+    /// The aperture definition (`None` if the file has none).
+    pub aperture: Option<ZmxAperture>,
+    /// Field type.
+    pub field_type: ZmxFieldType,
+    /// Field points.
+    pub fields: Vec<ZmxField>,
+    /// Wavelengths.
+    pub wavelengths: Vec<ZmxWavelength>,
+    /// Index of the primary wavelength in `wavelengths` (from 0).
+    pub primary: usize,
+    /// Glass catalogs named by `GCAT`.
+    pub glass_catalogs: Vec<String>,
+}
+
+/// A lens read from a .zmx file, with the file's extras and the reader's warnings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ZmxLens {
+    /// The lens.
+    pub lens: Lens,
+    /// Fields, wavelengths, aperture type and catalogs of the file.
+    pub extras: ZmxExtras,
+    /// Skipped commands and approximations, each naming its line.
+    pub warnings: Vec<String>,
+}
+
+/// True if `path` ends in `.zmx` (any case).
+pub fn is_zmx_path(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("zmx"))
+}
+
+/// Reads a .zmx file, looking glasses up in `catalogs`. Errors and warnings name the file.
+///
+/// # Errors
+/// [`ErrorKind::Io`] naming the path; otherwise as [`from_str`], prefixed with the path.
+pub fn read_file(path: &Path, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let mut z = from_bytes(&bytes, catalogs).map_err(|e| e.context(path.display()))?;
+    for w in &mut z.warnings {
+        *w = format!("{}: {w}", path.display());
+    }
+    Ok(z)
+}
+
+/// Parses the bytes of a .zmx file in any of the supported encodings.
+///
+/// # Errors
+/// As [`from_str`].
+pub fn from_bytes(bytes: &[u8], catalogs: &GlassCatalogs) -> Result<ZmxLens> {
+    from_str(&decode(bytes), catalogs)
+}
+
+fn parse_err(line: usize, msg: impl std::fmt::Display) -> Error {
+    Error::new(ErrorKind::Parse, format!("line {line}: {msg}"))
+}
+
+fn invalid(line: usize, msg: impl std::fmt::Display) -> Error {
+    Error::invalid(format!("line {line}: {msg}"))
+}
+
+/// A finite number, or an error naming the line and what it was.
+fn number(tok: Option<&&str>, line: usize, what: &str) -> Result<f64> {
+    let tok = tok.ok_or_else(|| parse_err(line, format!("{what}: missing number")))?;
+    match tok.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(parse_err(
+            line,
+            format!("{what}: \"{tok}\" is not a finite number"),
+        )),
+    }
+}
+
+fn numbers(args: &[&str], line: usize, what: &str) -> Result<Vec<f64>> {
+    args.iter().map(|t| number(Some(t), line, what)).collect()
+}
+
+/// A value with the line it came from.
+#[derive(Clone, Debug)]
+struct At<T> {
+    v: T,
+    line: usize,
+}
+
+fn at<T>(v: T, line: usize) -> Option<At<T>> {
+    Some(At { v, line })
+}
+
+/// One `SURF` block as written.
+#[derive(Clone, Debug, Default)]
+struct RawSurf {
+    line: usize,
+    ty: Option<At<String>>,
+    curv: Option<At<f64>>,
+    coni: Option<At<f64>>,
+    parm: Vec<(usize, f64, usize)>,
+    /// `None` value: INFINITY.
+    disz: Option<At<Option<f64>>>,
+    /// Semi-diameter and whether it is fixed (solve type 1).
+    diam: Option<At<(f64, bool)>>,
+    mema: Option<At<f64>>,
+    stop: Option<usize>,
+    glas: Option<At<Vec<String>>>,
+}
+
+impl RawSurf {
+    fn type_name(&self) -> String {
+        self.ty
+            .as_ref()
+            .map_or_else(|| "STANDARD".to_string(), |t| t.v.clone())
+    }
+    fn type_line(&self) -> usize {
+        self.ty.as_ref().map_or(self.line, |t| t.line)
+    }
+    fn parm(&self, i: usize) -> f64 {
+        self.parm
+            .iter()
+            .rev()
+            .find(|p| p.0 == i)
+            .map_or(0.0, |p| p.1)
+    }
+    fn thickness(&self) -> Result<f64> {
+        match &self.disz {
+            None => Ok(0.0),
+            Some(At { v: Some(t), .. }) => Ok(*t),
+            Some(At { v: None, line }) => Err(invalid(
+                *line,
+                "DISZ INFINITY is only allowed on the object surface (SURF 0)",
+            )),
+        }
+    }
+}
+
+/// The header commands as written.
+#[derive(Clone, Debug, Default)]
+struct Header {
+    unit: Option<At<f64>>,
+    name: String,
+    notes: Vec<At<String>>,
+    aperture: Option<At<ZmxAperture>>,
+    ftyp: Option<At<Vec<f64>>>,
+    xfln: Option<Vec<f64>>,
+    yfln: Option<At<Vec<f64>>>,
+    fwgn: Option<Vec<f64>>,
+    vign: Vec<At<Vec<f64>>>,
+    wavm: Vec<(usize, f64, f64, usize)>,
+    wavl: Option<At<Vec<f64>>>,
+    wwgt: Option<Vec<f64>>,
+    pwav: Option<At<usize>>,
+    gcat: Vec<String>,
+}
+
+/// Commands that change nothing tolray models: skipped without a warning.
+const SILENT: &[&str] = &[
+    "VERS", "PFIL", "LANG", "ENVD", "GFAC", "RAIM", "PUSH", "SDMA", "ROPD", "PICB", "POLS", "GLRS",
+    "GSTD", "NSCD", "COFN", "BLNK", "TOL", "TOLE", "MOFF", "CONF", "OPDX", "EFFL", "PUPD", "TCED",
+    "DMFS", "ISNA", "ZVDX", "ZVDY", "ZVCX", "ZVCY", "ZVAN", "WWGN", "WAVN", "MNCA", "MNEA", "MNCG",
+    "MNEG", "MXCA", "MXCG", "RGLA", "TRAC", "TCMM", "PMAG", "TOTR", "FIMP", "SCOL", "UDAD", "USAP",
+    "EDGE", "OMMA", "HIDE", "MIRR", "SLAB", "POPS", "COMM", "MAZH", "PZUP", "PPAR", "VPAR", "VCON",
+    "VDSZ", "COAT", "FLAP", "TCE", "PKUP", "SCTH", "CLAT", "BLAT",
+];
+
+/// Surface apertures other than the semi-diameter: skipped with a warning.
+const APERTURES: &[&str] = &["CLAP", "OBSC", "SQAP", "ELAP", "OBDC", "SPID"];
+
+/// Parses .zmx text, looking glass names up in `catalogs`.
+///
+/// # Errors
+/// [`ErrorKind::Parse`] naming the line for malformed lines (a bad number, a truncated `GLAS`,
+/// `SURF` blocks out of order); [`ErrorKind::Invalid`] naming the line for what tolray cannot
+/// model (an unsupported surface type, a mirror, a tilted image plane, an unknown glass) or an
+/// invalid prescription.
+#[allow(clippy::should_implement_trait)]
+pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
+    let mut h = Header::default();
+    let mut surfs: Vec<RawSurf> = Vec::new();
+    let mut warnings = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let trimmed = raw.trim();
+        let toks: Vec<&str> = trimmed.split_whitespace().collect();
+        let Some(first) = toks.first() else { continue };
+        let cmd = first.to_ascii_uppercase();
+        let args = &toks[1..];
+        // The text after the command, for NAME and NOTE.
+        let rest = trimmed.get(first.len()..).unwrap_or("").trim();
+        let surf = surfs.last_mut();
+        let need_surf = |s| in_surf(s, line, &cmd);
+        match cmd.as_str() {
+            "SURF" => {
+                let n = args
+                    .first()
+                    .and_then(|t| t.parse::<usize>().ok())
+                    .ok_or_else(|| parse_err(line, "SURF needs a surface number"))?;
+                if n != surfs.len() {
+                    return Err(parse_err(
+                        line,
+                        format!("SURF {n} is out of order (expected SURF {})", surfs.len()),
+                    ));
+                }
+                surfs.push(RawSurf {
+                    line,
+                    ..RawSurf::default()
+                });
+            }
+            "TYPE" => {
+                let s = need_surf(surf)?;
+                let t = args
+                    .first()
+                    .ok_or_else(|| parse_err(line, "TYPE needs a surface type"))?;
+                s.ty = at(t.to_ascii_uppercase(), line);
+            }
+            "CURV" => need_surf(surf)?.curv = at(number(args.first(), line, "CURV")?, line),
+            "CONI" => need_surf(surf)?.coni = at(number(args.first(), line, "CONI")?, line),
+            "PARM" => {
+                let s = need_surf(surf)?;
+                let k = args
+                    .first()
+                    .and_then(|t| t.parse::<usize>().ok())
+                    .ok_or_else(|| parse_err(line, "PARM needs a parameter number"))?;
+                let v = number(args.get(1), line, &format!("PARM {k}"))?;
+                s.parm.push((k, v, line));
+            }
+            "DISZ" => {
+                let s = need_surf(surf)?;
+                let v = match args.first() {
+                    Some(t) if t.eq_ignore_ascii_case("INFINITY") => None,
+                    t => Some(number(t, line, "DISZ")?),
+                };
+                s.disz = at(v, line);
+            }
+            "DIAM" => {
+                let s = need_surf(surf)?;
+                let v = number(args.first(), line, "DIAM")?;
+                s.diam = at((v, args.get(1) == Some(&"1")), line);
+            }
+            "MEMA" => need_surf(surf)?.mema = at(number(args.first(), line, "MEMA")?, line),
+            "STOP" => need_surf(surf)?.stop = Some(line),
+            "GLAS" => {
+                let s = need_surf(surf)?;
+                if args.is_empty() {
+                    return Err(parse_err(line, "GLAS needs a glass name"));
+                }
+                s.glas = at(args.iter().map(|t| t.to_string()).collect(), line);
+            }
+            "MODE" => {
+                let m = args.first().copied().unwrap_or("");
+                if !m.eq_ignore_ascii_case("SEQ") {
+                    return Err(invalid(
+                        line,
+                        format!("MODE {m}: tolray reads sequential files (MODE SEQ) only"),
+                    ));
+                }
+            }
+            "UNIT" => {
+                let u = args.first().copied().unwrap_or("");
+                let scale = match u.to_ascii_uppercase().as_str() {
+                    "MM" => 1.0,
+                    "CM" => 10.0,
+                    "IN" | "INCH" => 25.4,
+                    "METER" | "M" => 1000.0,
+                    _ => {
+                        return Err(invalid(
+                            line,
+                            format!("UNIT {u}: tolray reads MM, CM, IN and METER"),
+                        ))
+                    }
+                };
+                h.unit = at(scale, line);
+            }
+            "NAME" => h.name = rest.trim_matches('"').trim().to_string(),
+            "NOTE" => h.notes.push(At {
+                v: rest.to_string(),
+                line,
+            }),
+            "ENPD" => {
+                let v = number(args.first(), line, "ENPD")?;
+                h.aperture = at(ZmxAperture::EntrancePupilDiameter(v), line);
+            }
+            "FNUM" => {
+                let v = number(args.first(), line, "FNUM")?;
+                h.aperture = at(ZmxAperture::ImageSpaceFnum(v), line);
+            }
+            "OBNA" => {
+                let v = number(args.first(), line, "OBNA")?;
+                h.aperture = at(ZmxAperture::ObjectSpaceNa(v), line);
+            }
+            "FLOA" => h.aperture = at(ZmxAperture::FloatByStop, line),
+            "FTYP" => h.ftyp = at(numbers(args, line, "FTYP")?, line),
+            "XFLN" | "XFLD" => h.xfln = Some(numbers(args, line, &cmd)?),
+            "YFLN" | "YFLD" => h.yfln = at(numbers(args, line, &cmd)?, line),
+            "FWGN" | "FWGT" => h.fwgn = Some(numbers(args, line, &cmd)?),
+            "VDXN" | "VDYN" | "VCXN" | "VCYN" | "VANN" => {
+                h.vign.push(At {
+                    v: numbers(args, line, &cmd)?,
+                    line,
+                });
+            }
+            "WAVM" => {
+                let k = args
+                    .first()
+                    .and_then(|t| t.parse::<usize>().ok())
+                    .ok_or_else(|| parse_err(line, "WAVM needs a wavelength number"))?;
+                let w = number(args.get(1), line, &format!("WAVM {k}"))?;
+                let wt = match args.get(2) {
+                    Some(t) => number(Some(t), line, &format!("WAVM {k} weight"))?,
+                    None => 1.0,
+                };
+                h.wavm.push((k, w, wt, line));
+            }
+            "WAVL" => h.wavl = at(numbers(args, line, "WAVL")?, line),
+            "WWGT" => h.wwgt = Some(numbers(args, line, "WWGT")?),
+            "PWAV" => {
+                let k = args
+                    .first()
+                    .and_then(|t| t.parse::<usize>().ok())
+                    .ok_or_else(|| parse_err(line, "PWAV needs a wavelength number"))?;
+                h.pwav = at(k, line);
+            }
+            "GCAT" => h.gcat = args.iter().map(|t| t.to_string()).collect(),
+            "MNUM" => {
+                if args.first().and_then(|t| t.parse::<f64>().ok()).unwrap_or(1.0) > 1.0 {
+                    warnings.push(format!(
+                        "line {line}: multi-configuration data ignored; the lens data as written (the current configuration) is read"
+                    ));
+                }
+            }
+            "XDAT" | "YDAT" => {
+                if args.get(1).and_then(|t| t.parse::<f64>().ok()).unwrap_or(0.0) != 0.0 {
+                    warnings.push(format!("line {line}: {cmd} (extra surface data) ignored"));
+                }
+            }
+            c if APERTURES.contains(&c) => warnings.push(format!(
+                "line {line}: {c} (a surface aperture) ignored: tolray clips at the semi-diameter (DIAM)"
+            )),
+            c if SILENT.contains(&c) => {}
+            c => warnings.push(format!("line {line}: unknown command {c} skipped")),
+        }
+    }
+    build(h, surfs, catalogs, warnings)
+}
+
+fn in_surf<'a>(s: Option<&'a mut RawSurf>, line: usize, cmd: &str) -> Result<&'a mut RawSurf> {
+    s.ok_or_else(|| parse_err(line, format!("{cmd} outside a SURF block")))
+}
+
+/// The medium given by a `GLAS` line.
+fn glass(
+    args: &[String],
+    line: usize,
+    catalogs: &GlassCatalogs,
+    warnings: &mut Vec<String>,
+) -> Result<Material> {
+    let name = args
+        .first()
+        .ok_or_else(|| parse_err(line, "GLAS needs a glass name"))?;
+    let upper = name.to_ascii_uppercase();
+    let num = |k: usize| args.get(k).and_then(|t| t.parse::<f64>().ok());
+    if upper == "MIRROR" {
+        return Err(invalid(
+            line,
+            "GLAS MIRROR: tolray traces refractive lenses only (no mirrors)",
+        ));
+    }
+    if upper == "___BLANK" {
+        let arg = |k| args.get(k).map(String::as_str);
+        if arg(3).is_none() || arg(4).is_none() {
+            return Err(parse_err(
+                line,
+                "a model glass needs n_d and V_d: GLAS ___BLANK 1 0 n_d V_d ...",
+            ));
+        }
+        let nd = number(arg(3).as_ref(), line, "GLAS ___BLANK n_d")?;
+        let vd = number(arg(4).as_ref(), line, "GLAS ___BLANK V_d")?;
+        // Zemax treats V_d = 0 as a dispersion-free medium.
+        let m = if vd == 0.0 {
+            if !(nd >= 1.0) {
+                return Err(invalid(line, format!("model glass index {nd} is below 1")));
+            }
+            Material::Constant(nd)
+        } else {
+            Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")))?
+        };
+        return Ok(m);
+    }
+    if name.len() == 6 && name.bytes().all(|b| b.is_ascii_digit()) {
+        // A six-digit glass code: n_d = 1.abc, V_d = de.f.
+        let code: f64 = name.parse().unwrap_or(0.0);
+        let nd = 1.0 + (code / 1000.0).floor() / 1000.0;
+        let vd = (code % 1000.0) / 10.0;
+        warnings.push(format!(
+            "line {line}: glass code {name} read as a model glass n_d = {nd}, V_d = {vd}"
+        ));
+        return Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")));
+    }
+    if let Some(m) = catalogs.find_exact(name) {
+        if let (Some(nd_file), Some(g)) = (num(3), m.catalog_name()) {
+            let nd = m.index(LAMBDA_D_NM);
+            if nd_file > 1.0 && (nd - nd_file).abs() > 1e-3 {
+                warnings.push(format!(
+                    "line {line}: glass {g}: the file says n_d = {nd_file}, the catalog gives {nd:.6}"
+                ));
+            }
+        }
+        return Ok(m);
+    }
+    if let Some(m) = catalogs.find(name) {
+        warnings.push(format!(
+            "line {line}: glass {name} is not in the catalogs; using {} (its DeepLens alias)",
+            m.catalog_name().unwrap_or("?")
+        ));
+        return Ok(m);
+    }
+    if let (Some(nd), Some(vd)) = (num(3), num(4)) {
+        if nd >= 1.0 && vd > 0.0 && nd.is_finite() && vd.is_finite() {
+            warnings.push(format!(
+                "line {line}: glass {name} is not in the catalogs; using a model glass with the file's n_d = {nd}, V_d = {vd} (load its catalog with --glass-catalog FILE.agf for the exact dispersion)"
+            ));
+            return Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")));
+        }
+    }
+    let close = catalogs.suggest(name, 3);
+    let hint = if close.is_empty() {
+        String::new()
+    } else {
+        format!(" (did you mean {}?)", close.join(", "))
+    };
+    Err(invalid(
+        line,
+        format!("unknown glass \"{name}\"{hint}; give its catalog with --glass-catalog FILE.agf"),
+    ))
+}
+
+fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
+    Mat3::rot_x(a.to_radians()) * Mat3::rot_y(b.to_radians()) * Mat3::rot_z(g.to_radians())
+}
+
+/// Snaps a rotation within 1e-12 of the identity to it, so that a coordinate break and its exact
+/// reverse leave no rounding residue.
+fn snap(r: Mat3<f64>) -> Mat3<f64> {
+    let i = Mat3::<f64>::identity();
+    let close = r.rows.iter().zip(i.rows.iter()).all(|(a, b)| {
+        (a.x - b.x).abs() <= 1e-12 && (a.y - b.y).abs() <= 1e-12 && (a.z - b.z).abs() <= 1e-12
+    });
+    if close {
+        i
+    } else {
+        r
+    }
+}
+
+fn finite_frame(o: &Vec3<f64>, r: &Mat3<f64>) -> bool {
+    [o.x, o.y, o.z].iter().all(|v| v.is_finite())
+        && r.rows
+            .iter()
+            .all(|v| v.x.is_finite() && v.y.is_finite() && v.z.is_finite())
+}
+
+fn is_identity(r: &Mat3<f64>) -> bool {
+    *r == Mat3::identity()
+}
+
+/// A tolray surface being built, with the SURF it came from.
+struct Built {
+    surface: Surface,
+    raw: RawSurf,
+    index: usize,
+    has_diam: bool,
+}
+
+/// Follows OpticStudio's coordinate system through the surfaces, collecting lens surfaces.
+struct Walker {
+    /// Origin and local-to-global axes of the current coordinate system (object frame, mm).
+    origin: Vec3<f64>,
+    rot: Mat3<f64>,
+    /// Axial (global z) travel since the last lens surface: exact sums of the file's thicknesses
+    /// whenever the frame is untilted.
+    pending: f64,
+    /// Travel from the object to the first lens surface.
+    object_gap: Option<f64>,
+    /// The medium the light is in.
+    medium: Material,
+    last_cb_line: Option<usize>,
+    stop_line: Option<usize>,
+    built: Vec<Built>,
+    scale: f64,
+}
+
+impl Walker {
+    fn axis(&self) -> Vec3<f64> {
+        self.rot.apply(Vec3::cst(0.0, 0.0, 1.0))
+    }
+
+    /// Moves the origin by `d` (global) and counts its axial part.
+    fn shift(&mut self, d: Vec3<f64>) {
+        self.origin = self.origin + d;
+        self.pending += d.z;
+    }
+
+    /// Travels `t` mm along the current z axis.
+    fn travel(&mut self, t: f64, line: usize) -> Result<()> {
+        self.shift(self.axis() * t);
+        if !finite_frame(&self.origin, &self.rot) || !self.pending.is_finite() {
+            return Err(invalid(
+                line,
+                "this moves the coordinate system to infinity",
+            ));
+        }
+        Ok(())
+    }
+
+    fn coordinate_break(&mut self, s: &RawSurf, warnings: &mut Vec<String>) -> Result<()> {
+        if let Some(l) = s.stop {
+            return Err(invalid(l, "a coordinate break cannot be the stop"));
+        }
+        if let Some(g) = &s.glas {
+            warnings.push(format!(
+                "line {}: GLAS on a coordinate break ignored (the medium continues)",
+                g.line
+            ));
+        }
+        let decenter = Vec3::cst(s.parm(1) * self.scale, s.parm(2) * self.scale, 0.0);
+        let (a, b, g) = (s.parm(3), s.parm(4), s.parm(5));
+        if s.parm(6) == 0.0 {
+            // Decenter, then tilt about x, the new y, the new z.
+            self.shift(self.rot.apply(decenter));
+            self.rot = snap(self.rot * rotation_xyz_deg(a, b, g));
+        } else {
+            // Tilt about z, the new y, the new x, then decenter.
+            self.rot = snap(self.rot * Mat3::from_tilt_deg(a, b, g));
+            self.shift(self.rot.apply(decenter));
+        }
+        self.last_cb_line = Some(s.type_line());
+        self.travel(s.thickness()? * self.scale, s.type_line())
+    }
+
+    /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
+    fn surface(
+        &mut self,
+        k: usize,
+        s: &RawSurf,
+        catalogs: &GlassCatalogs,
+        warnings: &mut Vec<String>,
+    ) -> Result<()> {
+        let ty = s.type_name();
+        let scale = self.scale;
+        let c = s.curv.as_ref().map_or(0.0, |c| c.v) / scale;
+        let mut asph = [0.0; N_ASPH];
+        for &(p, v, line) in &s.parm {
+            if ty == "EVENASPH" && (1..=N_ASPH).contains(&p) {
+                // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
+                asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
+            } else if v != 0.0 {
+                let what = if ty == "EVENASPH" {
+                    "tolray reads even-asphere terms r^2 to r^16 (PARM 1 to 8)"
+                } else {
+                    "a STANDARD surface has no parameters"
+                };
+                warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
+            }
+        }
+        let material = match &s.glas {
+            Some(g) => glass(&g.v, g.line, catalogs, warnings)?,
+            None => Material::Air,
+        };
+        let diam = s.diam.as_ref().map(|d| (d.v.0 * scale, d.v.1));
+        let dummy = ty == "STANDARD"
+            && c == 0.0
+            && s.stop.is_none()
+            && material == self.medium
+            && !diam.is_some_and(|d| d.1);
+        if !dummy {
+            let axis = self.axis();
+            if axis.z <= 1e-9 {
+                return Err(invalid(
+                    s.line,
+                    format!(
+                        "SURF {k} is turned by 90 degrees or more by coordinate breaks; tolray traces along +z only"
+                    ),
+                ));
+            }
+            if self.pending < 0.0 {
+                return Err(invalid(
+                    s.line,
+                    format!(
+                        "SURF {k} lies {} mm before the previous surface along z; tolray needs the surfaces in order along the axis",
+                        -self.pending
+                    ),
+                ));
+            }
+            match self.built.last_mut() {
+                Some(prev) => prev.surface.d_next_mm = self.pending,
+                None => self.object_gap = Some(self.pending),
+            }
+            self.pending = 0.0;
+            if let Some(l) = s.stop {
+                if let Some(first) = self.stop_line {
+                    return Err(invalid(
+                        l,
+                        format!("a second STOP (the first is at line {first})"),
+                    ));
+                }
+                self.stop_line = Some(l);
+            }
+            let semi = diam
+                .map(|d| d.0)
+                .filter(|&d| d > 0.0)
+                .or_else(|| s.mema.as_ref().map(|m| m.v * scale));
+            let is_stop = s.stop.is_some();
+            // A flat stop in air is a bare aperture (DeepLens' "Aperture").
+            let role = if is_stop
+                && ty == "STANDARD"
+                && c == 0.0
+                && self.medium.is_air()
+                && material.is_air()
+            {
+                SurfaceRole::Aperture
+            } else {
+                SurfaceRole::Refractive
+            };
+            let vec_local = if is_identity(&self.rot) {
+                [0.0, 0.0, 1.0]
+            } else {
+                [axis.x, axis.y, axis.z]
+            };
+            self.built.push(Built {
+                surface: Surface {
+                    role,
+                    c,
+                    k: s.coni.as_ref().map_or(0.0, |c| c.v),
+                    asph,
+                    semi_aperture_mm: semi.unwrap_or(0.0),
+                    d_next_mm: 0.0,
+                    material: material.clone(),
+                    is_stop,
+                    pos_xy_mm: [self.origin.x, self.origin.y],
+                    vec_local,
+                },
+                raw: s.clone(),
+                index: k,
+                has_diam: semi.is_some(),
+            });
+        }
+        self.medium = material;
+        let line = s.disz.as_ref().map_or(s.line, |d| d.line);
+        self.travel(s.thickness()? * scale, line)
+    }
+
+    /// The image surface closes the last gap and gives the sensor's half-diagonal.
+    fn image(&mut self, img: &RawSurf, warnings: &mut Vec<String>) -> Result<f64> {
+        let ty = img.type_name();
+        if !matches!(ty.as_str(), "STANDARD" | "EVENASPH") {
+            return Err(invalid(
+                img.type_line(),
+                format!("image surface type {ty} is not supported: the image is a plane"),
+            ));
+        }
+        if img.curv.as_ref().is_some_and(|c| c.v != 0.0)
+            || (ty == "EVENASPH" && img.parm.iter().any(|p| p.1 != 0.0))
+        {
+            let l = img.curv.as_ref().map_or(img.line, |c| c.line);
+            return Err(invalid(
+                l,
+                "the image surface is curved; tolray's image is a plane",
+            ));
+        }
+        if let Some(l) = img.stop {
+            return Err(invalid(l, "the image surface cannot be the stop"));
+        }
+        if !is_identity(&self.rot) {
+            return Err(invalid(
+                self.last_cb_line.unwrap_or(img.line),
+                "the image plane is tilted by coordinate breaks (the last one is here); tolray's image plane is perpendicular to z",
+            ));
+        }
+        if self.origin.x != 0.0 || self.origin.y != 0.0 {
+            warnings.push(format!(
+                "line {}: the image surface is decentered by ({:.6}, {:.6}) mm; tolray's image plane is centred on the axis (spot positions are in global coordinates)",
+                img.line, self.origin.x, self.origin.y
+            ));
+        }
+        if self.pending < 0.0 {
+            return Err(invalid(
+                img.line,
+                format!(
+                    "the image surface lies {} mm before the last lens surface",
+                    -self.pending
+                ),
+            ));
+        }
+        let Some(last) = self.built.last_mut() else {
+            return Err(Error::invalid(
+                "the file has no lens surface between the object and the image",
+            ));
+        };
+        last.surface.d_next_mm = self.pending;
+        let r_sensor = img.diam.as_ref().map_or(0.0, |d| d.v.0 * self.scale);
+        if !(r_sensor > 0.0) {
+            return Err(invalid(
+                img.diam.as_ref().map_or(img.line, |d| d.line),
+                "the image surface needs a positive semi-diameter (DIAM): tolray sizes the sensor by it",
+            ));
+        }
+        Ok(r_sensor)
+    }
+}
+
+/// The object distance in mm (`None` at infinity), checking what SURF 0 may hold.
+fn object_distance(
+    obj: &RawSurf,
+    scale: f64,
+    catalogs: &GlassCatalogs,
+    warnings: &mut Vec<String>,
+) -> Result<Option<f64>> {
+    if let Some(t) = &obj.ty {
+        if t.v != "STANDARD" {
+            warnings.push(format!(
+                "line {}: object surface type {} ignored (the object is a plane or at infinity)",
+                t.line, t.v
+            ));
+        }
+    }
+    if let Some(l) = obj.stop {
+        return Err(invalid(l, "the object surface cannot be the stop"));
+    }
+    if let Some(g) = &obj.glas {
+        if !glass(&g.v, g.line, catalogs, warnings)?.is_air() {
+            return Err(invalid(
+                g.line,
+                "tolray's object space is air; the object surface must have no glass",
+            ));
+        }
+    }
+    match &obj.disz {
+        None => Err(invalid(
+            obj.line,
+            "SURF 0 has no DISZ (the object distance, or INFINITY)",
+        )),
+        Some(At { v: None, .. }) => Ok(None),
+        Some(At { v: Some(d), line }) if !(*d > 0.0) => Err(invalid(
+            *line,
+            format!("object distance {d}: it must be positive (or INFINITY)"),
+        )),
+        Some(At { v: Some(d), .. }) => Ok(Some(d * scale)),
+    }
+}
+
+/// Field type and points (lengths in mm).
+fn fields(h: &Header, scale: f64, warnings: &mut Vec<String>) -> (ZmxFieldType, Vec<ZmxField>) {
+    let field_type = match h.ftyp.as_ref().and_then(|f| f.v.first()).copied() {
+        None | Some(0.0) => ZmxFieldType::AngleDeg,
+        Some(1.0) => ZmxFieldType::ObjectHeightMm,
+        Some(2.0) => ZmxFieldType::ParaxialImageHeightMm,
+        Some(3.0) => ZmxFieldType::RealImageHeightMm,
+        Some(x) => ZmxFieldType::Other(x as i64),
+    };
+    // FTYP's third number is the number of fields in use; the lists have spare slots.
+    let n = h
+        .ftyp
+        .as_ref()
+        .and_then(|f| f.v.get(2))
+        .map(|&n| n.clamp(0.0, 1e6) as usize)
+        .unwrap_or_else(|| h.yfln.as_ref().map_or(0, |y| y.v.len()));
+    let s = if field_type.is_length() { scale } else { 1.0 };
+    let at = |v: &Option<Vec<f64>>, i: usize, default: f64| {
+        v.as_ref()
+            .and_then(|v| v.get(i).copied())
+            .unwrap_or(default)
+    };
+    let list: Vec<ZmxField> = (0..n)
+        .map_while(|i| {
+            let y = h.yfln.as_ref().and_then(|y| y.v.get(i).copied())?;
+            Some(ZmxField {
+                x: at(&h.xfln, i, 0.0) * s,
+                y: y * s,
+                weight: at(&h.fwgn, i, 1.0),
+            })
+        })
+        .collect();
+    if let Some(v) = h
+        .vign
+        .iter()
+        .find(|v| v.v.iter().take(n.max(1)).any(|&x| x != 0.0))
+    {
+        warnings.push(format!(
+            "line {}: vignetting factors ignored: tolray vignettes by tracing the clear apertures",
+            v.line
+        ));
+    }
+    (field_type, list)
+}
+
+/// The file's wavelengths, the primary index, and tolray's primary, RGB and sensor resolution.
+struct Spectrum {
+    wavelengths: Vec<ZmxWavelength>,
+    primary: usize,
+    primary_nm: f64,
+    rgb_nm: [f64; 3],
+    sensor_res: [u32; 2],
+}
+
+fn spectrum(h: &Header, warnings: &mut Vec<String>) -> Result<Spectrum> {
+    let (wavelengths, primary) = wavelengths(h, warnings)?;
+    let note = tolray_note(h, warnings);
+    let nm: Vec<f64> = wavelengths.iter().map(|w| w.um * 1e3).collect();
+    // The NOTE's exact values count only while they still match the file's wavelengths.
+    let primary_nm = note
+        .primary_nm
+        .filter(|p| nm.get(primary).is_some_and(|w| close(*w, *p)))
+        .or_else(|| nm.get(primary).copied())
+        .unwrap_or(LAMBDA_D_NM);
+    let rgb_nm = match note.rgb_nm {
+        Some(rgb) if rgb.iter().all(|c| nm.iter().any(|w| close(*w, *c))) => rgb,
+        Some(_) => {
+            warnings.push(
+                "the tolray NOTE's RGB wavelengths are not among the file's wavelengths any more; RGB is taken from the wavelengths"
+                    .into(),
+            );
+            rgb_from(&nm, primary_nm)
+        }
+        None => rgb_from(&nm, primary_nm),
+    };
+    Ok(Spectrum {
+        wavelengths,
+        primary,
+        primary_nm,
+        rgb_nm,
+        sensor_res: note.sensor_res.unwrap_or([2000, 2000]),
+    })
+}
+
+fn build(
+    h: Header,
+    surfs: Vec<RawSurf>,
+    catalogs: &GlassCatalogs,
+    mut warnings: Vec<String>,
+) -> Result<ZmxLens> {
+    if surfs.len() < 3 {
+        return Err(Error::invalid(format!(
+            "the file has {} SURF blocks; a lens needs the object (SURF 0), at least one lens surface and the image surface",
+            surfs.len()
+        )));
+    }
+    let scale = h.unit.as_ref().map_or(1.0, |u| u.v);
+    let last = surfs.len() - 1;
+    let object = object_distance(&surfs[0], scale, catalogs, &mut warnings)?;
+
+    let mut walk = Walker {
+        origin: Vec3::cst(0.0, 0.0, 0.0),
+        rot: Mat3::identity(),
+        pending: object.unwrap_or(0.0),
+        object_gap: None,
+        medium: Material::Air,
+        last_cb_line: None,
+        stop_line: None,
+        built: Vec::new(),
+        scale,
+    };
+    for (k, s) in surfs.iter().enumerate().take(last).skip(1) {
+        match s.type_name().as_str() {
+            "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
+            "STANDARD" | "EVENASPH" => walk.surface(k, s, catalogs, &mut warnings)?,
+            other => {
+                return Err(invalid(
+                    s.type_line(),
+                    format!(
+                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH and COORDBRK"
+                    ),
+                ))
+            }
+        }
+    }
+    let r_sensor = walk.image(&surfs[last], &mut warnings)?;
+    let mut built = walk.built;
+    if walk.stop_line.is_none() {
+        warnings.push(format!(
+            "line {}: no STOP line; the first lens surface (SURF {}) is taken as the stop, as OpticStudio does",
+            built[0].raw.line, built[0].index
+        ));
+        built[0].surface.is_stop = true;
+    }
+    let spec = spectrum(&h, &mut warnings)?;
+    let (field_type, fields) = fields(&h, scale, &mut warnings);
+
+    let mut lens = Lens {
+        info: h.name.clone(),
+        surfaces: built.iter().map(|b| b.surface.clone()).collect(),
+        object: match walk.object_gap {
+            Some(d) if object.is_some() => Object::Finite { distance_mm: d },
+            _ => Object::Infinite,
+        },
+        sensor: Sensor::from_half_diagonal(r_sensor, spec.sensor_res),
+        primary_wavelength_nm: spec.primary_nm,
+        rgb_wavelengths_nm: spec.rgb_nm,
+    };
+    if let Object::Finite { distance_mm } = lens.object {
+        if !(distance_mm > 0.0) {
+            return Err(invalid(
+                built[0].raw.line,
+                "the first lens surface must lie behind the object",
+            ));
+        }
+    }
+
+    // Each semi-diameter, checked with its line; then the stop is sized by the aperture.
+    let stop = lens.stop_index().unwrap_or(0);
+    let aperture = h.aperture.as_ref().map(|a| a.v);
+    let sized = !matches!(aperture, None | Some(ZmxAperture::FloatByStop));
+    for (i, b) in built.iter().enumerate() {
+        let s = &lens.surfaces[i];
+        let line = b.raw.diam.as_ref().map_or(b.raw.line, |d| d.line);
+        if i == stop && sized {
+            continue;
+        }
+        if !b.has_diam || !(s.semi_aperture_mm > 0.0) {
+            return Err(invalid(
+                line,
+                format!(
+                    "SURF {} needs a positive semi-diameter (DIAM): tolray clips rays there",
+                    b.index
+                ),
+            ));
+        }
+        check_rim(s, line, b.index)?;
+    }
+    if let (Some(a), true) = (&h.aperture, sized) {
+        let file_diam = built[stop]
+            .has_diam
+            .then_some(lens.surfaces[stop].semi_aperture_mm);
+        let r = stop_semi_aperture(&lens, stop, a.v, scale, file_diam)
+            .map_err(|e| e.context(format!("line {}", a.line)))?;
+        lens.surfaces[stop].semi_aperture_mm = r;
+        check_rim(&lens.surfaces[stop], a.line, built[stop].index).map_err(|e| {
+            Error::invalid(format!(
+                "{} (the stop semi-diameter that the aperture needs)",
+                e.message
+            ))
+        })?;
+    }
+    lens.validate()?;
+
+    // Wavelengths outside the catalog range of a glass.
+    for (b, s) in built.iter().zip(&lens.surfaces) {
+        let (Some((lo, hi)), Some(name)) = (s.material.range_um(), s.material.catalog_name())
+        else {
+            continue;
+        };
+        let out: Vec<String> = spec
+            .wavelengths
+            .iter()
+            .filter(|w| w.um < lo || w.um > hi)
+            .map(|w| format!("{} µm", w.um))
+            .collect();
+        if !out.is_empty() {
+            let line = b.raw.glas.as_ref().map_or(b.raw.line, |g| g.line);
+            warnings.push(format!(
+                "line {line}: glass {name} is defined from {lo} to {hi} µm; {} outside that range",
+                out.join(", ")
+            ));
+        }
+    }
+
+    let extras = ZmxExtras {
+        aperture,
+        field_type,
+        fields,
+        wavelengths: spec.wavelengths,
+        primary: spec.primary,
+        glass_catalogs: h.gcat,
+    };
+    Ok(ZmxLens {
+        lens,
+        extras,
+        warnings,
+    })
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * b.abs()
+}
+
+fn check_rim(s: &Surface, line: usize, index: usize) -> Result<()> {
+    let r = s.semi_aperture_mm;
+    if (1.0 + s.k) * s.c * s.c * r * r > 1.0 {
+        return Err(invalid(
+            line,
+            format!(
+                "SURF {index}: semi-diameter {r} mm exceeds the surface's rim (radius {} mm, conic {})",
+                1.0 / s.c,
+                s.k
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The stop semi-aperture that gives the file's paraxial aperture. The entrance pupil scales
+/// linearly with the stop, so one paraxial analysis with a trial radius suffices. A file
+/// semi-diameter that agrees to 1e-9 is kept as written (so tolray's own files round-trip
+/// exactly).
+fn stop_semi_aperture(
+    lens: &Lens,
+    stop: usize,
+    aperture: ZmxAperture,
+    scale: f64,
+    file_diam: Option<f64>,
+) -> Result<f64> {
+    let mut trial = lens.clone();
+    let r0 = file_diam.filter(|&d| d > 0.0).unwrap_or(1e-3);
+    trial.surfaces[stop].semi_aperture_mm = r0;
+    if check_rim(&trial.surfaces[stop], 0, 0).is_err() {
+        trial.surfaces[stop].semi_aperture_mm = 1e-3;
+    }
+    let r0 = trial.surfaces[stop].semi_aperture_mm;
+    let p = trial.paraxial(lens.primary_wavelength_nm)?;
+    let epd = match aperture {
+        ZmxAperture::EntrancePupilDiameter(d) => d * scale,
+        ZmxAperture::ImageSpaceFnum(f) => {
+            if !(f > 0.0) {
+                return Err(Error::invalid(format!("FNUM {f} must be positive")));
+            }
+            p.efl_mm.abs() / f
+        }
+        ZmxAperture::ObjectSpaceNa(na) => {
+            let Object::Finite { distance_mm } = lens.object else {
+                return Err(Error::invalid(
+                    "OBNA (object-space NA) needs an object at a finite distance",
+                ));
+            };
+            if !(na > 0.0 && na < 1.0) {
+                return Err(Error::invalid(format!(
+                    "OBNA {na} must be between 0 and 1 (object space is air)"
+                )));
+            }
+            2.0 * na.asin().tan() * (p.entrance_pupil_z_mm + distance_mm)
+        }
+        ZmxAperture::FloatByStop => p.entrance_pupil_diameter_mm,
+    };
+    let r = r0 * epd / p.entrance_pupil_diameter_mm;
+    if !(r >= 1e-9 && r.is_finite()) {
+        return Err(Error::invalid(format!(
+            "the aperture gives an entrance pupil diameter of {epd:e} mm and a stop semi-diameter of {r:e} mm; both must be positive (at least 1e-9 mm) and finite"
+        )));
+    }
+    Ok(match file_diam {
+        Some(d) if (r - d).abs() <= 1e-9 * d => d,
+        _ => r,
+    })
+}
+
+/// The file's wavelengths and primary index.
+fn wavelengths(h: &Header, warnings: &mut Vec<String>) -> Result<(Vec<ZmxWavelength>, usize)> {
+    let n_max = h
+        .ftyp
+        .as_ref()
+        .and_then(|f| f.v.get(3))
+        .map(|&n| n.max(0.0).min(1e6) as usize);
+    let mut list: Vec<(ZmxWavelength, usize)> = if !h.wavm.is_empty() {
+        let mut w = h.wavm.clone();
+        w.sort_by_key(|x| x.0);
+        w.dedup_by_key(|x| x.0);
+        w.into_iter()
+            .filter(|x| x.0 >= 1 && n_max.map_or(true, |n| x.0 <= n))
+            .map(|(_, um, weight, line)| (ZmxWavelength { um, weight }, line))
+            .collect()
+    } else if let Some(w) = &h.wavl {
+        w.v.iter()
+            .enumerate()
+            .map(|(i, &um)| {
+                let weight = h
+                    .wwgt
+                    .as_ref()
+                    .and_then(|g| g.get(i).copied())
+                    .unwrap_or(1.0);
+                (ZmxWavelength { um, weight }, w.line)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    for (w, line) in &list {
+        if !(w.um > 0.1 && w.um < 20.0) {
+            return Err(invalid(
+                *line,
+                format!(
+                    "wavelength {} µm: give micrometres between 0.1 and 20",
+                    w.um
+                ),
+            ));
+        }
+    }
+    if list.is_empty() {
+        warnings.push(
+            "no wavelengths (WAVM) in the file; using tolray's defaults (d line primary, RGB 656/587/486 nm)"
+                .into(),
+        );
+        list = [0.656, 0.587, 0.486, LAMBDA_D_NM * 1e-3]
+            .iter()
+            .map(|&um| (ZmxWavelength { um, weight: 1.0 }, 0))
+            .collect();
+        return Ok((list.into_iter().map(|x| x.0).collect(), 3));
+    }
+    let primary = match &h.pwav {
+        None => 0,
+        Some(p) if p.v >= 1 && p.v <= list.len() => p.v - 1,
+        Some(p) => {
+            return Err(invalid(
+                p.line,
+                format!("PWAV {}: the file has {} wavelengths", p.v, list.len()),
+            ))
+        }
+    };
+    Ok((list.into_iter().map(|x| x.0).collect(), primary))
+}
+
+/// RGB from a list of wavelengths: the longest, a middle one (the primary if it lies between),
+/// the shortest.
+fn rgb_from(wl: &[f64], primary: f64) -> [f64; 3] {
+    if wl.is_empty() {
+        return [656.0, 587.0, 486.0];
+    }
+    let r = wl.iter().copied().fold(f64::MIN, f64::max);
+    let b = wl.iter().copied().fold(f64::MAX, f64::min);
+    let inner: Vec<f64> = wl.iter().copied().filter(|&w| w > b && w < r).collect();
+    let g = if inner.is_empty() || inner.contains(&primary) {
+        primary
+    } else {
+        inner
+            .iter()
+            .copied()
+            .min_by(|x, y| (x - primary).abs().total_cmp(&(y - primary).abs()))
+            .unwrap_or(primary)
+    };
+    [r, g, b]
+}
+
+/// What tolray's own `NOTE 0 tolray ...` line records.
+#[derive(Default)]
+struct TolrayNote {
+    primary_nm: Option<f64>,
+    rgb_nm: Option<[f64; 3]>,
+    sensor_res: Option<[u32; 2]>,
+}
+
+fn tolray_note(h: &Header, warnings: &mut Vec<String>) -> TolrayNote {
+    let mut out = TolrayNote::default();
+    for n in &h.notes {
+        let toks: Vec<&str> = n.v.split_whitespace().collect();
+        let Some(pos) = toks.iter().position(|t| *t == "tolray") else {
+            continue;
+        };
+        for t in &toks[pos + 1..] {
+            let Some((key, val)) = t.split_once('=') else {
+                continue;
+            };
+            let vals: Option<Vec<f64>> = val
+                .split(',')
+                .map(|x| x.parse::<f64>().ok().filter(|v| v.is_finite()))
+                .collect();
+            match (key, vals.as_deref()) {
+                ("primary_nm", Some([p])) => out.primary_nm = Some(*p),
+                ("rgb_nm", Some([r, g, b])) => out.rgb_nm = Some([*r, *g, *b]),
+                ("sensor_res", Some([w, hh]))
+                    if *w >= 1.0 && *hh >= 1.0 && *w <= 1e9 && *hh <= 1e9 =>
+                {
+                    out.sensor_res = Some([*w as u32, *hh as u32])
+                }
+                _ => warnings.push(format!(
+                    "line {}: tolray note entry \"{t}\" not understood",
+                    n.line
+                )),
+            }
+        }
+    }
+    out
+}
+
+/// A number as the shortest text that reads back to the same `f64`.
+fn fmt(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e15).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:E}")
+    }
+}
+
+/// The catalog name Zemax's `GCAT` uses for a built-in vendor.
+fn gcat_name(vendor: &str) -> String {
+    match vendor {
+        "Hikari" => "NIKON-HIKARI".into(),
+        v => v.to_ascii_uppercase(),
+    }
+}
+
+/// The tilt about x and y (degrees, Zemax order x then y) that turns +z into the unit vector `n`.
+fn tilt_angles(n: [f64; 3]) -> (f64, f64) {
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    let (x, y, z) = (n[0] / len, n[1] / len, n[2] / len);
+    let b = x.clamp(-1.0, 1.0).asin();
+    let a = (-y).atan2(z);
+    (a.to_degrees(), b.to_degrees())
+}
+
+fn glas_line(m: &Material) -> Option<String> {
+    let model = |nd: f64, vd: f64| format!("GLAS ___BLANK 1 0 {} {} 0 0 0 0 0 0", fmt(nd), fmt(vd));
+    match m {
+        Material::Air => None,
+        Material::Constant(n) => Some(model(*n, 0.0)),
+        Material::Model { nd, vd } => Some(model(*nd, *vd)),
+        Material::Catalog(g) => Some(format!(
+            "GLAS {} 0 0 {} {} 0 0 0 0 0 0",
+            g.name,
+            fmt(g.nd),
+            fmt(g.vd)
+        )),
+        Material::Agf(g) => Some(format!(
+            "GLAS {} 0 0 {} {} 0 0 0 0 0 0",
+            g.name,
+            fmt(g.nd),
+            fmt(g.vd)
+        )),
+        Material::Perturbed { nd_new, .. } => {
+            use super::material::{LAMBDA_C_NM, LAMBDA_F_NM};
+            let disp = m.index(LAMBDA_F_NM) - m.index(LAMBDA_C_NM);
+            Some(model(*nd_new, (nd_new - 1.0) / disp))
+        }
+    }
+}
+
+/// µm text for a wavelength in nm that reads back (times 1000) to the same nm value when one
+/// exists.
+fn um_text(nm: f64) -> String {
+    fmt(super::material::um_from_nm(nm))
+}
+
+/// The lens as .zmx text (ASCII, CRLF line ends, `UNIT MM`). `extras` (from [`read_file`])
+/// keeps a file's fields, wavelengths and aperture type; without it the fields are 0, 0.5, 0.7
+/// and 1 of the sensor's half-diagonal as paraxial image heights, the wavelengths are the lens'
+/// RGB and primary, and the aperture is its paraxial entrance pupil diameter.
+pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
+    let mut out = String::new();
+    let mut w = |s: String| {
+        out.push_str(&s);
+        out.push_str("\r\n");
+    };
+    let name: String = lens
+        .info
+        .chars()
+        .map(|c| if c.is_control() { ' ' } else { c })
+        .collect();
+    w("VERS 190513".into());
+    w("MODE SEQ".into());
+    w(format!("NAME {}", name.trim()).trim_end().to_string());
+    let [sw, sh] = lens.sensor.resolution;
+    let [r, g, b] = lens.rgb_wavelengths_nm;
+    w(format!(
+        "NOTE 0 tolray primary_nm={} rgb_nm={r},{g},{b} sensor_res={sw},{sh}",
+        lens.primary_wavelength_nm
+    ));
+    w("UNIT MM X W X CM MR CPMM".into());
+    let para = lens.paraxial(lens.primary_wavelength_nm).ok();
+    let kind = extras
+        .and_then(|e| e.aperture)
+        .unwrap_or(ZmxAperture::EntrancePupilDiameter(0.0));
+    match (para, kind) {
+        (Some(p), ZmxAperture::ImageSpaceFnum(_)) => w(format!(
+            "FNUM {} 0",
+            fmt(p.efl_mm.abs() / p.entrance_pupil_diameter_mm)
+        )),
+        (Some(p), ZmxAperture::ObjectSpaceNa(_))
+            if matches!(lens.object, Object::Finite { .. }) =>
+        {
+            let d = match lens.object {
+                Object::Finite { distance_mm } => distance_mm,
+                Object::Infinite => 0.0,
+            };
+            let u = 0.5 * p.entrance_pupil_diameter_mm / (p.entrance_pupil_z_mm + d);
+            w(format!("OBNA {} 0", fmt(u.atan().sin())))
+        }
+        (Some(p), ZmxAperture::EntrancePupilDiameter(_) | ZmxAperture::ObjectSpaceNa(_)) => {
+            w(format!("ENPD {}", fmt(p.entrance_pupil_diameter_mm)))
+        }
+        _ => w("FLOA".into()),
+    }
+    let mut gcat: Vec<String> = extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default();
+    for s in &lens.surfaces {
+        let c = match &s.material {
+            Material::Catalog(g) => Some(gcat_name(g.vendor)),
+            Material::Agf(g) => Some(g.catalog.clone()),
+            _ => None,
+        };
+        if let Some(c) = c {
+            if !gcat.iter().any(|x| x.eq_ignore_ascii_case(&c)) {
+                gcat.push(c);
+            }
+        }
+    }
+    if !gcat.is_empty() {
+        w(format!("GCAT {}", gcat.join(" ")));
+    }
+    // Fields.
+    let (ftype, fields) = match extras {
+        Some(e) if !e.fields.is_empty() => (e.field_type, e.fields.clone()),
+        _ => {
+            let rs = lens.sensor.half_diagonal_mm();
+            (
+                ZmxFieldType::ParaxialImageHeightMm,
+                [0.0, 0.5, 0.7, 1.0]
+                    .iter()
+                    .map(|f| ZmxField {
+                        x: 0.0,
+                        y: f * rs,
+                        weight: 1.0,
+                    })
+                    .collect(),
+            )
+        }
+    };
+    // Wavelengths: the file's, plus the lens' RGB and primary when missing.
+    let mut waves: Vec<(String, f64, f64)> = extras
+        .map(|e| {
+            e.wavelengths
+                .iter()
+                .map(|x| (fmt(x.um), x.um * 1e3, x.weight))
+                .collect()
+        })
+        .unwrap_or_default();
+    for nm in [r, g, b, lens.primary_wavelength_nm] {
+        if !waves.iter().any(|x| close(x.1, nm)) {
+            waves.push((um_text(nm), nm, 1.0));
+        }
+    }
+    let primary = waves
+        .iter()
+        .position(|x| close(x.1, lens.primary_wavelength_nm))
+        .unwrap_or(0);
+    w(format!(
+        "FTYP {} 0 {} {} 0 0 0",
+        ftype.code(),
+        fields.len(),
+        waves.len()
+    ));
+    let join = |f: &dyn Fn(&ZmxField) -> f64| {
+        fields
+            .iter()
+            .map(|x| fmt(f(x)))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    w(format!("XFLN {}", join(&|f| f.x)));
+    w(format!("YFLN {}", join(&|f| f.y)));
+    w(format!("FWGN {}", join(&|f| f.weight)));
+    for (i, (um, _, wt)) in waves.iter().enumerate() {
+        w(format!("WAVM {} {um} {}", i + 1, fmt(*wt)));
+    }
+    w(format!("PWAV {}", primary + 1));
+
+    // Surfaces.
+    let mut k = 0;
+    let mut surf = |w: &mut dyn FnMut(String), lines: Vec<String>| {
+        w(format!("SURF {k}"));
+        for l in lines {
+            w(format!("  {l}"));
+        }
+        k += 1;
+    };
+    surf(
+        &mut w,
+        vec![
+            "TYPE STANDARD".into(),
+            "CURV 0".into(),
+            match lens.object {
+                Object::Infinite => "DISZ INFINITY".into(),
+                Object::Finite { distance_mm } => format!("DISZ {}", fmt(distance_mm)),
+            },
+        ],
+    );
+    for s in &lens.surfaces {
+        let v = s.vec_local;
+        let moved = s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0;
+        let (a, b) = if moved { tilt_angles(v) } else { (0.0, 0.0) };
+        let [dx, dy] = s.pos_xy_mm;
+        let cb = |sign: f64, order: u8, t: f64| {
+            vec![
+                "TYPE COORDBRK".into(),
+                format!("DISZ {}", fmt(t)),
+                format!("PARM 1 {}", fmt(sign * dx)),
+                format!("PARM 2 {}", fmt(sign * dy)),
+                format!("PARM 3 {}", fmt(sign * a)),
+                format!("PARM 4 {}", fmt(sign * b)),
+                "PARM 5 0".into(),
+                format!("PARM 6 {order}"),
+            ]
+        };
+        if moved {
+            surf(&mut w, cb(1.0, 0, 0.0));
+        }
+        let mut l: Vec<String> = Vec::new();
+        if s.is_stop {
+            l.push("STOP".into());
+        }
+        let asph = s.is_aspheric();
+        l.push(
+            if asph {
+                "TYPE EVENASPH"
+            } else {
+                "TYPE STANDARD"
+            }
+            .into(),
+        );
+        l.push(format!("CURV {}", fmt(s.c)));
+        if s.k != 0.0 || asph {
+            l.push(format!("CONI {}", fmt(s.k)));
+        }
+        if asph {
+            for (j, a) in s.asph.iter().enumerate() {
+                l.push(format!("PARM {} {}", j + 1, fmt(*a)));
+            }
+        }
+        l.push(format!(
+            "DISZ {}",
+            fmt(if moved { 0.0 } else { s.d_next_mm })
+        ));
+        if let Some(g) = glas_line(&s.material) {
+            l.push(g);
+        }
+        l.push(format!("DIAM {} 1 0 0 1 \"\"", fmt(s.semi_aperture_mm)));
+        surf(&mut w, l);
+        if moved {
+            surf(&mut w, cb(-1.0, 1, s.d_next_mm));
+        }
+    }
+    surf(
+        &mut w,
+        vec![
+            "TYPE STANDARD".into(),
+            "CURV 0".into(),
+            "DISZ 0".into(),
+            format!("DIAM {} 1 0 0 1 \"\"", fmt(lens.sensor.half_diagonal_mm())),
+        ],
+    );
+    out
+}
+
+/// Writes the lens as a .zmx file, atomically.
+///
+/// # Errors
+/// [`ErrorKind::Io`] naming the path.
+pub fn write_file(lens: &Lens, extras: Option<&ZmxExtras>, path: &Path) -> Result<()> {
+    crate::error::write_atomic(path, to_string(lens, extras).as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_round_trip_through_their_text() {
+        for x in [
+            0.045433893684688774,
+            -435.76000000000005,
+            1e-5,
+            -2.5e-12,
+            1e300,
+            0.0,
+            3.26,
+            60.323649,
+        ] {
+            assert_eq!(fmt(x).parse::<f64>().unwrap(), x, "{x}");
+        }
+        for nm in [
+            656.0,
+            587.0,
+            486.0,
+            587.5618,
+            0.656 * 1e3,
+            0.587 * 1e3,
+            0.486 * 1e3,
+        ] {
+            assert_eq!(um_text(nm).parse::<f64>().unwrap() * 1e3, nm, "{nm}");
+        }
+    }
+
+    #[test]
+    fn tilt_angles_reproduce_the_axis() {
+        let n = [0.01, -0.02, (1.0f64 - 0.0005).sqrt()];
+        let (a, b) = tilt_angles(n);
+        let z = rotation_xyz_deg(a, b, 0.0).apply(Vec3::cst(0.0, 0.0, 1.0));
+        assert!((z.x - n[0]).abs() < 1e-16 && (z.y - n[1]).abs() < 1e-16);
+    }
+
+    #[test]
+    fn rgb_heuristics() {
+        assert_eq!(
+            rgb_from(&[486.1, 587.6, 656.3], 587.6),
+            [656.3, 587.6, 486.1]
+        );
+        assert_eq!(rgb_from(&[550.0], 550.0), [550.0; 3]);
+        assert_eq!(rgb_from(&[500.0, 600.0], 600.0), [600.0, 600.0, 500.0]);
+    }
+}

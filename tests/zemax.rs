@@ -1,0 +1,1110 @@
+//! Zemax .zmx files and AGF glass catalogs: hand-written fixtures give the same prescriptions,
+//! paraxial data and spots as their JSON lenses (and reproduce the independent reference spots),
+//! JSON -> .zmx -> JSON is exact, perturbed lenses survive coordinate breaks, every encoding
+//! OpticStudio writes is read, errors and warnings name their lines, and mutation fuzzers find no
+//! panic.
+
+use rand::{Rng, SeedableRng};
+use std::path::{Path, PathBuf};
+use tolray::analysis::{spot_diagram, SpotOptions};
+use tolray::lens::agf::AgfCatalog;
+use tolray::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
+use tolray::lens::zemax::{self, ZmxFieldType, ZmxLens};
+use tolray::lens::{json, Adjustments, GlassCatalogs, Material, System};
+use tolray::math::Vec3;
+use tolray::tolerance::Perturbation;
+use tolray::trace::{Field, Pupil, PupilPattern, RayBatch, TraceOptions};
+use tolray::{ErrorKind, Lens, Object};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/zemax")
+        .join(name)
+}
+
+fn text(name: &str) -> String {
+    std::fs::read_to_string(fixture(name)).unwrap()
+}
+
+fn read(name: &str) -> ZmxLens {
+    zemax::read_file(&fixture(name), &GlassCatalogs::builtin())
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+fn parse(text: &str) -> tolray::Result<ZmxLens> {
+    zemax::from_str(text, &GlassCatalogs::builtin())
+}
+
+fn err(text: &str) -> String {
+    match parse(text) {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => e.message,
+    }
+}
+
+fn rel(a: f64, b: f64) -> f64 {
+    if a == b {
+        0.0
+    } else {
+        ((a - b) / b).abs()
+    }
+}
+
+/// 1-based number of the first line of `text` that starts (after indentation) with `start`.
+fn line_of(text: &str, start: &str) -> usize {
+    text.lines()
+        .position(|l| l.trim_start().starts_with(start))
+        .unwrap_or_else(|| panic!("no line starts with {start}"))
+        + 1
+}
+
+/// `text` with the first line starting with `start` replaced by `new` (indentation kept).
+fn replace_line(text: &str, start: &str, new: &str) -> String {
+    let n = line_of(text, start);
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i + 1 == n {
+                new.to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+fn assert_paraxial_equal(a: &Lens, b: &Lens, what: &str) {
+    for wl in [
+        LAMBDA_D_NM,
+        LAMBDA_F_NM,
+        LAMBDA_C_NM,
+        a.primary_wavelength_nm,
+    ] {
+        let (p, q) = (a.paraxial(wl).unwrap(), b.paraxial(wl).unwrap());
+        for (name, x, y) in [
+            ("EFL", p.efl_mm, q.efl_mm),
+            ("BFD", p.bfd_mm, q.bfd_mm),
+            ("image distance", p.image_distance_mm, q.image_distance_mm),
+            ("EP z", p.entrance_pupil_z_mm, q.entrance_pupil_z_mm),
+            (
+                "EPD",
+                p.entrance_pupil_diameter_mm,
+                q.entrance_pupil_diameter_mm,
+            ),
+            ("XP z", p.exit_pupil_z_mm, q.exit_pupil_z_mm),
+            ("XPD", p.exit_pupil_diameter_mm, q.exit_pupil_diameter_mm),
+            ("F/#", p.fnum, q.fnum),
+            ("working F/#", p.working_fnum, q.working_fnum),
+            ("magnification", p.magnification, q.magnification),
+            ("total track", p.total_track_mm, q.total_track_mm),
+        ] {
+            assert!(rel(x, y) <= 1e-9, "{what} {name} at {wl} nm: {x} vs {y}");
+        }
+        assert_eq!(p.stop_surface, q.stop_surface, "{what}");
+    }
+}
+
+fn spots(l: &Lens, apertures: bool) -> Vec<(f64, usize)> {
+    let opts = SpotOptions {
+        fields: [0.0, 0.5, 0.7, 1.0].map(Field::fraction).to_vec(),
+        wavelengths_nm: vec![LAMBDA_D_NM, LAMBDA_F_NM],
+        pupil: Pupil::grid(32),
+        trace: TraceOptions { apertures },
+    };
+    spot_diagram(l, &l.compile(), &opts)
+        .unwrap()
+        .iter()
+        .map(|s| (s.stats.rms_um, s.stats.n_valid))
+        .collect()
+}
+
+fn json_lens(name: &str) -> Lens {
+    match name {
+        "asphere" => json::read_file(&fixture("asphere.json")).unwrap(),
+        n => Lens::load(n).unwrap(),
+    }
+}
+
+const FIXTURES: [(&str, &str); 5] = [
+    ("lens1.zmx", "lens1"),
+    ("lens2.zmx", "lens2"),
+    ("cooke-triplet.zmx", "cooke-triplet"),
+    ("cooke-triplet-utf16.zmx", "cooke-triplet"),
+    ("asphere.zmx", "asphere"),
+];
+
+#[test]
+fn fixtures_match_their_json_lenses() {
+    for (file, name) in FIXTURES {
+        let z = read(file);
+        assert!(z.warnings.is_empty(), "{file}: {:?}", z.warnings);
+        let j = json_lens(name);
+        // The prescription is the same to the bit: surfaces, object, sensor, stop.
+        assert_eq!(z.lens.surfaces, j.surfaces, "{file}");
+        assert_eq!(z.lens.object, j.object, "{file}");
+        assert_eq!(z.lens.sensor, j.sensor, "{file}");
+        assert_eq!(z.lens.info, j.info, "{file}");
+        assert_eq!(
+            z.lens.primary_wavelength_nm, j.primary_wavelength_nm,
+            "{file}"
+        );
+        assert_paraxial_equal(&z.lens, &j, file);
+        for apertures in [false, true] {
+            let (a, b) = (spots(&z.lens, apertures), spots(&j, apertures));
+            for ((ra, na), (rb, nb)) in a.iter().zip(&b) {
+                assert_eq!(na, nb, "{file}: valid rays");
+                assert!(rel(*ra, *rb) <= 1e-9, "{file}: RMS {ra} vs {rb}");
+            }
+        }
+    }
+    // Fields and wavelengths are kept.
+    let z = read("lens1.zmx");
+    assert_eq!(z.extras.field_type, ZmxFieldType::AngleDeg);
+    assert_eq!(
+        z.extras.fields.iter().map(|f| f.y).collect::<Vec<_>>(),
+        [0.0, 2.99, 4.18, 5.97],
+        "FTYP says 4 of the 12 field slots are used"
+    );
+    assert_eq!(z.extras.wavelengths.len(), 3, "FTYP says 3 wavelengths");
+    assert_eq!(z.extras.primary, 1);
+    assert_eq!(
+        z.lens.rgb_wavelengths_nm,
+        [0.6562725 * 1e3, 0.5875618 * 1e3, 0.4861327 * 1e3]
+    );
+    let z = read("lens2.zmx");
+    assert_eq!(
+        z.lens.surfaces.len(),
+        11,
+        "the dummy surface is not a lens surface"
+    );
+    assert_eq!(
+        z.extras.fields.iter().map(|f| f.y).collect::<Vec<_>>(),
+        [0.0, 5.0, 7.06]
+    );
+}
+
+/// The reference RMS spots (optiland, ray-optics and DeepLens agree) from the .zmx fixtures.
+#[test]
+fn zmx_fixtures_reproduce_the_reference_spots() {
+    let v: serde_json::Value =
+        serde_json::from_str(include_str!("data/reference_values.json")).unwrap();
+    for (key, file) in [
+        ("Triplet", "cooke-triplet-utf16.zmx"),
+        ("Lens1@inf", "lens1.zmx"),
+    ] {
+        let mut l = read(file).lens;
+        l.object = Object::Infinite;
+        let r = &v["rms_spot_um"][key];
+        let floats = |x: &serde_json::Value| -> Vec<f64> {
+            x.as_array()
+                .unwrap()
+                .iter()
+                .map(|y| y.as_f64().unwrap())
+                .collect()
+        };
+        let angles = floats(&r["field_angles_deg"]);
+        let want = floats(&r["A:nominal"]);
+        let opts = SpotOptions {
+            fields: angles.iter().map(|&a| Field::angle(a)).collect(),
+            wavelengths_nm: vec![LAMBDA_D_NM],
+            pupil: Pupil {
+                pattern: PupilPattern::Grid(64),
+                scale: 1.0,
+                aim: false,
+            },
+            trace: TraceOptions { apertures: false },
+        };
+        let got = spot_diagram(&l, &l.compile(), &opts).unwrap();
+        for (s, w) in got.iter().zip(&want) {
+            assert!(
+                rel(s.stats.rms_um, *w) <= 1e-6,
+                "{key}: {} vs {w}",
+                s.stats.rms_um
+            );
+        }
+    }
+}
+
+fn variants() -> Vec<(String, Lens)> {
+    let mut out: Vec<(String, Lens)> = tolray::lens::builtin_names()
+        .into_iter()
+        .map(|n| (n.to_string(), Lens::load(n).unwrap()))
+        .collect();
+    out.push(("asphere".into(), json_lens("asphere")));
+    let mut l = Lens::load("lens2").unwrap();
+    l.object = Object::Infinite;
+    l.surfaces[0].k = -0.5;
+    l.surfaces[0].asph[1] = 1.5e-6;
+    l.surfaces[0].asph[7] = -3e-21;
+    l.surfaces[2].material = Material::parse("N-SF5").unwrap();
+    l.surfaces[5].material = Material::Constant(1.7);
+    l.surfaces[9].material = Material::parse("J-BK7A").unwrap();
+    l.rgb_wavelengths_nm = [620.0, 530.0, 460.0];
+    l.primary_wavelength_nm = 530.0;
+    l.sensor.resolution = [4000, 3000];
+    out.push(("lens2 variant".into(), l));
+    out
+}
+
+#[test]
+fn json_zmx_json_round_trip_is_exact() {
+    for (name, l) in variants() {
+        let text = zemax::to_string(&l, None);
+        let z = parse(&text).unwrap_or_else(|e| panic!("{name}: {e}\n{text}"));
+        assert!(z.warnings.is_empty(), "{name}: {:?}", z.warnings);
+        assert_eq!(z.lens, l, "{name}");
+        assert_eq!(json::to_string(&z.lens), json::to_string(&l), "{name}");
+        // Writing what was read gives the same file.
+        assert_eq!(zemax::to_string(&z.lens, Some(&z.extras)), text, "{name}");
+    }
+    // A fixture read, written and read again keeps its lens, fields and wavelengths.
+    for (file, _) in FIXTURES {
+        let z = read(file);
+        let again = parse(&zemax::to_string(&z.lens, Some(&z.extras))).unwrap();
+        assert_eq!(again.lens, z.lens, "{file}");
+        assert_eq!(again.extras.fields, z.extras.fields, "{file}");
+        assert_eq!(again.extras.field_type, z.extras.field_type, "{file}");
+        let kind = |a: &Option<zemax::ZmxAperture>| a.as_ref().map(std::mem::discriminant);
+        assert_eq!(
+            kind(&again.extras.aperture),
+            kind(&z.extras.aperture),
+            "{file}"
+        );
+        for w in &z.extras.wavelengths {
+            assert!(again.extras.wavelengths.contains(w), "{file}: {w:?}");
+        }
+    }
+}
+
+/// Rays from several directions and heights, traced through `sys`; `dz` moves the global frame
+/// (positions come back in the unmoved frame).
+fn trace_fan(sys: &System<f64>, dz: f64) -> Vec<(Vec3<f64>, Vec3<f64>, bool)> {
+    let mut b = RayBatch::<f64>::new();
+    for a in [-0.12, -0.05, 0.0, 0.03, 0.1] {
+        for k in -6..=6 {
+            for j in [-2.0, 0.0, 3.0] {
+                b.push(
+                    Vec3::new(j, k as f64 * 1.4, -20.0 - dz),
+                    Vec3::new(0.02 * j, a, 1.0),
+                );
+            }
+        }
+    }
+    tolray::trace::trace(sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+    b.iter()
+        .map(|r| (r.o + Vec3::new(0.0, 0.0, dz), r.d, r.status.is_alive()))
+        .collect()
+}
+
+fn assert_same_trace(a: &System<f64>, b: &System<f64>, tol: f64, what: &str) {
+    assert_same_trace_shifted(a, b, 0.0, tol, what)
+}
+
+/// As [`assert_same_trace`], with `b`'s global frame `dz` mm behind `a`'s.
+fn assert_same_trace_shifted(a: &System<f64>, b: &System<f64>, dz: f64, tol: f64, what: &str) {
+    let (ra, rb) = (trace_fan(a, 0.0), trace_fan(b, dz));
+    let mut alive = 0;
+    for (i, (x, y)) in ra.iter().zip(&rb).enumerate() {
+        assert_eq!(x.2, y.2, "{what}: ray {i} status");
+        if x.2 {
+            alive += 1;
+            assert!(
+                (x.0 - y.0).norm() <= tol,
+                "{what}: ray {i} {:?} vs {:?}",
+                x.0,
+                y.0
+            );
+            assert!((x.1 - y.1).norm() <= tol, "{what}: ray {i} direction");
+        }
+    }
+    assert!(alive > 30, "{what}: only {alive} rays reach the image");
+}
+
+fn geometry_close(a: &Lens, b: &Lens, what: &str) {
+    assert_eq!(a.surfaces.len(), b.surfaces.len(), "{what}");
+    for (i, (s, t)) in a.surfaces.iter().zip(&b.surfaces).enumerate() {
+        assert_eq!(
+            (
+                s.role,
+                s.c,
+                s.k,
+                s.asph,
+                s.semi_aperture_mm,
+                &s.material,
+                s.is_stop
+            ),
+            (
+                t.role,
+                t.c,
+                t.k,
+                t.asph,
+                t.semi_aperture_mm,
+                &t.material,
+                t.is_stop
+            ),
+            "{what}: surface {i}"
+        );
+        assert_eq!(s.d_next_mm, t.d_next_mm, "{what}: surface {i} gap");
+        assert_eq!(s.pos_xy_mm, t.pos_xy_mm, "{what}: surface {i} decenter");
+        for k in 0..3 {
+            assert!(
+                (s.vec_local[k] - t.vec_local[k]).abs() <= 1e-15,
+                "{what}: surface {i} axis {:?} vs {:?}",
+                s.vec_local,
+                t.vec_local
+            );
+        }
+    }
+    assert_eq!((a.object, a.sensor), (b.object, b.sensor), "{what}");
+}
+
+/// A fabricated lens (element and surface decenters, tilts, shifts, curvature errors) becomes
+/// surfaces with decenters and tilts, .zmx coordinate-break pairs, and back: zmx -> tolray ->
+/// zmx -> tolray gives the same lens and the same rays.
+#[test]
+fn perturbed_lenses_round_trip_through_coordinate_breaks() {
+    let lens = Lens::load("lens2").unwrap();
+    let pattern: Perturbation = serde_json::from_str(
+        r#"{"elements": [
+              {"element": 0, "decenter_mm": [0.01, 0.04], "tilt_deg": [0.05, -0.03, 0.2], "shift_mm": 0.02},
+              {"element": 2, "decenter_mm": [-0.03, 0.0], "tilt_deg": [0.0, 0.08, 0.0], "thickness_mm": -0.01}],
+            "surfaces": [
+              {"surface": 2, "curvature_pct": 0.3, "decenter_mm": [0.02, 0.0], "tilt_deg": [0.0, 0.04]},
+              {"surface": 8, "gap_mm": 0.015}]}"#,
+    )
+    .unwrap();
+    let (perturbed, adj) = pattern.apply(&lens).unwrap();
+    let baked = perturbed.with_adjustments(&adj).unwrap();
+    assert!(baked
+        .surfaces
+        .iter()
+        .any(|s| s.vec_local[0] != 0.0 && s.pos_xy_mm[1] != 0.0));
+    assert_eq!(
+        baked.surfaces[10].d_next_mm, lens.surfaces[10].d_next_mm,
+        "untouched gaps stay exact"
+    );
+    // The element's axial shift moves the first vertex: the baked lens keeps it at z = 0 and
+    // moves away from the object instead.
+    let Object::Finite { distance_mm } = baked.object else {
+        panic!()
+    };
+    assert!((distance_mm - 2000.02).abs() < 1e-12, "{distance_mm}");
+    // The baked prescription traces exactly like the nominal lens with the adjustments.
+    let moved: System<f64> = System::compile(&perturbed, &adj, &|_, v| v);
+    assert_same_trace_shifted(&moved, &baked.compile(), 0.02, 1e-9, "baked");
+
+    let text1 = zemax::to_string(&baked, None);
+    let moved_surfaces = baked
+        .surfaces
+        .iter()
+        .filter(|s| s.pos_xy_mm != [0.0; 2] || s.vec_local[..2] != [0.0; 2])
+        .count();
+    assert_eq!(moved_surfaces, 5, "element 0, surface 2 and element 2");
+    assert_eq!(
+        text1.matches("TYPE COORDBRK").count(),
+        2 * moved_surfaces,
+        "a pair per moved surface"
+    );
+    let z1 = parse(&text1).unwrap();
+    assert!(z1.warnings.is_empty(), "{:?}", z1.warnings);
+    geometry_close(&z1.lens, &baked, "zmx -> tolray");
+    assert_same_trace(&z1.lens.compile(), &baked.compile(), 1e-12, "read back");
+    let z2 = parse(&zemax::to_string(&z1.lens, Some(&z1.extras))).unwrap();
+    geometry_close(&z2.lens, &z1.lens, "zmx -> tolray -> zmx -> tolray");
+    assert_same_trace(
+        &z2.lens.compile(),
+        &z1.lens.compile(),
+        1e-12,
+        "second round",
+    );
+    // And through JSON (pos_xy, vec_local) exactly.
+    assert_eq!(json::from_str(&json::to_string(&z2.lens)).unwrap(), z2.lens);
+    // A lens without adjustments is unchanged by baking.
+    assert_eq!(lens.with_adjustments(&Adjustments::none(11)).unwrap(), lens);
+}
+
+/// OpticStudio's own way to tilt an element (Tilt/Decenter Elements): a coordinate break at the
+/// element's front vertex, the element, a dummy surface back to the vertex, the reverse break,
+/// and a dummy for the rest of the gap. It must equal tolray's rigid element tilt about the front
+/// vertex.
+#[test]
+fn opticstudio_element_tilt_equals_tolray_element_tilt() {
+    let zmx = "MODE SEQ\nUNIT MM\nENPD 8\nWAVM 1 0.5875618 1\nPWAV 1\n\
+        SURF 0\n DISZ INFINITY\n\
+        SURF 1\n STOP\n TYPE STANDARD\n CURV 0\n DISZ 5\n DIAM 4 1\n\
+        SURF 2\n TYPE COORDBRK\n DISZ 0\n PARM 1 -0.05\n PARM 2 0.1\n PARM 3 0.5\n PARM 4 -0.3\n PARM 5 0\n PARM 6 0\n\
+        SURF 3\n TYPE STANDARD\n CURV 0.05\n DISZ 4\n GLAS N-BK7\n DIAM 8\n\
+        SURF 4\n TYPE STANDARD\n CURV -0.01\n DISZ 0\n DIAM 8\n\
+        SURF 5\n TYPE STANDARD\n CURV 0\n DISZ -4\n\
+        SURF 6\n TYPE COORDBRK\n DISZ 0\n PARM 1 0.05\n PARM 2 -0.1\n PARM 3 -0.5\n PARM 4 0.3\n PARM 5 0\n PARM 6 1\n\
+        SURF 7\n TYPE STANDARD\n CURV 0\n DISZ 44\n\
+        SURF 8\n TYPE STANDARD\n CURV 0\n DIAM 5\n";
+    let z = parse(zmx).unwrap();
+    assert_eq!(
+        z.lens.surfaces.len(),
+        3,
+        "the two dummies are construction surfaces"
+    );
+    let mut nominal = z.lens.clone();
+    for s in &mut nominal.surfaces {
+        s.pos_xy_mm = [0.0, 0.0];
+        s.vec_local = [0.0, 0.0, 1.0];
+    }
+    nominal.surfaces[1].d_next_mm = 4.0;
+    nominal.surfaces[2].d_next_mm = 40.0;
+    // OpticStudio's order 0 (decenter, then tilt x then y about the moved axes) is
+    // R = Rx Ry; tolray's element tilt is R = Rz Ry Rx, so compare against an explicit motion.
+    let r = tolray::math::Mat3::rot_x(0.5f64.to_radians())
+        * tolray::math::Mat3::rot_y((-0.3f64).to_radians());
+    let m =
+        tolray::math::Rigid::about_pivot(r, Vec3::new(0.0, 0.0, 5.0), Vec3::new(-0.05, 0.1, 0.0));
+    let mut adj = Adjustments::none(3);
+    adj.surface_motion[1] = m;
+    adj.surface_motion[2] = m;
+    let moved: System<f64> = System::compile(&nominal, &adj, &|_, v| v);
+    assert_same_trace(&z.lens.compile(), &moved, 1e-11, "element tilt");
+    // A pure x tilt is the tolerance model's element tilt exactly.
+    let tilted = zmx
+        .replace("PARM 4 -0.3", "PARM 4 0")
+        .replace("PARM 4 0.3", "PARM 4 0");
+    let z = parse(&tilted).unwrap();
+    let pattern: Perturbation = serde_json::from_str(
+        r#"{"elements": [{"element": 0, "decenter_mm": [-0.05, 0.1], "tilt_deg": [0.5, 0, 0]}]}"#,
+    )
+    .unwrap();
+    let (p, adj) = pattern.apply(&nominal).unwrap();
+    assert_same_trace(
+        &z.lens.compile(),
+        &System::compile(&p, &adj, &|_, v| v),
+        1e-11,
+        "pattern",
+    );
+}
+
+/// The aspheric lens written in CM, IN and METER reads back to the same lens in mm.
+#[test]
+fn lens_units_are_converted_to_mm() {
+    let base = text("asphere.zmx");
+    let mm = read("asphere.zmx").lens;
+    for (unit, s) in [("CM", 10.0), ("IN", 25.4), ("METER", 1000.0)] {
+        let scaled: Vec<String> = base
+            .lines()
+            .map(|l| {
+                let t: Vec<&str> = l.split_whitespace().collect();
+                let num = |i: usize| t[i].parse::<f64>().unwrap();
+                match t.first().copied() {
+                    Some("UNIT") => format!("UNIT {unit} X W X CM MR CPMM"),
+                    Some("ENPD") => format!("ENPD {:e}", num(1) / s),
+                    Some("CURV") => format!("CURV {:e}", num(1) * s),
+                    Some("DISZ") if t[1] != "INFINITY" => format!("DISZ {:e}", num(1) / s),
+                    Some("DIAM") => format!("DIAM {:e} 0", num(1) / s),
+                    Some("PARM") => {
+                        let k = num(1) as i32;
+                        format!("PARM {k} {:e}", num(2) * s.powi(2 * k - 1))
+                    }
+                    _ => l.to_string(),
+                }
+            })
+            .collect();
+        let l = parse(&scaled.join("\n")).unwrap().lens;
+        for (a, b) in l.surfaces.iter().zip(&mm.surfaces) {
+            for (x, y) in [
+                (a.c, b.c),
+                (a.semi_aperture_mm, b.semi_aperture_mm),
+                (a.d_next_mm, b.d_next_mm),
+            ]
+            .into_iter()
+            .chain(a.asph.iter().copied().zip(b.asph.iter().copied()))
+            {
+                assert!(rel(x, y) <= 1e-14, "{unit}: {x} vs {y}");
+            }
+        }
+        assert!(rel(l.sensor.r_mm, mm.sensor.r_mm) <= 1e-14, "{unit}");
+        let (p, q) = (
+            l.paraxial(LAMBDA_D_NM).unwrap(),
+            mm.paraxial(LAMBDA_D_NM).unwrap(),
+        );
+        assert!(
+            rel(p.efl_mm, q.efl_mm) <= 1e-12 && rel(p.bfd_mm, q.bfd_mm) <= 1e-12,
+            "{unit}"
+        );
+    }
+}
+
+#[test]
+fn every_encoding_reads_the_same_lens() {
+    let ascii = text("cooke-triplet.zmx");
+    let want = read("cooke-triplet.zmx").lens;
+    let le: Vec<u8> = ascii.encode_utf16().flat_map(u16::to_le_bytes).collect();
+    let be: Vec<u8> = ascii.encode_utf16().flat_map(u16::to_be_bytes).collect();
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        (
+            "UTF-16 LE with BOM (fixture)",
+            std::fs::read(fixture("cooke-triplet-utf16.zmx")).unwrap(),
+        ),
+        ("UTF-16 LE without BOM", le.clone()),
+        (
+            "UTF-16 BE with BOM",
+            [vec![0xFE, 0xFF], be.clone()].concat(),
+        ),
+        ("UTF-16 BE without BOM", be),
+        (
+            "UTF-8 with BOM",
+            [vec![0xEF, 0xBB, 0xBF], ascii.clone().into_bytes()].concat(),
+        ),
+        ("LF line ends", ascii.replace("\r\n", "\n").into_bytes()),
+    ];
+    for (what, bytes) in cases {
+        let z = zemax::from_bytes(&bytes, &GlassCatalogs::builtin()).unwrap();
+        assert_eq!(z.lens, want, "{what}");
+    }
+    // Lens::load dispatches on the extension, in any case.
+    let dir = std::env::temp_dir().join(format!("tolray-zmx-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let upper = dir.join("TRIPLET.ZMX");
+    std::fs::copy(fixture("cooke-triplet-utf16.zmx"), &upper).unwrap();
+    assert_eq!(Lens::load(upper.to_str().unwrap()).unwrap(), want);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn malformed_lines_are_errors_that_name_the_line() {
+    let base = text("asphere.zmx");
+    let check_n = |t: &str, n: usize, want: &[&str]| {
+        let m = err(t);
+        assert!(m.starts_with(&format!("line {n}: ")), "line {n}: {m}");
+        for w in want {
+            assert!(m.contains(w), "line {n}: \"{m}\" lacks \"{w}\"");
+        }
+    };
+    let check = |t: &str, start: &str, want: &[&str]| check_n(t, line_of(t, start), want);
+    let t = replace_line(&base, "CURV 0.05", "  CURV 0.05x");
+    check(
+        &t,
+        "CURV 0.05x",
+        &["CURV", "\"0.05x\" is not a finite number"],
+    );
+    let t = replace_line(&base, "TYPE EVENASPH", "  TYPE TOROIDAL");
+    check(
+        &t,
+        "TYPE TOROIDAL",
+        &["surface type TOROIDAL (SURF 2) is not supported"],
+    );
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS ___BLANK 1 0 1.5168");
+    check(&t, "GLAS ___BLANK", &["a model glass needs n_d and V_d"]);
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS");
+    check(&t, "GLAS", &["GLAS needs a glass name"]);
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS N-BK77");
+    check(
+        &t,
+        "GLAS N-BK77",
+        &["unknown glass \"N-BK77\"", "N-BK7", "--glass-catalog"],
+    );
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS MIRROR");
+    check(&t, "GLAS MIRROR", &["no mirrors"]);
+    let t = replace_line(&base, "SURF 3", "SURF 4");
+    check(&t, "SURF 4", &["SURF 4 is out of order (expected SURF 3)"]);
+    let t = replace_line(&base, "DISZ 30.5", "  DISZ INFINITY");
+    let n = t
+        .lines()
+        .collect::<Vec<_>>()
+        .iter()
+        .rposition(|l| l.trim() == "DISZ INFINITY")
+        .unwrap()
+        + 1;
+    check_n(
+        &t,
+        n,
+        &["DISZ INFINITY is only allowed on the object surface"],
+    );
+    let t = replace_line(&base, "PARM 2 -2.5E-6", "  PARM 2 1e999");
+    check(&t, "PARM 2 1e999", &["PARM 2"]);
+    let t = replace_line(&base, "MODE SEQ", "MODE NSC");
+    check(&t, "MODE NSC", &["sequential"]);
+    let t = replace_line(&base, "UNIT MM", "UNIT FEET");
+    check(&t, "UNIT FEET", &["UNIT FEET"]);
+    let t = replace_line(&base, "PWAV 2", "PWAV 7");
+    check(&t, "PWAV 7", &["the file has 3 wavelengths"]);
+    let t = replace_line(&base, "WAVM 2", "WAVM 2 587.56 1");
+    check(&t, "WAVM 2", &["micrometres"]);
+    let t = replace_line(&base, "DIAM 7 0 0 0 1", "  COMM no semi-diameter");
+    check(&t, "SURF 2", &["SURF 2 needs a positive semi-diameter"]);
+    let t = replace_line(&base, "DIAM 3 0", "  DIAM 0");
+    check(
+        &t,
+        "DIAM 0",
+        &["the image surface needs a positive semi-diameter"],
+    );
+    let t = replace_line(&base, "CURV 0.05", "  CURV 0.3");
+    check(&t, "DIAM 7 0 0 0 1", &["exceeds the surface's rim"]);
+    let t = replace_line(&base, "DISZ 4", "  DISZ -40");
+    check(
+        &t,
+        "SURF 3",
+        &["SURF 3 lies 40 mm before the previous surface"],
+    );
+    let t = replace_line(&base, "VERS", "CURV 1");
+    check(&t, "CURV 1", &["CURV outside a SURF block"]);
+    let t = replace_line(&base, "GLAS N-BK7", "  STOP");
+    let n = t
+        .lines()
+        .collect::<Vec<_>>()
+        .iter()
+        .rposition(|l| l.trim() == "STOP")
+        .unwrap()
+        + 1;
+    check_n(&t, n, &["a second STOP (the first is at line"]);
+    // Coordinate breaks that tolray cannot represent.
+    let cb = |parms: &str| {
+        base.replace(
+            "SURF 2\n",
+            &format!("SURF 2\n  TYPE COORDBRK\n{parms}\nSURF 3\n"),
+        )
+        .replace("SURF 3\n  TYPE STANDARD", "SURF 4\n  TYPE STANDARD")
+        .replace(
+            "SURF 4\n  TYPE STANDARD\n  CURV 0\n  DISZ 0",
+            "SURF 5\n  TYPE STANDARD\n  CURV 0\n  DISZ 0",
+        )
+    };
+    let t = cb("  PARM 3 1.5");
+    check(&t, "TYPE COORDBRK", &["the image plane is tilted"]);
+    let t = cb("  PARM 4 95");
+    check(&t, "SURF 3", &["turned by 90 degrees or more"]);
+    let t = cb("  STOP\n  PARM 2 0.5");
+    check_n(
+        &t,
+        line_of(&t, "TYPE COORDBRK") + 1,
+        &["a coordinate break cannot be the stop"],
+    );
+    let t = cb("  PARM 1 1.7e308\n  PARM 4 45\n  DISZ 1e308");
+    check(&t, "TYPE COORDBRK", &["to infinity"]);
+    // Whole-file problems.
+    assert!(err("SURF 0\n DISZ INFINITY\nSURF 1\n").contains("a lens needs the object"));
+    let e =
+        zemax::read_file(Path::new("/no/such/file.zmx"), &GlassCatalogs::builtin()).unwrap_err();
+    assert_eq!(e.kind, ErrorKind::Io);
+    let dir = std::env::temp_dir().join(format!("tolray-zmx-err-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("broken.zmx");
+    std::fs::write(&p, replace_line(&base, "CURV 0.05", "  CURV x")).unwrap();
+    let e = Lens::load(p.to_str().unwrap()).unwrap_err();
+    let n = line_of(&base, "CURV 0.05");
+    assert!(
+        e.message
+            .starts_with(&format!("{}: line {n}: CURV", p.display())),
+        "{}",
+        e.message
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
+    let base = text("asphere.zmx");
+    let warn = |t: &str, start: &str, want: &str| {
+        let z = parse(t).unwrap_or_else(|e| panic!("{start}: {e}"));
+        let n = line_of(t, start);
+        assert!(
+            z.warnings
+                .iter()
+                .any(|w| w.starts_with(&format!("line {n}: ")) && w.contains(want)),
+            "{start}: {:?}",
+            z.warnings
+        );
+        z
+    };
+    let t = base.replace("GCAT SCHOTT\n", "GCAT SCHOTT\nFOOB 1 2 3\n");
+    warn(&t, "FOOB", "unknown command FOOB skipped");
+    let t = base.replace("  DISZ 4\n", "  DISZ 4\n  CLAP 0 6 0\n");
+    warn(&t, "CLAP", "CLAP (a surface aperture) ignored");
+    let t = replace_line(
+        &base,
+        "CURV -0.0083",
+        "  CURV -0.008333333333333333\n  PARM 1 0.001",
+    );
+    warn(&t, "PARM 1 0.001", "a STANDARD surface has no parameters");
+    let t = replace_line(&base, "TYPE STANDARD", "  TYPE TILTSURF");
+    warn(&t, "TYPE TILTSURF", "object surface type TILTSURF ignored");
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS NOT-A-GLASS 0 0 1.52 64 0 0 0");
+    let z = warn(
+        &t,
+        "GLAS NOT-A-GLASS",
+        "using a model glass with the file's n_d = 1.52, V_d = 64",
+    );
+    assert_eq!(
+        z.lens.surfaces[1].material,
+        Material::Model { nd: 1.52, vd: 64.0 }
+    );
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS BK7");
+    let z = warn(&t, "GLAS BK7", "using N-BK7");
+    assert_eq!(
+        z.lens.surfaces[1].material,
+        Material::parse("N-BK7").unwrap()
+    );
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS N-BK7 0 0 1.6 40");
+    warn(&t, "GLAS N-BK7", "the file says n_d = 1.6");
+    let t = replace_line(&base, "STOP", "  COMM no stop line");
+    let z = warn(&t, "SURF 1", "no STOP line");
+    assert_eq!(z.lens.stop_index(), Some(0));
+    let t = base.replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVDYN 0 0.1 0.2\n");
+    warn(&t, "VDYN", "vignetting factors ignored");
+    let t = base.replace("WAVM 1 0.4861327 1", "WAVM 1 0.25 1");
+    warn(
+        &t,
+        "GLAS N-BK7",
+        "glass N-BK7 is defined from 0.3 to 2.5 µm; 0.25 µm outside",
+    );
+    // A decentered image plane is only a change of origin.
+    let t = base.replace(
+        "SURF 4\n",
+        "SURF 4\n  TYPE COORDBRK\n  PARM 1 0.2\n  DISZ 0\nSURF 5\n",
+    );
+    let z = warn(
+        &t,
+        "SURF 5",
+        "the image surface is decentered by (0.200000, 0.000000) mm",
+    );
+    assert_eq!(z.lens, read("asphere.zmx").lens);
+    // The clean fixtures give no warnings at all.
+    for (f, _) in FIXTURES {
+        assert!(read(f).warnings.is_empty(), "{f}");
+    }
+}
+
+#[test]
+fn agf_catalogs_read_and_agree_with_the_builtin_glasses() {
+    let (cat, warnings) = AgfCatalog::read_file(&fixture("test-catalog.agf")).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(cat.name, "TEST-CATALOG");
+    assert_eq!(cat.glasses.len(), 6);
+    for (agf_name, builtin) in [
+        ("N-BK7", "N-BK7"),
+        ("F2", "F2"),
+        ("H-ZK9A", "H-ZK9A"),
+        ("J-BK7A", "J-BK7A"),
+        ("NBK7-S5", "N-BK7"),
+        ("F2-S3", "F2"),
+    ] {
+        let g = cat.find(agf_name).unwrap();
+        let b = Material::parse(builtin).unwrap();
+        let lo = g.range_um.0.max(0.37);
+        for k in 0..=10 {
+            let nm = 1e3 * (lo + (1.0 - lo) * k as f64 / 10.0);
+            let (x, y) = (g.index(nm), b.index(nm));
+            assert!((x - y).abs() <= 1e-15, "{agf_name} at {nm} nm: {x} vs {y}");
+        }
+        let nd = g.index(LAMBDA_D_NM);
+        let vd = (nd - 1.0) / (g.index(LAMBDA_F_NM) - g.index(LAMBDA_C_NM));
+        assert!(
+            (nd - g.nd).abs() < 5e-5 && (vd - g.vd).abs() < 0.1,
+            "{agf_name}"
+        );
+    }
+    assert_eq!(cat.find("n-bk7").unwrap().range_um, (0.3, 2.5));
+    // The same catalog saved as UTF-16, as OpticStudio writes catalogs.
+    let bytes: Vec<u8> = [0xFF, 0xFE]
+        .into_iter()
+        .chain(
+            text("test-catalog.agf")
+                .encode_utf16()
+                .flat_map(u16::to_le_bytes),
+        )
+        .collect();
+    assert_eq!(
+        AgfCatalog::from_bytes(&bytes, "TEST-CATALOG").unwrap().0,
+        cat
+    );
+}
+
+#[test]
+fn user_catalogs_are_searched_before_the_builtin_glasses() {
+    let (catalogs, _) = GlassCatalogs::from_files(&[fixture("test-catalog.agf")]).unwrap();
+    let t = text("asphere.zmx").replace("GLAS N-BK7 0 0 1.5168 64.17", "GLAS NBK7-S5");
+    let e = parse(&t).unwrap_err();
+    assert!(
+        e.message.contains("unknown glass \"NBK7-S5\""),
+        "{}",
+        e.message
+    );
+    let z = zemax::from_str(&t, &catalogs).unwrap();
+    assert!(z.warnings.is_empty(), "{:?}", z.warnings);
+    assert!(matches!(&z.lens.surfaces[1].material, Material::Agf(g) if g.name == "NBK7-S5"));
+    // Same indices as the built-in N-BK7, so the same paraxial data and spots.
+    let builtin = read("asphere.zmx").lens;
+    assert_paraxial_equal(&z.lens, &builtin, "NBK7-S5");
+    // N-BK7 itself now comes from the user's catalog.
+    let z = zemax::from_str(&text("asphere.zmx"), &catalogs).unwrap();
+    assert!(
+        matches!(&z.lens.surfaces[1].material, Material::Agf(g) if g.catalog == "TEST-CATALOG")
+    );
+    // Round trips keep the user glass: .zmx and JSON.
+    let back = zemax::from_str(&zemax::to_string(&z.lens, Some(&z.extras)), &catalogs).unwrap();
+    assert_eq!(back.lens, z.lens);
+    assert!(zemax::to_string(&z.lens, None).contains("GCAT TEST-CATALOG"));
+    assert_eq!(
+        json::from_str_with(&json::to_string(&z.lens), &catalogs).unwrap(),
+        z.lens
+    );
+    // JSON lenses can use user glasses too, and Lens::warnings flags wavelengths outside the
+    // catalog's range.
+    let mut v: serde_json::Value = serde_json::from_str(&text("asphere.json")).unwrap();
+    v["surfaces"][1]["mat2"] = "h-zk9a".into();
+    let mut l = json::from_value_with(&v, &catalogs).unwrap();
+    assert!(l.warnings().is_empty(), "{:?}", l.warnings());
+    l.rgb_wavelengths_nm[0] = 1064.0;
+    let w = l.warnings();
+    assert!(
+        w.len() == 1
+            && w[0].contains("surface 1: glass H-ZK9A is defined from 0.365 to 1.014 µm; 1064 nm"),
+        "{w:?}"
+    );
+    let (l2, w) =
+        Lens::load_with_catalogs(fixture("asphere.zmx").to_str().unwrap(), &catalogs).unwrap();
+    assert!(w.is_empty() && matches!(l2.surfaces[1].material, Material::Agf(_)));
+    // Catalog errors name the file and the line.
+    let dir = std::env::temp_dir().join(format!("tolray-agf-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("bad.agf");
+    std::fs::write(
+        &p,
+        text("test-catalog.agf").replace("NM F2 2 ", "NM F2 21 "),
+    )
+    .unwrap();
+    let e = GlassCatalogs::from_files(&[&p]).unwrap_err();
+    assert!(
+        e.message.starts_with(&format!(
+            "{}: line 13: glass F2: unknown dispersion formula 21",
+            p.display()
+        )),
+        "{}",
+        e.message
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Mutations that a fuzzer would find: the reader must never panic, every error has a message,
+/// and every lens it accepts traces, writes and reads back.
+#[test]
+fn fuzz_the_zmx_reader() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let perturbed = {
+        let lens = Lens::load("lens1").unwrap();
+        let p: Perturbation = serde_json::from_str(
+            r#"{"elements": [{"element": 1, "decenter_mm": [0.02, -0.01], "tilt_deg": [0.1, 0.2, 0]}]}"#,
+        )
+        .unwrap();
+        let (l, adj) = p.apply(&lens).unwrap();
+        zemax::to_string(&l.with_adjustments(&adj).unwrap(), None)
+    };
+    let bases = [
+        text("lens1.zmx"),
+        text("lens2.zmx"),
+        text("asphere.zmx"),
+        text("cooke-triplet.zmx"),
+        perturbed,
+    ];
+    let junk = [
+        "",
+        "x",
+        "-1",
+        "0",
+        "-0",
+        "1e308",
+        "-1e308",
+        "INFINITY",
+        "NaN",
+        "inf",
+        "1e-320",
+        "99999999999999999999",
+        "4294967296",
+        "1.5.2",
+        "___BLANK",
+        "MIRROR",
+        "COORDBRK",
+        "EVENASPH",
+    ];
+    let inserts = [
+        "SURF 3",
+        "TYPE COORDBRK",
+        "TYPE EVENASPH",
+        "PARM 6 1",
+        "PARM 3 89.9",
+        "PARM 4 -120",
+        "STOP",
+        "GLAS MIRROR",
+        "GLAS ___BLANK 1 0 0.5 0",
+        "GLAS ___BLANK 1 0 1.5 0",
+        "GLAS N-SF5",
+        "DISZ INFINITY",
+        "DISZ -1000",
+        "UNIT IN",
+        "UNIT METER",
+        "FTYP 3 0 99999999 99999 0",
+        "FTYP 1 0 2 1",
+        "PWAV 0",
+        "WAVM 99 0.5 1",
+        "WAVL 0.5 0.6",
+        "CURV 1e9",
+        "CURV -0.2",
+        "DIAM -3",
+        "DIAM 1e300 1",
+        "CONI -1e10",
+        "ENPD 1e9",
+        "ENPD -2",
+        "FNUM 0",
+        "OBNA 0.5",
+        "OBNA 2",
+        "FLOA",
+        "NOTE 0 tolray rgb_nm=1,2,3 sensor_res=0,1e20",
+        "NOTE 0 tolray primary_nm=x",
+        "XFLN 1 2 3",
+        "VDXN 1 1",
+        "MODE SEQ",
+        "SURF 0",
+    ];
+    let mut accepted = 0;
+    for it in 0..6000 {
+        let base = &bases[it % bases.len()];
+        let mut lines: Vec<String> = base.lines().map(str::to_string).collect();
+        let bytes: Vec<u8> = match rng.random_range(0..5) {
+            0 => {
+                // Bytes: delete, duplicate or replace a few.
+                let mut b = base.as_bytes().to_vec();
+                for _ in 0..rng.random_range(1..4) {
+                    let i = rng.random_range(0..b.len());
+                    match rng.random_range(0..3) {
+                        0 => {
+                            b.remove(i);
+                        }
+                        1 => b.insert(i, b[i]),
+                        _ => b[i] = b"0123456789-.E \n\r\0"[rng.random_range(0..17)],
+                    }
+                }
+                b
+            }
+            1 => {
+                // Lines: delete, duplicate or swap.
+                for _ in 0..rng.random_range(1..4) {
+                    let i = rng.random_range(0..lines.len());
+                    let j = rng.random_range(0..lines.len());
+                    match rng.random_range(0..3) {
+                        0 => {
+                            lines.remove(i);
+                        }
+                        1 => lines.insert(j, lines[i].clone()),
+                        _ => lines.swap(i, j),
+                    }
+                }
+                lines.join("\n").into_bytes()
+            }
+            2 => {
+                // A token replaced by junk.
+                for _ in 0..rng.random_range(1..3) {
+                    let i = rng.random_range(0..lines.len());
+                    let mut t: Vec<String> =
+                        lines[i].split_whitespace().map(str::to_string).collect();
+                    if !t.is_empty() {
+                        let k = rng.random_range(0..t.len());
+                        t[k] = junk[rng.random_range(0..junk.len())].to_string();
+                        lines[i] = t.join(" ");
+                    }
+                }
+                lines.join("\n").into_bytes()
+            }
+            3 => {
+                // A line inserted.
+                for _ in 0..rng.random_range(1..3) {
+                    let i = rng.random_range(0..=lines.len());
+                    lines.insert(i, inserts[rng.random_range(0..inserts.len())].to_string());
+                }
+                lines.join("\n").into_bytes()
+            }
+            _ => {
+                // Re-encoded and truncated.
+                let mut b: Vec<u8> = [0xFF, 0xFE]
+                    .into_iter()
+                    .chain(base.encode_utf16().flat_map(u16::to_le_bytes))
+                    .collect();
+                let n = rng.random_range(0..b.len());
+                b.truncate(n);
+                b
+            }
+        };
+        let result =
+            std::panic::catch_unwind(|| zemax::from_bytes(&bytes, &GlassCatalogs::builtin()));
+        let Ok(parsed) = result else {
+            panic!(
+                "reader panicked on mutation {it}:\n{}",
+                String::from_utf8_lossy(&bytes)
+            )
+        };
+        match parsed {
+            Err(e) => assert!(!e.message.is_empty(), "mutation {it}: empty message"),
+            Ok(z) => {
+                accepted += 1;
+                let checked = std::panic::catch_unwind(|| {
+                    let sys = z.lens.compile();
+                    let _ = trace_fan(&sys, 0.0);
+                    let again = zemax::to_string(&z.lens, Some(&z.extras));
+                    zemax::from_str(&again, &GlassCatalogs::builtin())
+                        .map(|b| (b.lens.surfaces.len(), b.lens.object))
+                        .map_err(|e| format!("{e}\n{again}"))
+                });
+                match checked {
+                    Ok(Ok((n, object))) => {
+                        assert_eq!(n, z.lens.surfaces.len(), "mutation {it}");
+                        assert_eq!(object, z.lens.object, "mutation {it}");
+                    }
+                    Ok(Err(e)) => panic!(
+                        "mutation {it}: accepted lens does not read back: {e}\nfrom:\n{}",
+                        String::from_utf8_lossy(&bytes)
+                    ),
+                    Err(_) => panic!(
+                        "accepted lens misbehaved on mutation {it}:\n{}",
+                        String::from_utf8_lossy(&bytes)
+                    ),
+                }
+            }
+        }
+    }
+    assert!(
+        accepted > 500,
+        "the fuzzer should also exercise accepted lenses ({accepted})"
+    );
+}
+
+#[test]
+fn fuzz_the_agf_reader() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let base = text("test-catalog.agf");
+    let mut accepted = 0;
+    for it in 0..3000 {
+        let mut b = base.as_bytes().to_vec();
+        for _ in 0..rng.random_range(1..5) {
+            let i = rng.random_range(0..b.len());
+            match rng.random_range(0..3) {
+                0 => {
+                    b.remove(i);
+                }
+                1 => b.insert(i, b[i]),
+                _ => b[i] = b"0123456789-.E \nNMCDL\0"[rng.random_range(0..21)],
+            }
+        }
+        let r = std::panic::catch_unwind(|| AgfCatalog::from_bytes(&b, "FUZZ"));
+        match r {
+            Err(_) => panic!(
+                "AGF reader panicked on mutation {it}:\n{}",
+                String::from_utf8_lossy(&b)
+            ),
+            Ok(Err(e)) => assert!(!e.message.is_empty()),
+            Ok(Ok((c, _))) => {
+                accepted += 1;
+                for g in &c.glasses {
+                    let _ = g.index(LAMBDA_D_NM);
+                }
+            }
+        }
+    }
+    assert!(accepted > 100, "{accepted}");
+}
