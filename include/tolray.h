@@ -52,36 +52,6 @@
 #define TOLRAY_ABI_VERSION 1
 
 /**
- * Curvature of a surface, 1/mm.
- */
-#define TOLRAY_PARAM_CURVATURE 0
-
-/**
- * Conic constant of a surface.
- */
-#define TOLRAY_PARAM_CONIC 1
-
-/**
- * Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
- */
-#define TOLRAY_PARAM_ASPHERE 2
-
-/**
- * Gap after a surface (thickness or air space), mm.
- */
-#define TOLRAY_PARAM_GAP 3
-
-/**
- * n_d of the model glass after a surface.
- */
-#define TOLRAY_PARAM_GLASS_ND 4
-
-/**
- * V_d of the model glass after a surface.
- */
-#define TOLRAY_PARAM_GLASS_VD 5
-
-/**
  * `x`, `y` are fractions of the full field (tan of the angle scaled to the sensor half-diagonal).
  */
 #define TOLRAY_FIELD_FRACTION 0
@@ -177,6 +147,36 @@
  * Mask of the surface-index bits of a ray status.
  */
 #define TOLRAY_RAY_SURFACE_MASK 16777215
+
+/**
+ * Curvature of a surface, 1/mm.
+ */
+#define TOLRAY_PARAM_CURVATURE 0
+
+/**
+ * Conic constant of a surface.
+ */
+#define TOLRAY_PARAM_CONIC 1
+
+/**
+ * Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
+ */
+#define TOLRAY_PARAM_ASPHERE 2
+
+/**
+ * Gap after a surface (thickness or air space), mm.
+ */
+#define TOLRAY_PARAM_GAP 3
+
+/**
+ * n_d of the model glass after a surface.
+ */
+#define TOLRAY_PARAM_GLASS_ND 4
+
+/**
+ * V_d of the model glass after a surface.
+ */
+#define TOLRAY_PARAM_GLASS_VD 5
 
 /**
  * Outcome of a C ABI call. The numeric values are fixed and will never be reused.
