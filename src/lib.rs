@@ -8,6 +8,7 @@
 //! - [`trace`]: ray batches, the generic kernel (f32, f64, dual numbers), ray generation, and a
 //!   scalar reference tracer.
 //! - [`analysis`]: spot diagrams and statistics.
+//! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
 //!
 //! Units: millimetres for lengths, micrometres for spot sizes, nanometres for wavelengths,
 //! degrees for angles in files. Surfaces are counted from 0. Frame: z is the optical axis, light
@@ -16,6 +17,8 @@
 #![warn(missing_docs)]
 
 pub mod analysis;
+#[cfg(feature = "embree")]
+pub mod embree;
 pub mod error;
 pub mod ffi;
 pub mod figures;

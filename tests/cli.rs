@@ -480,3 +480,20 @@ fn convert_between_zmx_and_json() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains(".zmx or .json"), "{err}");
 }
+
+/// Without the `embree` feature, `validate --embree` says how to get it and exits with 1; without
+/// `--embree` it is a usage error either way.
+#[cfg(not(feature = "embree"))]
+#[test]
+fn validate_without_the_embree_feature_says_how_to_rebuild() {
+    let (code, out, err) = tolray(&["validate", "lens1", "--embree", "--trials", "1"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(out.is_empty());
+    assert!(
+        err.contains("`embree` feature") && err.contains("--features embree"),
+        "{err}"
+    );
+    let (code, _, err) = tolray(&["validate", "lens1"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--embree"), "{err}");
+}

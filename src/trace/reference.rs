@@ -4,7 +4,7 @@
 //! that the kernel agrees with it.
 
 use super::RayStatus;
-use crate::lens::{SurfaceKind, System};
+use crate::lens::{SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 
 /// Result of tracing one ray to the image plane (global frame, mm).
@@ -35,6 +35,52 @@ fn sag(c: f64, k1: f64, asph: &[f64], u: f64) -> Option<(f64, f64)> {
     Some((z, dz))
 }
 
+/// Sag `z` (mm) and `dz/du` of a compiled surface at `u = x² + y²` (mm²), in its local frame;
+/// `None` beyond the conic's rim.
+pub fn surface_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
+    sag(row.c, row.k1, &row.asph[..row.n_asph], u)
+}
+
+/// Intersects the local-frame ray `p + t dl` with the surface of `row` by Newton's method on the
+/// sag, started at the vertex plane. Returns `t` and `dz/du` at the hit, or `None` when the ray
+/// is parallel to the vertex plane or Newton does not converge (a miss).
+pub fn intersect_local(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>) -> Option<(f64, f64)> {
+    if dl.z == 0.0 {
+        return None;
+    }
+    let t = -p.z / dl.z;
+    if row.kind == SurfaceKind::Plane {
+        return Some((t, 0.0));
+    }
+    let asph = &row.asph[..row.n_asph];
+    let mut t = t;
+    for _ in 0..100 {
+        let h = p + dl * t;
+        let (z, dzu) = sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y)?;
+        let f = h.z - z;
+        let fp = dl.z - 2.0 * dzu * (h.x * dl.x + h.y * dl.y);
+        let step = f / fp;
+        t -= step;
+        if step.abs() < 1e-13 * (1.0 + t.abs()) {
+            let h = p + dl * t;
+            return sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y).map(|(_, dzu)| (t, dzu));
+        }
+    }
+    None
+}
+
+/// Refracts the unit direction `dl` at a surface with unit normal `nrm` from index `n1` into
+/// `n2` (Snell's law on the tangential component). `None` on total internal reflection.
+pub fn refract(dl: Vec3<f64>, nrm: Vec3<f64>, n1: f64, n2: f64) -> Option<Vec3<f64>> {
+    let cos1 = dl.dot(nrm);
+    let tang = (dl - nrm * cos1) * (n1 / n2);
+    let s2 = tang.dot(tang);
+    if s2 > 1.0 {
+        return None;
+    }
+    Some(tang + nrm * ((1.0 - s2).sqrt() * cos1.signum()))
+}
+
 /// Traces one ray through `sys` with indices `n` (after each surface), up to and including
 /// surface `upto` (or to the image plane when `upto` is `None`). Returns the state in the global
 /// frame after that surface.
@@ -54,40 +100,9 @@ pub fn trace_ray(
         let fail = |status| RefRay { o, d, opl, status };
         let p = row.rot.apply_t(o - row.pos);
         let dl = row.rot.apply_t(d);
-        let asph = &row.asph[..row.n_asph];
-        // Newton from the vertex plane.
-        if dl.z == 0.0 {
+        let Some((t, dz)) = intersect_local(row, p, dl) else {
             return fail(RayStatus::Missed(i as u32));
-        }
-        let mut t = -p.z / dl.z;
-        let mut ok = false;
-        let mut dz = 0.0;
-        if row.kind == SurfaceKind::Plane {
-            ok = true;
-        } else {
-            for _ in 0..100 {
-                let h = p + dl * t;
-                let Some((z, dzu)) = sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y) else {
-                    break;
-                };
-                let f = h.z - z;
-                let fp = dl.z - 2.0 * dzu * (h.x * dl.x + h.y * dl.y);
-                let step = f / fp;
-                t -= step;
-                dz = dzu;
-                if step.abs() < 1e-13 * (1.0 + t.abs()) {
-                    let h = p + dl * t;
-                    if let Some((_, dzu)) = sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y) {
-                        dz = dzu;
-                        ok = true;
-                    }
-                    break;
-                }
-            }
-        }
-        if !ok {
-            return fail(RayStatus::Missed(i as u32));
-        }
+        };
         let h = p + dl * t;
         if clip && h.x * h.x + h.y * h.y > row.ap2 {
             return fail(RayStatus::Vignetted(i as u32));
@@ -95,16 +110,12 @@ pub fn trace_ray(
         let mut dn = dl;
         if row.refract {
             let n1 = if i == 0 { 1.0 } else { n[i - 1] };
-            let n2 = n[i];
             // Unit normal along +z-ish, then Snell on the tangential component.
             let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
-            let cos1 = dl.dot(nrm);
-            let tang = (dl - nrm * cos1) * (n1 / n2);
-            let s2 = tang.dot(tang);
-            if s2 > 1.0 {
-                return fail(RayStatus::Tir(i as u32));
+            match refract(dl, nrm, n1, n[i]) {
+                Some(v) => dn = v,
+                None => return fail(RayStatus::Tir(i as u32)),
             }
-            dn = tang + nrm * ((1.0 - s2).sqrt() * cos1.signum());
         }
         opl += (if i == 0 { 1.0 } else { n[i - 1] }) * t;
         o = row.rot.apply(h) + row.pos;

@@ -1,0 +1,389 @@
+//! The Embree cross-check (feature `embree`): the padded ray-hit structure, watertight meshes,
+//! and the analytic tracer's hits and spots against Embree on nominal and perturbed lenses.
+#![cfg(feature = "embree")]
+
+use tolray::embree::{
+    check_system, CheckOptions, Device, Frame, Mesh, RayHit, Rays, Scene, SceneOptions,
+};
+use tolray::lens::{Adjustments, System};
+use tolray::tolerance::ToleranceSpec;
+use tolray::trace::Pupil;
+use tolray::Lens;
+
+fn device() -> &'static Device {
+    Device::shared().expect("Embree device")
+}
+
+/// Poisons every byte after the bindings' 80-byte `RTCRayHit` (the 16 padding bytes of our
+/// 96-byte `RayHit` and 64 guard bytes after it), traces a hit and a miss, and checks which
+/// bytes Embree wrote.
+#[test]
+fn sentinel_padded_ray_hit_is_written_only_where_expected() {
+    const POISON: u8 = 0x5A;
+    #[repr(C, align(16))]
+    struct Guarded {
+        rh: RayHit,
+        guard: [u8; 64],
+    }
+    assert_eq!(std::mem::size_of::<RayHit>(), 96);
+    assert_eq!(std::mem::align_of::<RayHit>(), 16);
+    let dev = device();
+    let scene = Scene::new(
+        dev,
+        &[[-1.0, -1.0, 2.0], [1.0, -1.0, 2.0], [0.0, 1.0, 2.0]],
+        &[[0, 1, 2]],
+        SceneOptions::default(),
+    )
+    .unwrap();
+    let trace = |org: [f32; 3]| -> (Vec<u8>, RayHit) {
+        let mut g = Guarded {
+            rh: RayHit::new(org, [0.0, 0.0, 1.0], 0.0, f32::INFINITY),
+            guard: [POISON; 64],
+        };
+        let base = std::ptr::addr_of_mut!(g) as *mut u8;
+        // SAFETY: bytes 80..160 of `Guarded` are integer padding and guard bytes.
+        unsafe { std::ptr::write_bytes(base.add(80), POISON, 16) };
+        scene.intersect_raw(&mut g.rh);
+        let n = std::mem::size_of::<Guarded>();
+        // SAFETY: a live, initialized value.
+        let bytes = unsafe { std::slice::from_raw_parts(base as *const u8, n) }.to_vec();
+        (bytes, g.rh)
+    };
+    // A hit at t = 2.
+    let (bytes, rh) = trace([0.0, 0.0, 0.0]);
+    assert_eq!(rh.rh.hit.geomID, 0, "the probe ray must hit");
+    assert!((rh.rh.ray.tfar - 2.0).abs() < 1e-6);
+    let changed: Vec<usize> = (80..bytes.len()).filter(|&i| bytes[i] != POISON).collect();
+    if dev.version() >= 40400 {
+        // Embree 4.4 writes hit.instPrimID[0] (u32, RTC_INVALID_GEOMETRY_ID) right after the
+        // 4.2 struct, and nothing else.
+        assert_eq!(
+            changed,
+            vec![80, 81, 82, 83],
+            "Embree {}",
+            dev.version_string()
+        );
+        assert_eq!(
+            u32::from_ne_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]),
+            u32::MAX
+        );
+    } else {
+        assert!(changed.is_empty(), "{changed:?}");
+    }
+    assert!(changed.iter().all(|&i| i < 96));
+    // A miss writes nothing past the ray.
+    let (bytes, rh) = trace([5.0, 5.0, 0.0]);
+    assert_eq!(rh.rh.hit.geomID, u32::MAX);
+    assert!(rh.rh.ray.tfar.is_infinite());
+    assert!((80..bytes.len()).all(|i| bytes[i] == POISON));
+    // The device's own self-test saw the same.
+    let probe = dev.probe_layout().unwrap();
+    assert!(probe.iter().all(|&i| i < 96), "{probe:?}");
+}
+
+/// Rays aimed exactly at every vertex of a lens-like mesh and through points on its edges
+/// (including the meridional fan y = 0, where edges lie) never slip through.
+#[test]
+fn no_ray_leaks_through_mesh_vertices_or_edges() {
+    let lens = Lens::load("lens2").unwrap();
+    let sys = lens.compile();
+    let row = &sys.rows[0];
+    // A coarse mesh keeps the count of rays moderate while every vertex and edge is hit.
+    let mesh = Mesh::new(row, 0, 2e-3, Frame::Local).unwrap();
+    let dev = device();
+    let robust = Scene::new(
+        dev,
+        &mesh.vertices,
+        &mesh.triangles,
+        SceneOptions::default(),
+    )
+    .unwrap();
+    let fast = Scene::new(
+        dev,
+        &mesh.vertices,
+        &mesh.triangles,
+        SceneOptions {
+            robust: false,
+            high_quality: false,
+        },
+    )
+    .unwrap();
+    // Every vertex and edge except the mesh's outer boundary (a ray there grazes the mesh's
+    // rim, which is not a shared edge).
+    let first_outer = mesh.vertices.len() - mesh.segments;
+    let inner = |i: u32| (i as usize) < first_outer;
+    let mut targets: Vec<[f32; 3]> = mesh.vertices[..first_outer].to_vec();
+    // Points on edges: midpoints and a third of the way, computed in f32 like the mesh.
+    for t in &mesh.triangles {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            if !inner(a) && !inner(b) {
+                continue;
+            }
+            let (p, q) = (mesh.vertices[a as usize], mesh.vertices[b as usize]);
+            for w in [0.5f32, 1.0 / 3.0] {
+                targets.push(std::array::from_fn(|k| p[k] + w * (q[k] - p[k])));
+            }
+        }
+    }
+    // A meridional fan: y = 0 exactly, which runs along mesh edges.
+    let a = mesh.radius_mm as f32 * 0.95;
+    for k in 0..=2000 {
+        targets.push([-a + 2.0 * a * k as f32 / 2000.0, 0.0, 0.0]);
+    }
+    let dirs: [[f32; 3]; 4] = [
+        [0.0, 0.0, 1.0],
+        [0.0, 0.2, 0.98],
+        [0.15, 0.0, 0.99],
+        [-0.1, -0.1, 0.99],
+    ];
+    let (mut rays, mut misses, mut misses_fast) = (0usize, 0usize, 0usize);
+    for t in &targets {
+        // Fan targets lie at z = 0; put them on the mesh's height there.
+        let z = if t[2] == 0.0 && t[1] == 0.0 {
+            let r = (t[0] as f64).abs();
+            tolray::trace::reference::surface_sag(row, r * r).unwrap().0 as f32
+        } else {
+            t[2]
+        };
+        let target = [t[0], t[1], z];
+        for d in dirs {
+            let org: [f32; 3] = std::array::from_fn(|k| target[k] - 3.0 * d[k]);
+            rays += 1;
+            if robust.intersect(org, d, 0.0, f32::INFINITY).is_none() {
+                misses += 1;
+                if misses < 20 {
+                    eprintln!("miss: target {target:?} direction {d:?}");
+                }
+            }
+            if fast.intersect(org, d, 0.0, f32::INFINITY).is_none() {
+                misses_fast += 1;
+            }
+        }
+    }
+    eprintln!(
+        "{rays} rays at {} vertices/edge points of a {}-triangle mesh: {misses} misses robust, \
+         {misses_fast} without RTC_SCENE_FLAG_ROBUST",
+        targets.len(),
+        mesh.triangles.len()
+    );
+    assert!(rays > 100_000);
+    assert_eq!(misses, 0);
+}
+
+/// The tessellation meets its chord bound, and the bound is tight (the worst sample point is
+/// close to it), on a sphere, a conic and an asphere.
+#[test]
+fn mesh_deviation_is_within_and_close_to_the_chord_bound() {
+    // The triplet's reference file has oversize apertures: tessellate its beam's 8 mm.
+    for (name, s, r) in [
+        ("lens1", 0, 1e9),
+        ("lens2", 2, 1e9),
+        ("cooke-triplet", 0, 8.0),
+    ] {
+        let sys = Lens::load(name).unwrap().compile();
+        let row = &sys.rows[s];
+        let mesh = Mesh::with_radius(row, s, r, 1e-4, Frame::Local).unwrap();
+        let dev = mesh.deviation(row);
+        assert!(mesh.chord_bound_mm <= 1e-4);
+        assert!(
+            dev <= mesh.chord_bound_mm * 1.01 + 1e-6,
+            "{name} surface {s}: {dev} > {}",
+            mesh.chord_bound_mm
+        );
+        assert!(
+            dev > 0.3 * mesh.chord_bound_mm,
+            "{name} {s}: bound not tight: {dev} vs {}",
+            mesh.chord_bound_mm
+        );
+    }
+}
+
+fn small_options() -> CheckOptions {
+    CheckOptions {
+        pupil: Pupil::grid(16),
+        ..CheckOptions::default()
+    }
+}
+
+/// Nominal and five perturbed patterns of each built-in lens: every Embree hit within its bound,
+/// no leaks, RMS spots within 0.1 µm at a 1e-4 mm chord bound.
+#[test]
+fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
+    let opts = small_options();
+    let spec = ToleranceSpec::default();
+    for name in ["lens1", "lens2", "cooke-triplet"] {
+        let lens = Lens::load(name).unwrap();
+        let rays = Rays::generate(&lens, &opts).unwrap();
+        let mut systems = vec![(None, lens.compile())];
+        for k in 0..5 {
+            let p = spec.sample(&lens, 1, k).unwrap();
+            let (pl, adj) = p.apply(&lens).unwrap();
+            systems.push((Some(k), System::compile(&pl, &adj, &|_, v| v)));
+        }
+        for (k, sys) in &systems {
+            let r = check_system(device(), sys, &rays, &opts).unwrap();
+            assert!(
+                r.failures.is_empty(),
+                "{name} trial {k:?}: {:?}",
+                r.failures
+            );
+            for s in &r.surfaces {
+                assert!(s.hits > 0);
+                assert!(s.max_bound_ratio <= 1.0);
+                assert!(s.chord_bound_mm <= 1e-4);
+                assert!(s.max_hit_distance_mm <= s.max_hit_bound_mm);
+                assert_eq!(s.leaks, 0);
+                assert_eq!(s.unmatched, 0);
+            }
+            for f in &r.fields {
+                assert!(f.compared > 100);
+                assert!(f.rms_diff_um < 0.1, "{name} {k:?}: {f:?}");
+            }
+            let worst = r
+                .surfaces
+                .iter()
+                .map(|s| s.max_bound_ratio)
+                .fold(0.0, f64::max);
+            let spot = r.fields.iter().map(|f| f.rms_diff_um).fold(0.0, f64::max);
+            let spot_m = r
+                .fields
+                .iter()
+                .map(|f| f.rms_diff_mesh_normal_um)
+                .fold(0.0, f64::max);
+            eprintln!(
+                "{name} {k:?}: worst hit/bound {worst:.3}, spot diff {spot:.2e} um (mesh normals \
+                 {spot_m:.2e} um), build {:.2} s",
+                r.timing.build_s
+            );
+            if k.is_none() {
+                for s in &r.surfaces {
+                    eprintln!(
+                        "  surface {}: disk {:.2}/{:.2} mm, {} tris ({}x{}), M {:.3}, B {:.2e}, \
+                         dev {:.2e}, max hit {:.2e}, f32 {:.1e}, {:.0} ms",
+                        s.surface,
+                        s.disk_mm,
+                        s.semi_aperture_mm,
+                        s.triangles,
+                        s.rings,
+                        s.segments,
+                        s.max_second_derivative,
+                        s.chord_bound_mm,
+                        s.mesh_deviation_mm,
+                        s.max_hit_distance_mm,
+                        s.max_f32_error_mm,
+                        s.build_ms
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Meshes in the global frame (f32 coordinates up to the lens length) also pass, and the local
+/// frame keeps Embree's f32 error below 2e-6 mm.
+#[test]
+fn global_frame_meshes_also_pass() {
+    let lens = Lens::load("lens1").unwrap();
+    let sys: System<f64> =
+        System::compile(&lens, &Adjustments::none(lens.surfaces.len()), &|_, v| v);
+    let opts = CheckOptions {
+        frame: Frame::Global,
+        ..small_options()
+    };
+    let rays = Rays::generate(&lens, &opts).unwrap();
+    let r = check_system(device(), &sys, &rays, &opts).unwrap();
+    let local = check_system(device(), &sys, &rays, &small_options()).unwrap();
+    let f32g = r
+        .surfaces
+        .iter()
+        .map(|s| s.max_f32_error_mm)
+        .fold(0.0, f64::max);
+    let f32l = local
+        .surfaces
+        .iter()
+        .map(|s| s.max_f32_error_mm)
+        .fold(0.0, f64::max);
+    eprintln!("largest f32 error: global frame {f32g:.2e} mm, local frame {f32l:.2e} mm");
+    assert!(r.failures.is_empty(), "{:?}", r.failures);
+    assert!(f32l < 2e-6);
+}
+
+fn tolray(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `tolray validate --embree`: 0 and a complete JSON report when every deviation is within its
+/// bound; 1 when a tighter bound than the theorem's is asserted (`--bound-scale 0.5`: real
+/// tessellations come within ~90 % of the bound), or when a coarse 0.03 mm chord is held to the
+/// 0.1 µm spot bound; 2 without `--embree`.
+#[test]
+fn validate_cli_exit_codes() {
+    let dir = std::env::temp_dir().join(format!("tolray-embree-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("validate.json");
+    let (code, out, err) = tolray(&[
+        "validate",
+        "cooke-triplet",
+        "--embree",
+        "--trials",
+        "2",
+        "--pupil",
+        "grid:12",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(out.contains("result: PASS"), "{out}");
+    assert!(
+        out.contains("Embree trace") && out.contains("analytic kernel"),
+        "{out}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["pass"], true);
+    assert_eq!(v["cases"].as_array().unwrap().len(), 3);
+    assert_eq!(v["cases"][2]["trial"], 1);
+    assert!(v["cases"][1]["pattern"]["elements"].is_array());
+    assert!(
+        v["summary"]["surfaces"][0]["max_bound_ratio"]
+            .as_f64()
+            .unwrap()
+            <= 1.0
+    );
+
+    let (code, _, err) = tolray(&[
+        "validate",
+        "cooke-triplet",
+        "--embree",
+        "--trials",
+        "0",
+        "--pupil",
+        "grid:12",
+        "--bound-scale",
+        "0.5",
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("validation failed") && err.contains("its bound"),
+        "{err}"
+    );
+
+    let (code, out, err) = tolray(&[
+        "validate", "lens1", "--embree", "--trials", "0", "--chord", "0.03",
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("RMS spots differ"), "{err}");
+    assert!(out.contains("result: FAIL"), "{out}");
+
+    let (code, _, err) = tolray(&["validate", "lens1"]);
+    assert_eq!(code, 2, "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
