@@ -8,8 +8,12 @@
 
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
+use crate::math::Vec3;
 use crate::real::Real;
-use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable};
+use crate::trace::rays::Beam;
+use crate::trace::{
+    trace_serial, Block, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable, LANES,
+};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
@@ -59,33 +63,106 @@ impl PsfOptions {
 /// `centre`, and normalizes it to unit sum. Points whose footprint leaves the window are dropped.
 /// Returns all zeros when nothing lands.
 pub fn splat<S: Real>(pts: &[[S; 2]], centre: [S; 2], ks: usize, pitch_mm: f64) -> Vec<S> {
-    let mut img = vec![S::cst(0.0); ks * ks];
-    let half = (ks as f64 - 1.0) / 2.0;
-    let inv = S::cst(1.0 / pitch_mm);
-    let mut total = S::cst(0.0);
+    let mut acc = Splat::new(centre, ks, pitch_mm);
     for p in pts {
-        let u = (p[0] - centre[0]) * inv + S::cst(half);
-        let v = S::cst(half) - (p[1] - centre[1]) * inv;
-        let (uf, vf) = (u.value().floor(), v.value().floor());
-        if !(uf >= 0.0 && vf >= 0.0 && uf + 1.0 < ks as f64 && vf + 1.0 < ks as f64) {
-            continue;
+        acc.add(*p);
+    }
+    acc.finish()
+}
+
+/// A PSF being accumulated by bilinear splatting (see [`splat`]).
+struct Splat<S> {
+    img: Vec<S>,
+    ks: usize,
+    centre: [S; 2],
+    inv_pitch: S,
+    half: S,
+    count: usize,
+}
+
+impl<S: Real> Splat<S> {
+    fn new(centre: [S; 2], ks: usize, pitch_mm: f64) -> Self {
+        Splat {
+            img: vec![S::cst(0.0); ks * ks],
+            ks,
+            centre,
+            inv_pitch: S::cst(1.0 / pitch_mm),
+            half: S::cst((ks as f64 - 1.0) / 2.0),
+            count: 0,
         }
-        let (i, j) = (uf as usize, vf as usize);
-        let (fu, fv) = (u - S::cst(uf), v - S::cst(vf));
+    }
+
+    /// Adds `p` (if it lands in the window).
+    #[inline(always)]
+    fn add(&mut self, p: [S; 2]) {
+        let (u, v) = self.coords(p);
+        if self.inside(u, v) {
+            self.deposit(u, v);
+        }
+    }
+
+    /// Adds the rays of `blk` whose status is alive, of the first `lanes` lanes; `to_sensor`
+    /// maps a global position to sensor coordinates. The coordinates are computed for the whole
+    /// block first (a loop LLVM vectorizes), then only the points inside the window are added.
+    #[inline(always)]
+    fn add_block(&mut self, blk: &Block<S>, lanes: usize, to_sensor: impl Fn(Vec3<S>) -> [S; 2]) {
+        let zero = S::cst(0.0);
+        let mut uv = [[zero; 2]; LANES];
+        let mut take = [false; LANES];
+        for l in 0..LANES {
+            let p = to_sensor(Vec3::new(blk.o[0][l], blk.o[1][l], blk.o[2][l]));
+            let (u, v) = self.coords(p);
+            uv[l] = [u, v];
+            take[l] = (blk.status[l] == 0) & (l < lanes) & self.inside(u, v);
+        }
+        for l in 0..LANES {
+            if take[l] {
+                self.deposit(uv[l][0], uv[l][1]);
+            }
+        }
+    }
+
+    /// Pixel coordinates (column, row) of sensor point `p`.
+    #[inline(always)]
+    fn coords(&self, p: [S; 2]) -> (S, S) {
+        let u = (p[0] - self.centre[0]) * self.inv_pitch + self.half;
+        let v = self.half - (p[1] - self.centre[1]) * self.inv_pitch;
+        (u, v)
+    }
+
+    /// True when the 2x2 footprint at `(u, v)` lies in the window (false for NaN).
+    #[inline(always)]
+    fn inside(&self, u: S, v: S) -> bool {
+        let (zero, last) = (S::cst(0.0), S::cst((self.ks - 1) as f64));
+        !u.lt(zero) & !v.lt(zero) & u.lt(last) & v.lt(last)
+    }
+
+    /// Adds the bilinear weights of a point inside the window. On `[0, ks - 1)` truncation is the
+    /// floor.
+    #[inline(always)]
+    fn deposit(&mut self, u: S, v: S) {
+        let ks = self.ks;
+        let (i, j) = (u.value() as usize, v.value() as usize);
+        let (fu, fv) = (u - S::cst(i as f64), v - S::cst(j as f64));
         let one = S::cst(1.0);
-        img[j * ks + i] += (one - fu) * (one - fv);
-        img[j * ks + i + 1] += fu * (one - fv);
-        img[(j + 1) * ks + i] += (one - fu) * fv;
-        img[(j + 1) * ks + i + 1] += fu * fv;
-        total += one;
+        let k = j * ks + i;
+        let px = &mut self.img[k..k + ks + 2];
+        px[0] += (one - fu) * (one - fv);
+        px[1] += fu * (one - fv);
+        px[ks] += (one - fu) * fv;
+        px[ks + 1] += fu * fv;
+        self.count += 1;
     }
-    if total.value() > 0.0 {
-        let s = S::cst(1.0) / total;
-        for x in img.iter_mut() {
-            *x *= s;
+
+    fn finish(mut self) -> Vec<S> {
+        if self.count > 0 {
+            let s = S::cst(1.0 / self.count as f64);
+            for x in self.img.iter_mut() {
+                *x *= s;
+            }
         }
+        self.img
     }
-    img
 }
 
 /// Rays for PSFs, generated once from the nominal lens.
@@ -126,33 +203,56 @@ pub fn psf_of<S: Traceable>(
     let (_, wl, set) = &rays.sets[k];
     let mut b: RayBatch<S> = set.batch();
     b.push(set.chief.0, set.chief.1);
-    trace_serial(sys, *wl, &mut b, trace);
-    let n = set.origins.len();
-    let to_sensor = |o| {
-        let p = sys.image.point_to_local(o);
+    psf_of_batch(sys, *wl, &mut b, opts, trace)
+}
+
+/// The PSF of the rays of `b`, the last of which is the chief ray, traced through `sys` at
+/// `wavelength_nm`.
+fn psf_of_batch<S: Traceable>(
+    sys: &System<S>,
+    wavelength_nm: f64,
+    b: &mut RayBatch<S>,
+    opts: &PsfOptions,
+    trace: TraceOptions,
+) -> (Vec<S>, Option<[S; 2]>) {
+    trace_serial(sys, wavelength_nm, b, trace);
+    let b = &*b;
+    let n = b.len() - 1;
+    let image = &sys.image;
+    let rotated = sys.image_rotated;
+    let to_sensor = |o: Vec3<S>| {
+        let p = if rotated {
+            image.point_to_local(o)
+        } else {
+            o - image.translation
+        };
         [p.x, p.y]
     };
-    let pts: Vec<[S; 2]> = (0..n)
-        .map(|i| b.get(i))
-        .filter(|r| r.status.is_alive())
-        .map(|r| to_sensor(r.o))
-        .collect();
     let chief = b.get(n);
     let chief = chief.status.is_alive().then(|| to_sensor(chief.o));
-    let centroid = || {
-        let inv = S::cst(1.0 / pts.len().max(1) as f64);
-        let (mut x, mut y) = (S::cst(0.0), S::cst(0.0));
-        for p in &pts {
-            x += p[0];
-            y += p[1];
-        }
-        [x * inv, y * inv]
-    };
     let c = match (opts.centre, chief) {
         (PsfCentre::Chief, Some(c)) => c,
-        _ => centroid(),
+        _ => {
+            let (mut x, mut y, mut count) = (S::cst(0.0), S::cst(0.0), 0usize);
+            for (k, blk) in b.blocks().iter().enumerate() {
+                for l in 0..LANES.min(n.saturating_sub(k * LANES)) {
+                    if blk.status[l] == 0 {
+                        let p = to_sensor(Vec3::new(blk.o[0][l], blk.o[1][l], blk.o[2][l]));
+                        x += p[0];
+                        y += p[1];
+                        count += 1;
+                    }
+                }
+            }
+            let inv = S::cst(1.0 / count.max(1) as f64);
+            [x * inv, y * inv]
+        }
     };
-    (splat(&pts, c, opts.ks, opts.pitch_mm), chief)
+    let mut acc = Splat::new(c, opts.ks, opts.pitch_mm);
+    for (k, blk) in b.blocks().iter().enumerate() {
+        acc.add_block(blk, n.saturating_sub(k * LANES), to_sensor);
+    }
+    (acc.finish(), chief)
 }
 
 /// A PSF map: `grid x grid` fields spread over the sensor (cell centres of a square grid over
@@ -169,19 +269,27 @@ pub fn psf_map(
     opts: &PsfOptions,
 ) -> Result<Vec<Vec<f64>>> {
     let fields = grid_fields(lens, grid);
-    let pairs: Vec<(Field, f64)> = fields.iter().map(|&f| (f, wavelength_nm)).collect();
-    let rays = PsfRays::new(lens, &pairs, &opts.pupil)?;
     let sys32: System<f32> = sys.convert();
-    Ok((0..pairs.len())
-        .into_par_iter()
-        .map(|k| {
-            psf_of(&sys32, &rays, k, opts, TraceOptions::default())
-                .0
-                .iter()
-                .map(|&v| v as f64)
-                .collect()
+    let to_f64 = |psf: Vec<f32>| psf.into_iter().map(f64::from).collect();
+    if opts.pupil.aim {
+        let pairs: Vec<(Field, f64)> = fields.iter().map(|&f| (f, wavelength_nm)).collect();
+        let rays = PsfRays::new(lens, &pairs, &opts.pupil)?;
+        return Ok((0..pairs.len())
+            .into_par_iter()
+            .map(|k| to_f64(psf_of(&sys32, &rays, k, opts, TraceOptions::default()).0))
+            .collect());
+    }
+    // Without aiming, each field's rays go straight into an f32 batch.
+    let para = lens.paraxial(lens.primary_wavelength_nm)?;
+    let pts = opts.pupil.points();
+    fields
+        .par_iter()
+        .map(|&f| {
+            let mut b = Beam::new(lens, &para, f)?.batch::<f32>(&pts);
+            let psf = psf_of_batch(&sys32, wavelength_nm, &mut b, opts, TraceOptions::default());
+            Ok(to_f64(psf.0))
         })
-        .collect())
+        .collect()
 }
 
 /// Fields at the cell centres of a `grid x grid` partition of the sensor, row 0 at the top.

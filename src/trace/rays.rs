@@ -2,7 +2,7 @@
 //! aiming at the stop.
 
 use super::reference::trace_ray;
-use super::RayBatch;
+use super::{RayBatch, LANES};
 use crate::error::{Error, Result};
 use crate::lens::{Lens, Object, Paraxial, System};
 use crate::math::Vec3;
@@ -270,28 +270,9 @@ impl RaySet {
         aim: bool,
         wavelength_nm: f64,
     ) -> Result<RaySet> {
-        let (tx, ty) = field.tangents(lens, para)?;
-        let r_ep = 0.5 * para.entrance_pupil_diameter_mm;
-        let z_ep = para.entrance_pupil_z_mm;
-        // Infinite-object rays start on a plane in front of the lens.
-        let z0 = {
-            let s = &lens.surfaces[0];
-            let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
-            z_ep.min(sag).min(0.0) - 1.0
-        };
-        let make = |px: f64, py: f64| -> (Vec3<f64>, Vec3<f64>) {
-            let p = Vec3::new(px, py, z_ep);
-            match lens.object {
-                Object::Finite { distance_mm } => {
-                    let q = Vec3::new(distance_mm * tx, distance_mm * ty, -distance_mm);
-                    (q, (p - q).normalized())
-                }
-                Object::Infinite => {
-                    let d = Vec3::new(-tx, -ty, 1.0).normalized();
-                    (p - d * ((p.z - z0) / d.z), d)
-                }
-            }
-        };
+        let beam = Beam::new(lens, para, field)?;
+        let make = |px: f64, py: f64| beam.ray(px, py);
+        let r_ep = beam.r_ep;
         let mut set = RaySet {
             origins: Vec::with_capacity(pts.len()),
             directions: Vec::with_capacity(pts.len()),
@@ -316,7 +297,7 @@ impl RaySet {
             }
         } else {
             for q in pts {
-                let (o, d) = make(q[0] * r_ep, q[1] * r_ep);
+                let (o, d) = beam.at_pupil(*q);
                 set.origins.push(o);
                 set.directions.push(d);
             }
@@ -324,13 +305,99 @@ impl RaySet {
         Ok(set)
     }
 
-    /// The rays as a batch in number type `S`.
+    /// The rays as a batch in number type `S` (the directions are already unit vectors).
     pub fn batch<S: Real>(&self) -> RayBatch<S> {
-        let mut b = RayBatch::with_capacity(self.origins.len());
-        for (o, d) in self.origins.iter().zip(&self.directions) {
-            b.push(*o, *d);
+        RayBatch::from_unit_rays(&self.origins, &self.directions)
+    }
+}
+
+/// The rays of one field as a function of the point where they cross the paraxial entrance-pupil
+/// plane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Beam {
+    source: Source,
+    z_ep: f64,
+    /// Paraxial entrance-pupil radius, mm.
+    pub(crate) r_ep: f64,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Source {
+    /// A finite object point.
+    Point(Vec3<f64>),
+    /// An object at infinity: the direction, and the distance back along it from the pupil
+    /// plane to the start plane.
+    Direction { d: Vec3<f64>, back: f64 },
+}
+
+impl Beam {
+    /// The beam of `field`.
+    ///
+    /// # Errors
+    /// As [`RaySet::generate`].
+    pub(crate) fn new(lens: &Lens, para: &Paraxial, field: Field) -> Result<Beam> {
+        let (tx, ty) = field.tangents(lens, para)?;
+        let z_ep = para.entrance_pupil_z_mm;
+        let source = match lens.object {
+            Object::Finite { distance_mm } => {
+                Source::Point(Vec3::new(distance_mm * tx, distance_mm * ty, -distance_mm))
+            }
+            Object::Infinite => {
+                // Infinite-object rays start on a plane in front of the lens.
+                let s = &lens.surfaces[0];
+                let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
+                let z0 = z_ep.min(sag).min(0.0) - 1.0;
+                let d = Vec3::new(-tx, -ty, 1.0).normalized();
+                Source::Direction {
+                    d,
+                    back: (z_ep - z0) / d.z,
+                }
+            }
+        };
+        Ok(Beam {
+            source,
+            z_ep,
+            r_ep: 0.5 * para.entrance_pupil_diameter_mm,
+        })
+    }
+
+    /// The ray (origin, unit direction) through `(x, y)` (mm) on the entrance-pupil plane.
+    #[inline(always)]
+    pub(crate) fn ray(&self, x: f64, y: f64) -> (Vec3<f64>, Vec3<f64>) {
+        let p = Vec3::new(x, y, self.z_ep);
+        match self.source {
+            Source::Point(q) => (q, (p - q).normalized()),
+            Source::Direction { d, back } => (p - d * back, d),
         }
-        b
+    }
+
+    /// The ray through the normalized pupil point `q` (unit disk).
+    #[inline(always)]
+    pub(crate) fn at_pupil(&self, q: [f64; 2]) -> (Vec3<f64>, Vec3<f64>) {
+        self.ray(q[0] * self.r_ep, q[1] * self.r_ep)
+    }
+
+    /// The rays through the normalized pupil points `pts`, followed by the chief ray, written
+    /// straight into a batch of number type `S` (the same numbers as a [`RaySet`]'s batch).
+    pub(crate) fn batch<S: Real>(&self, pts: &[[f64; 2]]) -> RayBatch<S> {
+        let n = pts.len() + 1;
+        let mut blocks = vec![super::Block::dead(); n.div_ceil(LANES)];
+        for (i, blk) in blocks.iter_mut().enumerate() {
+            for l in 0..LANES.min(n - i * LANES) {
+                let (o, d) = match pts.get(i * LANES + l) {
+                    Some(q) => self.at_pupil(*q),
+                    None => self.ray(0.0, 0.0),
+                };
+                blk.o[0][l] = S::cst(o.x);
+                blk.o[1][l] = S::cst(o.y);
+                blk.o[2][l] = S::cst(o.z);
+                blk.d[0][l] = S::cst(d.x);
+                blk.d[1][l] = S::cst(d.y);
+                blk.d[2][l] = S::cst(d.z);
+                blk.status[l] = 0;
+            }
+        }
+        RayBatch { blocks, len: n }
     }
 }
 
