@@ -305,9 +305,13 @@ impl RaySet {
         Ok(set)
     }
 
-    /// The rays as a batch in number type `S` (the directions are already unit vectors).
+    /// The rays as a batch in number type `S`.
     pub fn batch<S: Real>(&self) -> RayBatch<S> {
-        RayBatch::from_unit_rays(&self.origins, &self.directions)
+        let mut b = RayBatch::with_capacity(self.origins.len());
+        for (o, d) in self.origins.iter().zip(&self.directions) {
+            b.push(*o, *d);
+        }
+        b
     }
 }
 
