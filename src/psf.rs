@@ -191,8 +191,8 @@ impl PsfRays {
     }
 }
 
-/// The PSF of ray set `k` of `rays` through `sys`, in any number type; `centre_ref` overrides
-/// the centre (e.g. the chief ray of another wavelength).
+/// The PSF of ray set `k` of `rays` through `sys`, in any number type, centred as `opts` says,
+/// and the chief ray's sensor point (`None` when the chief ray is lost).
 pub fn psf_of<S: Traceable>(
     sys: &System<S>,
     rays: &PsfRays,

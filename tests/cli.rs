@@ -1,24 +1,12 @@
 //! The `tolray` binary end to end: numbers against the reference values, files, exit codes.
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
 
-fn tolray(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_tolray"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::tolray;
+use std::path::PathBuf;
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tolray-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d.join(name)
+    common::scratch_dir("cli").join(name)
 }
 
 #[test]
@@ -496,4 +484,106 @@ fn validate_without_the_embree_feature_says_how_to_rebuild() {
     let (code, _, err) = tolray(&["validate", "lens1"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("--embree"), "{err}");
+}
+
+/// Ctrl-C during `tolray train`: the run stops after the iteration in progress with exit code
+/// 130, leaving a checkpoint equal to the state of an uninterrupted run after as many iterations,
+/// a log of exactly those iterations, and a run that `--resume` finishes.
+#[cfg(unix)]
+#[test]
+fn training_interrupted_by_ctrl_c_leaves_an_exact_checkpoint() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    use tolray::optim::train::{step, TrainState};
+    let dir = tmp("ctrl-c");
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    let run_args = [
+        "--stage",
+        "both",
+        "--pretrain-iters",
+        "2",
+        "--iters",
+        "400",
+        "--samples",
+        "4",
+        "--psf-spp",
+        "64",
+        "--eval-trials",
+        "8",
+        "--checkpoint-every",
+        "1000",
+    ];
+    let err_file = std::fs::File::create(s("stderr.txt")).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .args([&["train", "lens1", "--out", &s("run")][..], &run_args].concat())
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(err_file)
+        .spawn()
+        .unwrap();
+    // Wait until a few iterations (some of stage 2) are logged, then send SIGINT.
+    let log_lines = || {
+        std::fs::read_to_string(s("run/log.jsonl"))
+            .map(|t| t.lines().count())
+            .unwrap_or(0)
+    };
+    let start = Instant::now();
+    while log_lines() < 4 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it was interrupted"
+        );
+        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let pid = child.id().to_string();
+    let kill = Command::new("sh")
+        .args(["-c", "kill -INT \"$1\"", "sh", &pid])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    let err = std::fs::read_to_string(s("stderr.txt")).unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("interrupted: checkpoint at iteration"),
+        "{err}"
+    );
+    // The checkpoint is the exact state after its iterations, and the log holds each of them.
+    let ck: TrainState =
+        serde_json::from_str(&std::fs::read_to_string(s("run/checkpoint.json")).unwrap()).unwrap();
+    let n = ck.next_iter;
+    assert!(n >= 4 && n < ck.total_iters(), "stopped at {n}");
+    assert_eq!(log_lines(), n);
+    assert_eq!(
+        std::fs::read_to_string(s("run/lens-latest.json")).unwrap(),
+        ck.lens_json
+    );
+    assert!(dir.join(format!("run/lens-iter{n}.json")).exists());
+    let initial = std::fs::read_to_string(s("run/lens-initial.json")).unwrap();
+    let mut state = TrainState::new(
+        &tolray::lens::json::from_str(&initial).unwrap(),
+        ck.config.clone(),
+    );
+    for _ in 0..n {
+        step(&mut state).unwrap();
+    }
+    assert!(
+        state == ck,
+        "the checkpoint equals {n} uninterrupted iterations"
+    );
+    // --resume finishes the run.
+    let (code, out, err) = tolray(&[
+        "train",
+        "--resume",
+        &s("run"),
+        "--out",
+        &s("run"),
+        "--eval-trials",
+        "8",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("Held-out evaluation"), "{out}");
+    assert_eq!(log_lines(), ck.total_iters());
 }

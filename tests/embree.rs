@@ -2,6 +2,9 @@
 //! and the analytic tracer's hits and spots against Embree on nominal and perturbed lenses.
 #![cfg(feature = "embree")]
 
+mod common;
+
+use common::tolray;
 use tolray::embree::{
     check_system, CheckOptions, Device, Frame, Mesh, RayHit, Rays, Scene, SceneOptions,
 };
@@ -308,26 +311,13 @@ fn global_frame_meshes_also_pass() {
     assert!(f32l < 2e-6);
 }
 
-fn tolray(args: &[&str]) -> (i32, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tolray"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 /// `tolray validate --embree`: 0 and a complete JSON report when every deviation is within its
 /// bound; 1 when a tighter bound than the theorem's is asserted (`--bound-scale 0.5`: real
 /// tessellations come within ~90 % of the bound), or when a coarse 0.03 mm chord is held to the
 /// 0.1 µm spot bound; 2 without `--embree`.
 #[test]
 fn validate_cli_exit_codes() {
-    let dir = std::env::temp_dir().join(format!("tolray-embree-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch_dir("embree");
     let json = dir.join("validate.json");
     let (code, out, err) = tolray(&[
         "validate",

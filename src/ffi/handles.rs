@@ -3,7 +3,6 @@
 use super::{boundary, c_str, copy_text, nonnull, tolray_status, FfiError, FfiResult};
 use crate::lens::{self, Adjustments, Lens, Param, System};
 use crate::tolerance::{Perturbation, ToleranceSpec};
-use crate::Error;
 use std::ffi::c_char;
 
 /// A lens prescription (immutable; shareable between threads).
@@ -471,14 +470,8 @@ pub unsafe extern "C" fn tolray_system_free(system: *mut tolray_system) {
     unsafe { free(system) }
 }
 
-/// Checks a wavelength in nm.
+/// Checks a wavelength in nm (see [`crate::lens::material::check_wavelength_nm`]).
 pub(crate) fn check_wavelength(wl: f64) -> FfiResult<()> {
-    if wl.is_finite() && wl > 100.0 && wl < 20_000.0 {
-        Ok(())
-    } else {
-        Err(Error::argument(format!(
-            "wavelength {wl} nm is outside 100 to 20000 nm (give nanometres, e.g. 587.56)"
-        ))
-        .into())
-    }
+    crate::lens::material::check_wavelength_nm(wl)?;
+    Ok(())
 }

@@ -13,6 +13,25 @@ pub const LAMBDA_F_NM: f64 = 486.1327;
 /// The C line (hydrogen), nm.
 pub const LAMBDA_C_NM: f64 = 656.2725;
 
+/// The wavelengths tolray accepts at its interfaces (CLI, C ABI), nm, exclusive bounds.
+pub const WAVELENGTH_RANGE_NM: (f64, f64) = (100.0, 20_000.0);
+
+/// Checks a wavelength given at an interface: finite and inside [`WAVELENGTH_RANGE_NM`] (which
+/// catches micrometres given for nanometres).
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] naming the value and the unit expected.
+pub fn check_wavelength_nm(wavelength_nm: f64) -> Result<f64> {
+    let (lo, hi) = WAVELENGTH_RANGE_NM;
+    if wavelength_nm.is_finite() && wavelength_nm > lo && wavelength_nm < hi {
+        Ok(wavelength_nm)
+    } else {
+        Err(Error::argument(format!(
+            "wavelength {wavelength_nm} nm is outside {lo} to {hi} nm (give nanometres, e.g. 587.56)"
+        )))
+    }
+}
+
 /// The wavelength in µm that reads back (times 1000) to exactly `nm` when such an `f64` exists
 /// (`nm * 1e-3` is sometimes one unit in the last place off), else `nm / 1000`. Files store µm.
 pub(crate) fn um_from_nm(nm: f64) -> f64 {

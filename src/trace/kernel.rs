@@ -230,19 +230,21 @@ fn intersect<S: Real, const KIND: u8>(
     // Quadric c (x² + y² + k1 z²) - 2 z = 0, solved from the ray's crossing of the vertex plane
     // (where the constant term is small). Of the two roots this takes the one nearest that
     // crossing, without cancellation; it tends to the plane solution as c -> 0.
+    // The crossing (x0, y0) and the coefficients are kept multiplied by powers of d.z, which
+    // leaves a single division: with X0 = x0 d.z, B = b d.z, C = cc d.z², D = den d.z,
+    // t = t0 - cc / den = -(z D + C) / (d.z D).
     let (c, k1) = (row.c, row.k1);
     let mut ok = !d.z.is_zero();
-    let t0 = -p.z / S::pick(ok, d.z, one);
-    let (x0, y0) = (p.x + d.x * t0, p.y + d.y * t0);
+    let (x0, y0) = (p.x * d.z - d.x * p.z, p.y * d.z - d.y * p.z);
     let a = c * (d.x * d.x + d.y * d.y + k1 * d.z * d.z);
-    let b = c * (x0 * d.x + y0 * d.y) - d.z;
+    let b = c * (x0 * d.x + y0 * d.y) - d.z * d.z;
     let cc = c * (x0 * x0 + y0 * y0);
     let disc = b * b - a * cc;
     ok &= !disc.lt(zero);
     let s = S::pick(ok, disc, zero).sqrt();
     let den = b + s.copysign(b);
     ok &= !den.is_zero();
-    let mut t = t0 - cc / S::pick(ok, den, one);
+    let mut t = -(p.z * den + cc) / S::pick(ok, d.z * den, one);
     if KIND == QUADRIC {
         let h = p + d * t;
         // Only the vertex-side sheet of the quadric is the lens surface.
@@ -301,18 +303,21 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             let h = p + d * t;
             let vignetted = CLIP & row.ap2.lt(h.x * h.x + h.y * h.y);
             // Refraction (vector Snell). The normal is flipped to face the incoming ray.
-            let nrm = nrm * (one / nrm.norm());
-            let mut cosi = -nrm.dot(d);
-            let flip = cosi.lt(zero);
-            cosi = S::pick(flip, -cosi, cosi);
+            // With the unnormalized normal N and a = -N.d = |N| cos i, the refracted direction is
+            // eta d + (eta a - sqrt(k N.N)) / N.N N: one division and one square root.
+            let nn = nrm.dot(nrm);
+            let inv_nn = one / nn;
+            let mut a = -nrm.dot(d);
+            let flip = a.lt(zero);
+            a = S::pick(flip, -a, a);
             let nrm = Vec3::new(
                 S::pick(flip, -nrm.x, nrm.x),
                 S::pick(flip, -nrm.y, nrm.y),
                 S::pick(flip, -nrm.z, nrm.z),
             );
-            let k = one - eta * eta * (one - cosi * cosi);
+            let k = one - eta * eta * (one - a * a * inv_nn);
             let tir = (KIND != PLANE) & k.lt(zero);
-            let g = eta * cosi - S::pick(tir, zero, k).sqrt();
+            let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
             let dr = if KIND != PLANE { d * eta + nrm * g } else { d };
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))

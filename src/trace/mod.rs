@@ -186,6 +186,36 @@ impl<S: Real> RayBatch<S> {
         blk.status[l] = if ok { 0 } else { CODE_INVALID };
         self.len += 1;
     }
+    /// A batch of the rays `origins[i]`, `directions[i]` (mm; unit directions, taken as they are).
+    /// A ray with non-finite numbers is stored as [`RayStatus::Invalid`], as by [`RayBatch::push`].
+    ///
+    /// # Panics
+    /// If the two slices differ in length.
+    pub fn from_unit_rays(origins: &[Vec3<f64>], directions: &[Vec3<f64>]) -> Self {
+        assert_eq!(origins.len(), directions.len(), "one direction per origin");
+        let blocks = origins
+            .chunks(LANES)
+            .zip(directions.chunks(LANES))
+            .map(|(os, ds)| {
+                let mut blk = Block::dead();
+                for (l, (o, d)) in os.iter().zip(ds).enumerate() {
+                    let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
+                    if o.iter().chain(&d).all(|v| v.is_finite()) {
+                        for k in 0..3 {
+                            blk.o[k][l] = S::cst(o[k]);
+                            blk.d[k][l] = S::cst(d[k]);
+                        }
+                        blk.status[l] = 0;
+                    }
+                }
+                blk
+            })
+            .collect();
+        RayBatch {
+            blocks,
+            len: origins.len(),
+        }
+    }
     /// Ray `i`.
     ///
     /// # Panics

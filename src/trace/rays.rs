@@ -305,13 +305,9 @@ impl RaySet {
         Ok(set)
     }
 
-    /// The rays as a batch in number type `S`.
+    /// The rays as a batch in number type `S` (the directions are already unit vectors).
     pub fn batch<S: Real>(&self) -> RayBatch<S> {
-        let mut b = RayBatch::with_capacity(self.origins.len());
-        for (o, d) in self.origins.iter().zip(&self.directions) {
-            b.push(*o, *d);
-        }
-        b
+        RayBatch::from_unit_rays(&self.origins, &self.directions)
     }
 }
 
@@ -382,23 +378,49 @@ impl Beam {
     }
 
     /// The rays through the normalized pupil points `pts`, followed by the chief ray, written
-    /// straight into a batch of number type `S` (the same numbers as a [`RaySet`]'s batch).
+    /// straight into a batch of number type `S`: the same numbers as a [`RaySet`]'s batch,
+    /// computed a block at a time in lane loops that vectorize. A ray with non-finite numbers is
+    /// stored as [`super::RayStatus::Invalid`] (zeros), as by [`RayBatch::push`].
     pub(crate) fn batch<S: Real>(&self, pts: &[[f64; 2]]) -> RayBatch<S> {
         let n = pts.len() + 1;
         let mut blocks = vec![super::Block::dead(); n.div_ceil(LANES)];
         for (i, blk) in blocks.iter_mut().enumerate() {
-            for l in 0..LANES.min(n - i * LANES) {
-                let (o, d) = match pts.get(i * LANES + l) {
-                    Some(q) => self.at_pupil(*q),
-                    None => self.ray(0.0, 0.0),
-                };
-                blk.o[0][l] = S::cst(o.x);
-                blk.o[1][l] = S::cst(o.y);
-                blk.o[2][l] = S::cst(o.z);
-                blk.d[0][l] = S::cst(d.x);
-                blk.d[1][l] = S::cst(d.y);
-                blk.d[2][l] = S::cst(d.z);
-                blk.status[l] = 0;
+            let m = LANES.min(n - i * LANES);
+            // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray.
+            let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
+            for (l, q) in pts.iter().skip(i * LANES).take(m).enumerate() {
+                px[l] = q[0] * self.r_ep;
+                py[l] = q[1] * self.r_ep;
+            }
+            let mut o = [[0.0f64; LANES]; 3];
+            let mut d = [[0.0f64; LANES]; 3];
+            match self.source {
+                // As `ray`: (p - q) * (1 / |p - q|), origin q.
+                Source::Point(q) => {
+                    for l in 0..LANES {
+                        let v = Vec3::new(px[l], py[l], self.z_ep) - q;
+                        let u = v * (1.0 / v.dot(v).sqrt());
+                        (o[0][l], o[1][l], o[2][l]) = (q.x, q.y, q.z);
+                        (d[0][l], d[1][l], d[2][l]) = (u.x, u.y, u.z);
+                    }
+                }
+                // As `ray`: origin p - d back, direction d.
+                Source::Direction { d: u, back } => {
+                    for l in 0..LANES {
+                        let p = Vec3::new(px[l], py[l], self.z_ep) - u * back;
+                        (o[0][l], o[1][l], o[2][l]) = (p.x, p.y, p.z);
+                        (d[0][l], d[1][l], d[2][l]) = (u.x, u.y, u.z);
+                    }
+                }
+            }
+            for l in 0..m {
+                if (0..3).all(|k| o[k][l].is_finite() && d[k][l].is_finite()) {
+                    for k in 0..3 {
+                        blk.o[k][l] = S::cst(o[k][l]);
+                        blk.d[k][l] = S::cst(d[k][l]);
+                    }
+                    blk.status[l] = 0;
+                }
             }
         }
         RayBatch { blocks, len: n }
