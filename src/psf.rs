@@ -285,7 +285,7 @@ pub fn psf_map(
     fields
         .par_iter()
         .map(|&f| {
-            let mut b = Beam::new(lens, &para, f)?.batch::<f32>(&pts);
+            let mut b = Beam::new(lens, &para, f)?.batch_f32(&pts);
             let psf = psf_of_batch(&sys32, wavelength_nm, &mut b, opts, TraceOptions::default());
             Ok(to_f64(psf.0))
         })

@@ -378,52 +378,73 @@ impl Beam {
     }
 
     /// The rays through the normalized pupil points `pts`, followed by the chief ray, written
-    /// straight into a batch of number type `S`: the same numbers as a [`RaySet`]'s batch,
-    /// computed a block at a time in lane loops that vectorize. A ray with non-finite numbers is
-    /// stored as [`super::RayStatus::Invalid`] (zeros), as by [`RayBatch::push`].
-    pub(crate) fn batch<S: Real>(&self, pts: &[[f64; 2]]) -> RayBatch<S> {
+    /// straight into an `f32` batch: the numbers of a [`RaySet`]'s batch, computed in `f64` a
+    /// block at a time in lane loops that vectorize. A ray with non-finite numbers is stored as
+    /// [`super::RayStatus::Invalid`] (zeros), as by [`RayBatch::push`].
+    pub(crate) fn batch_f32(&self, pts: &[[f64; 2]]) -> RayBatch<f32> {
         let n = pts.len() + 1;
         let mut blocks = vec![super::Block::dead(); n.div_ceil(LANES)];
-        for (i, blk) in blocks.iter_mut().enumerate() {
-            let m = LANES.min(n - i * LANES);
-            // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray.
-            let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
-            for (l, q) in pts.iter().skip(i * LANES).take(m).enumerate() {
-                px[l] = q[0] * self.r_ep;
-                py[l] = q[1] * self.r_ep;
-            }
-            let mut o = [[0.0f64; LANES]; 3];
-            let mut d = [[0.0f64; LANES]; 3];
-            match self.source {
-                // As `ray`: (p - q) * (1 / |p - q|), origin q.
-                Source::Point(q) => {
-                    for l in 0..LANES {
-                        let v = Vec3::new(px[l], py[l], self.z_ep) - q;
-                        let u = v * (1.0 / v.dot(v).sqrt());
-                        (o[0][l], o[1][l], o[2][l]) = (q.x, q.y, q.z);
-                        (d[0][l], d[1][l], d[2][l]) = (u.x, u.y, u.z);
-                    }
-                }
-                // As `ray`: origin p - d back, direction d.
-                Source::Direction { d: u, back } => {
-                    for l in 0..LANES {
-                        let p = Vec3::new(px[l], py[l], self.z_ep) - u * back;
-                        (o[0][l], o[1][l], o[2][l]) = (p.x, p.y, p.z);
-                        (d[0][l], d[1][l], d[2][l]) = (u.x, u.y, u.z);
-                    }
-                }
-            }
-            for l in 0..m {
-                if (0..3).all(|k| o[k][l].is_finite() && d[k][l].is_finite()) {
+        beam_rays(self, pts, &mut blocks);
+        // The lanes past the last ray stay dead.
+        let tail = n % LANES;
+        if tail != 0 {
+            if let Some(last) = blocks.last_mut() {
+                let dead = super::Block::<f32>::dead();
+                for l in tail..LANES {
                     for k in 0..3 {
-                        blk.o[k][l] = S::cst(o[k][l]);
-                        blk.d[k][l] = S::cst(d[k][l]);
+                        last.o[k][l] = dead.o[k][l];
+                        last.d[k][l] = dead.d[k][l];
                     }
-                    blk.status[l] = 0;
+                    last.status[l] = dead.status[l];
                 }
             }
         }
         RayBatch { blocks, len: n }
+    }
+}
+
+/// The rays of `beam` through the normalized pupil points `pts`, then the chief ray in every
+/// remaining lane, into `out` (the numbers of [`Beam::ray`], rounded to `f32`). Compiled for
+/// several instruction sets, chosen at run time, like the kernel.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
+fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
+    for (b, blk) in out.iter_mut().enumerate() {
+        // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray (0, 0).
+        let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
+        for (l, q) in pts.iter().skip(b * LANES).take(LANES).enumerate() {
+            px[l] = q[0] * beam.r_ep;
+            py[l] = q[1] * beam.r_ep;
+        }
+        let mut r = [[0.0f64; LANES]; 6];
+        match beam.source {
+            // As `ray`: (p - q) * (1 / |p - q|), origin q.
+            Source::Point(q) => {
+                for l in 0..LANES {
+                    let v = Vec3::new(px[l], py[l], beam.z_ep) - q;
+                    let u = v * (1.0 / v.dot(v).sqrt());
+                    (r[0][l], r[1][l], r[2][l]) = (q.x, q.y, q.z);
+                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                }
+            }
+            // As `ray`: origin p - d back, direction d.
+            Source::Direction { d: u, back } => {
+                for l in 0..LANES {
+                    let p = Vec3::new(px[l], py[l], beam.z_ep) - u * back;
+                    (r[0][l], r[1][l], r[2][l]) = (p.x, p.y, p.z);
+                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                }
+            }
+        }
+        // Branch-free, so that the conversion vectorizes too.
+        for l in 0..LANES {
+            let ok = r.iter().fold(true, |a, c| a & c[l].is_finite());
+            for k in 0..3 {
+                blk.o[k][l] = if ok { r[k][l] as f32 } else { 0.0 };
+                blk.d[k][l] = if ok { r[3 + k][l] as f32 } else { 0.0 };
+            }
+            blk.status[l] = if ok { 0 } else { super::CODE_INVALID };
+            blk.opl[l] = 0.0;
+        }
     }
 }
 
