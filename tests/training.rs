@@ -8,10 +8,10 @@
 //! the last bits moves these numbers too. The claims are therefore checked for two training
 //! seeds, on 400 held-out patterns (with 100, the standard deviations of one design vary by about
 //! 10 % from one held-out seed to another), and only where the effect is systematic. Over six
-//! trajectories (training seeds 0, 1, 2, a learning rate changed by 1e-12, and the kernel before
-//! and after a last-bit change) stage 2 lowered the refocused spread by 2.7 to 9.5 %, raised the
-//! PSF similarity by 0.049 to 0.13 and the nominal RMS spot by 1.3 to 4.2 um; the thresholds
-//! below are about half of the smallest of these:
+//! trajectories (training seeds 0, 1 and 2 and a learning rate changed by 1e-12 with the
+//! previous tracer, seeds 0 and 1 with the current one, whose last bits differ) stage 2 lowered
+//! the refocused spread by 2.7 to 9.5 %, raised the PSF similarity by 0.049 to 0.13 and the
+//! nominal RMS spot by 1.3 to 4.3 um; the thresholds below are about half of the smallest:
 //! - the spread is measured with each lens refocused to its best focus, as a lens is focused
 //!   at assembly. Without refocusing, the spread of lens1 is dominated by the focus error of
 //!   the 0.3 % curvature tolerances, which the paper's losses do not reduce (stage 2 raises it
