@@ -364,6 +364,19 @@ fn training_resumes_exactly_and_reports() {
     let (code, _, err) = tolray(&["train", "--out", &s("x")]);
     assert_eq!(code, 1);
     assert!(err.contains("needs a LENS"), "{err}");
+    let (code, _, err) = tolray(&[
+        "train",
+        "lens1",
+        "--tolerance-lr-scale",
+        "0",
+        "--out",
+        &s("x"),
+    ]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("--tolerance-lr-scale 0: must be positive"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -3,15 +3,15 @@
 //! trades some nominal sharpness for a smaller Monte Carlo spread of the RMS spot and a higher
 //! mean PSF similarity, measured on 400 held-out tolerance patterns (another seed).
 //!
-//! Stage 2 is chaotic: a change of the learning rate by one part in 10^12 moves its final design
-//! (the nominal RMS spot ends anywhere between about 7 and 9 um), so a tracer change that moves
-//! the last bits moves these numbers too. The claims are therefore checked for two training
-//! seeds, on 400 held-out patterns (with 100, the standard deviations of one design vary by about
-//! 10 % from one held-out seed to another), and only where the effect is systematic. Over six
-//! trajectories (training seeds 0, 1 and 2 and a learning rate changed by 1e-12 with the
-//! previous tracer, seeds 0 and 1 with the current one, whose last bits differ) stage 2 lowered
-//! the refocused spread by 2.7 to 9.5 %, raised the PSF similarity by 0.049 to 0.13 and the
-//! nominal RMS spot by 1.3 to 4.3 um; the thresholds below are about half of the smallest:
+//! Stage 2 fine-tunes the stage-1 design at a tenth of its learning rates. At the full rates,
+//! Adam's first steps threw lens1 out of focus (a ~150 um spot) before stage 2 recovered, and the
+//! end point was chaotic: a change of the learning rate by one part in 10^12 moved the final
+//! nominal RMS spot from 7.4 to 9.1 um. At a tenth it moves it from 7.0 to 7.4 um, and training
+//! seeds 0 and 1 and that change gave a refocused spread 3.9 to 4.2 % lower, a PSF similarity
+//! 0.077 to 0.089 higher and a nominal spot 2.1 to 2.6 um larger (400 held-out patterns). The
+//! claims are checked for two training seeds, with thresholds about half of these, on 400
+//! held-out patterns (with 100, the standard deviations of one design vary by about 10 % from
+//! one held-out seed to another), and only where the effect is systematic:
 //! - the spread is measured with each lens refocused to its best focus, as a lens is focused
 //!   at assembly. Without refocusing, the spread of lens1 is dominated by the focus error of
 //!   the 0.3 % curvature tolerances, which the paper's losses do not reduce (stage 2 raises it
@@ -69,16 +69,16 @@ fn check(seed: u64) {
     );
     // Stage 2: nominally softer, but more stable under tolerances.
     assert!(
-        mean(&h2.nominal_rms_um) > mean(&h1.nominal_rms_um) + 0.5,
+        mean(&h2.nominal_rms_um) > mean(&h1.nominal_rms_um) + 1.0,
         "{what}"
     );
     assert!(
-        h2.refocused_rms_std_um < 0.99 * h1.refocused_rms_std_um,
-        "the refocused spread falls by 1 % or more: {what}"
+        h2.refocused_rms_std_um < 0.98 * h1.refocused_rms_std_um,
+        "the refocused spread falls by 2 % or more: {what}"
     );
     assert!(
-        h2.psf_similarity_mean > h1.psf_similarity_mean + 0.025,
-        "the PSF similarity rises by 0.025 or more: {what}"
+        h2.psf_similarity_mean > h1.psf_similarity_mean + 0.04,
+        "the PSF similarity rises by 0.04 or more: {what}"
     );
 }
 

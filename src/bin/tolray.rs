@@ -184,6 +184,9 @@ enum Command {
         /// Rays per PSF in stage 2.
         #[arg(long, default_value_t = 256)]
         psf_spp: usize,
+        /// Factor on the learning rates in stage 2 (which fine-tunes the stage-1 design).
+        #[arg(long, default_value_t = 0.1)]
+        tolerance_lr_scale: f64,
         /// Maximum total track, mm.
         #[arg(long, value_name = "MM")]
         max_track: Option<f64>,
@@ -969,6 +972,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             lambda_spot,
             lambda_psf,
             psf_spp,
+            tolerance_lr_scale,
             max_track,
             target_efl,
             eval_trials,
@@ -1001,6 +1005,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     cfg.lambda_spot = lambda_spot;
                     cfg.lambda_psf = lambda_psf;
                     cfg.psf_spp = psf_spp.max(1);
+                    if !(tolerance_lr_scale > 0.0 && tolerance_lr_scale.is_finite()) {
+                        bail!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
+                    }
+                    cfg.tolerance_lr_scale = tolerance_lr_scale;
                     cfg.constraints.max_total_track_mm = max_track;
                     cfg.constraints.target_efl_mm = target_efl;
                     if let Some(p) = &spec {
