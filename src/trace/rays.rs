@@ -385,29 +385,17 @@ impl Beam {
         let n = pts.len() + 1;
         let mut blocks = vec![super::Block::dead(); n.div_ceil(LANES)];
         beam_rays(self, pts, &mut blocks);
-        // The lanes past the last ray stay dead.
-        let tail = n % LANES;
-        if tail != 0 {
-            if let Some(last) = blocks.last_mut() {
-                let dead = super::Block::<f32>::dead();
-                for l in tail..LANES {
-                    for k in 0..3 {
-                        last.o[k][l] = dead.o[k][l];
-                        last.d[k][l] = dead.d[k][l];
-                    }
-                    last.status[l] = dead.status[l];
-                }
-            }
-        }
         RayBatch { blocks, len: n }
     }
 }
 
-/// The rays of `beam` through the normalized pupil points `pts`, then the chief ray in every
-/// remaining lane, into `out` (the numbers of [`Beam::ray`], rounded to `f32`). Compiled for
-/// several instruction sets, chosen at run time, like the kernel.
+/// The rays of `beam` through the normalized pupil points `pts`, then the chief ray, into `out`
+/// (the numbers of [`Beam::ray`], rounded to `f32`); the lanes past the chief ray are dead, as in
+/// [`super::Block::dead`]. Compiled for several instruction sets, chosen at run time, like the
+/// kernel.
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
 fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
+    let n = pts.len() + 1;
     for (b, blk) in out.iter_mut().enumerate() {
         // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray (0, 0).
         let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
@@ -435,9 +423,11 @@ fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
                 }
             }
         }
-        // Branch-free, so that the conversion vectorizes too.
+        // Branch-free, so that the conversion vectorizes too. Lanes past the chief ray (l >= m)
+        // and rays with non-finite numbers get zeros and the invalid status.
+        let m = n.saturating_sub(b * LANES);
         for l in 0..LANES {
-            let ok = r.iter().fold(true, |a, c| a & c[l].is_finite());
+            let ok = r.iter().fold(l < m, |a, c| a & c[l].is_finite());
             for k in 0..3 {
                 blk.o[k][l] = if ok { r[k][l] as f32 } else { 0.0 };
                 blk.d[k][l] = if ok { r[3 + k][l] as f32 } else { 0.0 };
