@@ -139,6 +139,12 @@
 #define TOLRAY_RAY_INVALID (4 << 24)
 
 /**
+ * Ray status kind: the surface lies behind the ray (reaching it would take travel against the
+ * ray's direction; accepted only after a negative gap, which asks for virtual propagation).
+ */
+#define TOLRAY_RAY_BACKWARD (5 << 24)
+
+/**
  * Mask of the kind bits of a ray status.
  */
 #define TOLRAY_RAY_KIND_MASK 4278190080

@@ -393,21 +393,39 @@ pub fn psf_similarity<S: Real>(ideal: &[f64], psf: &[S], ks: usize) -> S {
 /// Checks PSF options.
 ///
 /// # Errors
-/// [`crate::ErrorKind::Argument`] for an even or zero kernel size or a non-positive pitch.
+/// [`crate::ErrorKind::Argument`] for an even kernel size or one outside 3 to 1025, a pitch
+/// outside 1e-5 to 10 mm, or an empty or oversized pupil pattern.
 pub fn check_options(opts: &PsfOptions) -> Result<()> {
-    if opts.ks == 0 || opts.ks % 2 == 0 || opts.ks > 1025 {
+    // A bilinear splat needs a 2x2 footprint inside the window: with 1 pixel nothing lands.
+    if opts.ks < 3 || opts.ks % 2 == 0 || opts.ks > 1025 {
         return Err(Error::argument(format!(
-            "PSF kernel size {} must be odd, 1 to 1025",
+            "PSF kernel size {} must be odd, 3 to 1025",
             opts.ks
         )));
     }
-    if !(opts.pitch_mm > 0.0) {
+    if !(1e-5..=10.0).contains(&opts.pitch_mm) {
         return Err(Error::argument(format!(
-            "PSF pixel pitch {} mm must be positive",
+            "PSF pixel pitch {} mm must be 1e-5 to 10 mm (0.01 to 10000 µm)",
             opts.pitch_mm
         )));
     }
-    Ok(())
+    opts.pupil.pattern.check()
+}
+
+/// Checks that rays landed in a PSF's window (a PSF sums to 1 when any did, else it is all
+/// zeros): an empty PSF is an error, not a result.
+///
+/// # Errors
+/// [`crate::ErrorKind::Numerical`] naming `what` (e.g. the field and wavelength).
+pub fn check_landed(psf: &[f64], what: &str) -> Result<()> {
+    if psf.iter().sum::<f64>() > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::numerical(format!(
+            "{what}: no ray landed in the PSF window (all rays vignetted, or the window is too \
+             small for the blur: raise the kernel size or the pixel pitch)"
+        )))
+    }
 }
 
 #[cfg(test)]

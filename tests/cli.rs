@@ -164,7 +164,7 @@ fn errors_and_exit_codes() {
     );
     assert!(!out.exists(), "no output file on error");
     let (code, _, err) = tolray(&["spot", "lens1", "--fields", "abc"]);
-    assert_eq!(code, 1);
+    assert_eq!(code, 2, "a bad flag value is a usage error");
     assert!(err.contains("field \"abc\""), "{err}");
 }
 
@@ -362,7 +362,7 @@ fn training_resumes_exactly_and_reports() {
     assert_eq!(log.len(), 6);
     assert!(dir.join("full/training.png").exists() && dir.join("full/lens-iter2.json").exists());
     let (code, _, err) = tolray(&["train", "--out", &s("x")]);
-    assert_eq!(code, 1);
+    assert_eq!(code, 2);
     assert!(err.contains("needs a LENS"), "{err}");
     let (code, _, err) = tolray(&[
         "train",
@@ -372,7 +372,7 @@ fn training_resumes_exactly_and_reports() {
         "--out",
         &s("x"),
     ]);
-    assert_eq!(code, 1);
+    assert_eq!(code, 2);
     assert!(
         err.contains("--tolerance-lr-scale 0: must be positive"),
         "{err}"
@@ -599,4 +599,99 @@ fn training_interrupted_by_ctrl_c_leaves_an_exact_checkpoint() {
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("Held-out evaluation"), "{out}");
     assert_eq!(log_lines(), ck.total_iters());
+}
+
+/// Results that reach a user are finite or an error naming the cause, sizes are bounded before
+/// anything is allocated, and an empty result is an error (defects 4, 5, 6 and 11 of the outside
+/// review). Bad flag values exit 2, bad files exit 1.
+#[test]
+fn no_silent_non_finite_or_empty_results() {
+    let lens = |name: &str, surf: &str| {
+        let p = tmp(name);
+        std::fs::write(
+            &p,
+            format!(
+                "{{\"surfaces\": [{surf}, {{\"type\": \"Spheric\", \"r\": 5, \"roc\": -40, \"d_next\": 40, \"mat2\": \"air\"}}], \"r_sensor\": 5}}"
+            ),
+        )
+        .unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    // A model glass with an absurd Abbe number: its index is not finite.
+    let glass = lens(
+        "nan-glass.json",
+        r#"{"type": "Spheric", "r": 5, "roc": 40, "d_next": 3, "mat2": "1.6/1e-308"}"#,
+    );
+    let (code, out, err) = tolray(&["info", &glass]);
+    assert_eq!(code, 1, "{out}");
+    assert!(err.contains("surface 0") && err.contains("index"), "{err}");
+    assert!(!out.contains("NaN"), "{out}");
+    // A conic of -1e308 gave a NaN RMS spot; an image gap of 1e300 an infinite one.
+    let conic = lens(
+        "huge-conic.json",
+        r#"{"type": "Aspheric", "r": 5, "roc": 40, "d_next": 3, "k": -1e308, "mat2": "N-BK7"}"#,
+    );
+    let (code, _, err) = tolray(&["spot", &conic]);
+    assert_eq!(code, 1);
+    assert!(err.contains("conic constant"), "{err}");
+    let gap = lens(
+        "huge-gap.json",
+        r#"{"type": "Spheric", "r": 5, "roc": 40, "d_next": 1e300, "mat2": "N-BK7"}"#,
+    );
+    let (code, _, err) = tolray(&["spot", &gap]);
+    assert_eq!(code, 1);
+    assert!(err.contains("gap"), "{err}");
+    // Flag values: empty or unaffordable sizes exit 2 with the limit in the message.
+    let usage: &[(&[&str], &str)] = &[
+        (&["tolerance", "lens1", "--trials", "0"], "trials"),
+        (
+            &["tolerance", "lens1", "--trials", "10000000000"],
+            "10000000",
+        ),
+        (&["psf", "lens1", "--spp", "0"], "no rays"),
+        (&["psf", "lens1", "--pitch-um", "1e-300"], "pitch"),
+        (&["psf", "lens1", "--ks", "1"], "3 to 1025"),
+        (
+            &["spot", "lens1", "--pupil", "grid:100000"],
+            "at most 4194304",
+        ),
+        (
+            &["spot", "lens1", "--pupil", "random:100000000"],
+            "at most 4194304",
+        ),
+        (
+            &["psf-map", "lens1", "--grid", "64", "--ks", "1025"],
+            "at most",
+        ),
+        (
+            &["layout", "lens1", "--png", "x.png", "--rays", "100000000"],
+            "--rays",
+        ),
+        (
+            &["train", "lens1", "--lambda-spot", "nan", "--out", "x"],
+            "lambda_spot",
+        ),
+        (
+            &["train", "lens1", "--max-track=-1", "--out", "x"],
+            "max_total_track_mm",
+        ),
+    ];
+    for (args, says) in usage {
+        let (code, _, err) = tolray(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+    // A PSF window far too small for the blur: no ray lands, which is an error, not a zero PSF.
+    let (code, _, err) = tolray(&[
+        "psf",
+        "lens1",
+        "--ks",
+        "3",
+        "--pitch-um",
+        "0.01",
+        "--field",
+        "1",
+    ]);
+    assert_eq!(code, 1);
+    assert!(err.contains("no ray landed"), "{err}");
 }

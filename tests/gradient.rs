@@ -220,3 +220,51 @@ fn psf_similarity_loss_gradient_matches_finite_differences() {
         }
     }
 }
+
+/// Asphere terms that are zero get their true derivative (the sag term they switch on), on an
+/// aspheric surface past its last nonzero term and on a spherical surface (defect 2: they were
+/// exactly 0, so an optimizer could never switch an asphere term on).
+#[test]
+fn zero_asphere_terms_have_their_derivative() {
+    let lens2 = Lens::load("lens2").unwrap();
+    let cases = [
+        ("lens2", lens2, 9, 0..8),
+        ("asphere", asphere_lens(), 0, 4..8),
+    ];
+    for (name, lens, surf, terms) in cases {
+        let adj = Adjustments::none(lens.surfaces.len());
+        let bundles = Bundles::new(
+            &lens,
+            &[0.0, 1.0].map(Field::fraction),
+            &[LAMBDA_D_NM],
+            &Pupil::grid(8),
+            TraceOptions { apertures: false },
+        )
+        .unwrap();
+        let obj = SpotLoss {
+            bundles,
+            measure: SpotMeasure::Rms,
+        };
+        let vars: Vec<Param> = terms.map(|j| Param::Asphere(surf, j)).collect();
+        let (_, g) = gradient::<_, 8>(&obj, &lens, &adj, &vars).unwrap();
+        let r = lens.surfaces[surf].semi_aperture_mm;
+        for (k, &p) in vars.iter().enumerate() {
+            let Param::Asphere(_, j) = p else {
+                unreachable!()
+            };
+            // A step that moves the sag at the rim by 1e-6 mm.
+            let h = 1e-6 / r.powi(2 * (j as i32 + 1));
+            let fd = central_diff(&obj, &lens, &adj, p, h);
+            assert!(
+                fd.abs() > 0.0,
+                "{name} {p:?}: the term does change the loss"
+            );
+            let rel = (g[k] - fd).abs() / fd.abs();
+            assert!(
+                rel < 1e-6,
+                "{name} {p:?}: dual {} vs FD {fd} (rel {rel:e})",
+                g[k]
+            );
+        }
+    }
+}

@@ -272,3 +272,83 @@ fn aimed_rays_cross_the_real_stop_where_asked() {
         );
     }
 }
+
+/// Rays are half-lines: a ray launched away from the lens, or starting behind a surface, stops
+/// with `Backward` at that surface in the kernel and the reference tracer alike, instead of
+/// landing where the forward ray lands (defect 1 of the outside review).
+#[test]
+fn rays_behind_a_surface_stop_unless_the_lens_asks_for_virtual_propagation() {
+    let lens = Lens::load("lens1").unwrap();
+    let sys = lens.compile();
+    let n = sys.indices(LAMBDA_D_NM);
+    let z_last = *lens.vertex_z_mm().last().unwrap();
+    let cases = [
+        // Heading away from the lens.
+        (Vec3::new(0.0, 0.0, -10.0), Vec3::new(0.0, 0.0, -1.0), 0),
+        // Starting behind the last surface, heading to the image: surface 0 lies behind it.
+        (
+            Vec3::new(0.0, 0.5, z_last + 1.0),
+            Vec3::new(0.0, 0.0, 1.0),
+            0,
+        ),
+    ];
+    for (o, d, surf) in cases {
+        let mut b = RayBatch::<f64>::new();
+        b.push(o, d);
+        trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+        assert_eq!(b.get(0).status, RayStatus::Backward(surf), "{o:?} {d:?}");
+        let r = trace_ray(&sys, &n, o, d, true, None);
+        assert_eq!(r.status, RayStatus::Backward(surf));
+    }
+    // A stop placed 2 mm inside the last element by a negative gap: the lens asks for virtual
+    // propagation, so rays reach it backwards and go on to the image.
+    let mut v = lens.clone();
+    let k = v.surfaces.len() - 1;
+    let back = v.surfaces[k].d_next_mm;
+    v.surfaces[k].d_next_mm = -2.0;
+    let mut stop = Surface::stop(5.0, back + 2.0);
+    stop.is_stop = false; // a second, bare aperture: lens1 keeps its own stop
+    v.surfaces.push(stop);
+    let vsys = v.compile();
+    let vn = vsys.indices(LAMBDA_D_NM);
+    let mut b = RayBatch::<f64>::new();
+    let (o, d) = (Vec3::new(0.0, 1.0, -5.0), Vec3::new(0.0, 0.0, 1.0));
+    b.push(o, d);
+    trace(&vsys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+    let r = trace_ray(&vsys, &vn, o, d, true, None);
+    assert_eq!(b.get(0).status, RayStatus::Alive);
+    assert_eq!(r.status, RayStatus::Alive);
+    // The virtual stop changes nothing where the ray lands (it is a bare aperture).
+    let mut b0 = RayBatch::<f64>::new();
+    b0.push(o, d);
+    trace(&sys, LAMBDA_D_NM, &mut b0, TraceOptions::default());
+    assert!((b.get(0).o.y - b0.get(0).o.y).abs() < 1e-12);
+    // A virtual image plane (negative last gap) is reached backwards; a real one is not.
+    let mut vi = lens.clone();
+    vi.surfaces[k].d_next_mm = -5.0;
+    let mut b = RayBatch::<f64>::new();
+    b.push(o, d);
+    trace(&vi.compile(), LAMBDA_D_NM, &mut b, TraceOptions::default());
+    assert_eq!(b.get(0).status, RayStatus::Alive);
+}
+
+/// One row out per row in, whatever the wavelengths (0.0 and -0.0 were merged; defect 7).
+#[test]
+fn raw_trace_keeps_every_row() {
+    use tolray::trace::raw::{trace_raw, RawRay};
+    let sys = Lens::load("lens1").unwrap().compile();
+    let ray = |wl: f64| RawRay {
+        ox: 0.0,
+        oy: 0.5,
+        oz: -5.0,
+        dx: 0.0,
+        dy: 0.0,
+        dz: 1.0,
+        wavelength_nm: wl,
+    };
+    let rays = [ray(0.0), ray(-0.0), ray(f64::NAN), ray(587.5618), ray(-0.0)];
+    let out = trace_raw(&sys, &rays, TraceOptions::default());
+    assert_eq!(out.len(), rays.len());
+    let st: Vec<&str> = out.iter().map(|h| h.status.as_str()).collect();
+    assert_eq!(st, ["invalid", "invalid", "invalid", "alive", "invalid"]);
+}

@@ -1108,3 +1108,44 @@ fn fuzz_the_agf_reader() {
     }
     assert!(accepted > 100, "{accepted}");
 }
+
+/// A stop between two media refracts like a flat interface, and `convert` keeps the optics
+/// (defect 8: lens2 with the stop's medium set to 1.5/60 had EFL 29.21 mm as JSON and 38.19 mm
+/// after .zmx).
+#[test]
+fn a_stop_between_two_media_refracts() {
+    use tolray::lens::SurfaceRole;
+    let mut l = Lens::load("lens2").unwrap();
+    let stop = l.stop_index().unwrap();
+    l.surfaces[stop].material = Material::Model { nd: 1.5, vd: 60.0 };
+    l.surfaces[stop].d_next_mm = 3.8 * 1.5; // keep the glass path comparable
+    let efl = l.paraxial(l.primary_wavelength_nm).unwrap().efl_mm;
+    // The same lens with the stop replaced by a flat refracting surface of that glass.
+    let mut flat = l.clone();
+    flat.surfaces[stop].role = SurfaceRole::Refractive;
+    let efl_flat = flat.paraxial(flat.primary_wavelength_nm).unwrap().efl_mm;
+    assert!(
+        (efl - efl_flat).abs() < 1e-12 * efl.abs(),
+        "{efl} vs {efl_flat}"
+    );
+    // Real rays agree too.
+    let (a, b) = (l.compile(), flat.compile());
+    let mut ra = tolray::trace::RayBatch::<f64>::new();
+    ra.push(Vec3::new(0.0, 3.0, -5.0), Vec3::new(0.0, 0.01, 1.0));
+    let mut rb = ra.clone();
+    let opts = tolray::trace::TraceOptions::default();
+    tolray::trace::trace(&a, 587.5618, &mut ra, opts);
+    tolray::trace::trace(&b, 587.5618, &mut rb, opts);
+    assert!((ra.get(0).o.y - rb.get(0).o.y).abs() < 1e-12);
+    // The .zmx round trip gives the same first-order optics.
+    let z = parse(&zemax::to_string(&l, None)).unwrap();
+    let efl_z = z
+        .lens
+        .paraxial(z.lens.primary_wavelength_nm)
+        .unwrap()
+        .efl_mm;
+    assert!(
+        (efl - efl_z).abs() < 1e-9 * efl.abs(),
+        "JSON {efl} vs .zmx {efl_z}"
+    );
+}

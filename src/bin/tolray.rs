@@ -17,6 +17,25 @@ use tolray::trace::raw::{parse_csv, parse_json, to_csv, trace_raw};
 use tolray::trace::{Field, Pupil, TraceOptions};
 use tolray::{figures, Lens, Object};
 
+/// A bad flag value: exit code 2, as for what clap refuses.
+#[derive(Debug)]
+struct Usage(String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// Returns a usage error (exit code 2) with a formatted message.
+macro_rules! usage {
+    ($($t:tt)*) => {
+        return Err(anyhow::Error::new(Usage(format!($($t)*))))
+    };
+}
+
 #[derive(Parser)]
 #[command(
     name = "tolray",
@@ -360,7 +379,7 @@ impl PsfArgs {
         };
         o.pupil = Pupil {
             pattern: tolray::trace::PupilPattern::Random {
-                n: self.spp.max(1),
+                n: self.spp,
                 seed: self.seed,
             },
             scale: 1.0,
@@ -518,7 +537,7 @@ fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64>> {
                     material::check_wavelength_nm(v)
                         .with_context(|| format!("wavelength \"{s}\""))?,
                 ),
-                _ => bail!("wavelength \"{s}\": give nanometres (e.g. 587.56) or d, F, C, rgb"),
+                _ => usage!("wavelength \"{s}\": give nanometres (e.g. 587.56) or d, F, C, rgb"),
             },
         }
     }
@@ -749,6 +768,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             fields,
             rays,
         } => {
+            if rays == 0 || rays > 1000 {
+                usage!("--rays {rays}: give 1 to 1000 rays per field");
+            }
             let l = lens.load()?;
             let p = l.paraxial(l.primary_wavelength_nm)?;
             let fields = parse_fields(&fields)?;
@@ -887,6 +909,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .map(|k| tolray::psf::psf_of(&sys, &rays, k, &opts, TraceOptions::default()).0)
                 .collect();
             for (w, p) in wls.iter().zip(&psfs) {
+                tolray::psf::check_landed(p, &format!("PSF at field {}, {w} nm", field.label()))?;
+            }
+            for (w, p) in wls.iter().zip(&psfs) {
                 let c = p[(opts.ks / 2) * opts.ks + opts.ks / 2];
                 let ee: f64 = (0..opts.ks * opts.ks)
                     .filter(|k| {
@@ -931,10 +956,26 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let l = lens.load()?;
             let opts = psf.options(&l)?;
             if grid == 0 || grid > 64 {
-                bail!("--grid {grid}: give 1 to 64 fields per side");
+                usage!("--grid {grid}: give 1 to 64 fields per side");
+            }
+            // The map holds grid² kernels of ks² f64 values.
+            let cells = grid * grid * opts.ks * opts.ks;
+            if cells > 1 << 26 {
+                usage!(
+                    "--grid {grid} with --ks {}: the map would hold {cells} values; at most {} \
+                     (512 MB) are allowed",
+                    opts.ks,
+                    1usize << 26
+                );
             }
             let wl = parse_wavelengths(&[wavelength], &l)?[0];
             let map = tolray::psf::psf_map(&l, &l.compile(), grid, wl, &opts)?;
+            for (k, p) in map.iter().enumerate() {
+                tolray::psf::check_landed(
+                    p,
+                    &format!("PSF map cell {k} (row-major from the top left)"),
+                )?;
+            }
             emit_line(&format!(
                 "PSF map of {}: {grid}x{grid} fields, {}x{} px kernels, {} rays each, {wl:.2} nm",
                 lens.lens, opts.ks, opts.ks, psf.spp
@@ -987,7 +1028,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 None => {
                     let Some(name) = lens.as_deref() else {
-                        bail!("train needs a LENS (or --resume DIR)")
+                        usage!("train needs a LENS (or --resume DIR)")
                     };
                     let mut l = Lens::load(name)?;
                     if let Some(o) = &object {
@@ -1000,17 +1041,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         pretrain_iters.unwrap_or(iters)
                     };
                     cfg.tolerance_iters = if stage == "pretrain" { 0 } else { iters };
-                    cfg.samples = samples.max(1);
+                    cfg.samples = samples;
                     cfg.seed = seed;
                     cfg.lambda_spot = lambda_spot;
                     cfg.lambda_psf = lambda_psf;
-                    cfg.psf_spp = psf_spp.max(1);
+                    cfg.psf_spp = psf_spp;
                     if !(tolerance_lr_scale > 0.0 && tolerance_lr_scale.is_finite()) {
-                        bail!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
+                        usage!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
                     }
                     cfg.tolerance_lr_scale = tolerance_lr_scale;
                     cfg.constraints.max_total_track_mm = max_track;
                     cfg.constraints.target_efl_mm = target_efl;
+                    cfg.validate()?;
                     if let Some(p) = &spec {
                         cfg.spec = ToleranceSpec::read(p)?;
                         cfg.spec.validate(&l).map_err(|e| e.context(p.display()))?;
@@ -1091,13 +1133,13 @@ fn validate(lens: &LensArgs, args: &ValidateArgs) -> anyhow::Result<()> {
         )
     })?;
     if !(args.chord > 0.0 && args.chord.is_finite()) {
-        bail!("--chord {}: give a positive bound in mm", args.chord);
+        usage!("--chord {}: give a positive bound in mm", args.chord);
     }
     if !(args.bound_scale > 0.0 && args.bound_scale.is_finite()) {
-        bail!("--bound-scale {}: must be positive", args.bound_scale);
+        usage!("--bound-scale {}: must be positive", args.bound_scale);
     }
     if !(args.spot_bound_um >= 0.0) {
-        bail!(
+        usage!(
             "--spot-bound-um {}: must be non-negative",
             args.spot_bound_um
         );
@@ -1661,13 +1703,28 @@ fn emit_line(s: &str) {
     emit(&format!("{s}\n"));
 }
 
+/// The exit code of an error: 2 for usage errors (a bad flag value, or a library argument error,
+/// which every command raises only for values given on the command line), else 1.
+fn exit_code(e: &anyhow::Error) -> u8 {
+    let usage = e.chain().any(|c| {
+        c.is::<Usage>()
+            || c.downcast_ref::<tolray::Error>()
+                .is_some_and(|t| t.kind == tolray::ErrorKind::Argument)
+    });
+    if usage {
+        2
+    } else {
+        1
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::from(1)
+            ExitCode::from(exit_code(&e))
         }
     }
 }

@@ -116,6 +116,9 @@ pub const TOLRAY_RAY_MISSED: u32 = 2 << 24;
 pub const TOLRAY_RAY_TIR: u32 = 3 << 24;
 /// Ray status kind: the input ray was invalid (non-finite, zero direction).
 pub const TOLRAY_RAY_INVALID: u32 = 4 << 24;
+/// Ray status kind: the surface lies behind the ray (reaching it would take travel against the
+/// ray's direction; accepted only after a negative gap, which asks for virtual propagation).
+pub const TOLRAY_RAY_BACKWARD: u32 = 5 << 24;
 /// Mask of the kind bits of a ray status.
 pub const TOLRAY_RAY_KIND_MASK: u32 = 0xff00_0000;
 /// Mask of the surface-index bits of a ray status.
@@ -489,6 +492,7 @@ pub unsafe extern "C" fn tolray_psf(
         }
         let rays = PsfRays::new(&s.nominal, &[(field, wavelength_nm)], &opts.pupil)?;
         let (img, _) = psf::psf_of(&s.sys, &rays, 0, &opts, TraceOptions::default());
+        psf::check_landed(&img, "tolray_psf")?;
         // SAFETY: `out` holds `out_len` == img.len() writable doubles.
         unsafe { std::ptr::copy_nonoverlapping(img.as_ptr(), out, img.len()) };
         Ok(())

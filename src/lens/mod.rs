@@ -237,6 +237,17 @@ impl Lens {
         self.surfaces.iter().position(|s| s.is_stop)
     }
 
+    /// True if surface `i` bends rays: every refracting surface, and a bare aperture that
+    /// separates two different media (a flat interface, as OpticStudio treats a stop surface
+    /// with a glass; it was once passed straight through, which changed the optics).
+    pub fn refracts(&self, i: usize) -> bool {
+        let s = &self.surfaces[i];
+        let before = i
+            .checked_sub(1)
+            .map_or(&Material::Air, |j| &self.surfaces[j].material);
+        s.role == SurfaceRole::Refractive || s.material != *before
+    }
+
     /// Axial vertex positions of every surface and, last, of the image plane, mm (first vertex at 0).
     pub fn vertex_z_mm(&self) -> Vec<f64> {
         let mut z = Vec::with_capacity(self.surfaces.len() + 1);
@@ -277,6 +288,18 @@ impl Lens {
             if !finite {
                 return Err(at("a number is not finite".into()));
             }
+            // Magnitudes past these give no lens but overflow in the tracer (NaN or inf spots):
+            // a radius under 1 µm, a conic beyond ±1e6, lengths beyond 1 km.
+            for (what, v, max) in [
+                ("curvature (1/mm)", s.c, 1e3),
+                ("conic constant", s.k, 1e6),
+                ("clear semi-aperture (mm)", s.semi_aperture_mm, 1e6),
+                ("gap to the next surface (mm)", s.d_next_mm, 1e6),
+            ] {
+                if v.abs() > max {
+                    return Err(at(format!("{what} {v} is beyond ±{max}")));
+                }
+            }
             if !(s.semi_aperture_mm > 0.0) {
                 return Err(at(format!(
                     "clear semi-aperture {} mm must be positive",
@@ -310,9 +333,30 @@ impl Lens {
         if !(self.primary_wavelength_nm > 0.0) {
             return Err(Error::invalid("primary wavelength must be positive"));
         }
+        self.check_indices(self.primary_wavelength_nm)?;
         if let Object::Finite { distance_mm } = self.object {
             if !(distance_mm > 0.0) || !distance_mm.is_finite() {
                 return Err(Error::invalid("object distance must be positive"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks that every medium has a finite refractive index of at least 1 (and at most 5) at
+    /// `wavelength_nm`: a model glass with an absurd Abbe number, or a catalog glass far outside
+    /// the range its formula was fitted on, otherwise gives NaN focal lengths and spots.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Invalid`] naming the surface, the material, the wavelength and the index.
+    pub fn check_indices(&self, wavelength_nm: f64) -> Result<()> {
+        for (i, s) in self.surfaces.iter().enumerate() {
+            let n = s.material.index(wavelength_nm);
+            if !(1.0..=5.0).contains(&n) {
+                return Err(Error::invalid(format!(
+                    "surface {i}: the medium after it ({}) has index {n} at {wavelength_nm} nm; \
+                     a usable index is finite and between 1 and 5",
+                    s.material.json_name()
+                )));
             }
         }
         Ok(())

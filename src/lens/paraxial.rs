@@ -1,6 +1,6 @@
 //! First-order (paraxial) optics by y-nu ray tracing.
 
-use super::{Lens, Object, SurfaceRole};
+use super::{Lens, Object};
 use crate::error::{Error, Result};
 use serde::Serialize;
 
@@ -55,7 +55,7 @@ fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
         let s = &lens.surfaces[i];
         heights[i] = y;
         let n0 = if i == 0 { 1.0 } else { n[i - 1] };
-        if s.role == SurfaceRole::Refractive {
+        if lens.refracts(i) {
             let power = (s.c + 2.0 * s.asph[0]) * (n[i] - n0);
             u = (n0 * u - y * power) / n[i];
         }
@@ -73,9 +73,12 @@ fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
 /// Paraxial analysis of `lens` at `wavelength_nm`.
 ///
 /// # Errors
-/// [`crate::ErrorKind::Numerical`] if the system is afocal or the stop's image is at infinity.
+/// [`crate::ErrorKind::Numerical`] if the system is afocal, the stop's image is at infinity, or
+/// a first-order quantity is not finite; [`crate::ErrorKind::Invalid`] for a lens that does not
+/// validate or a medium without a usable index at `wavelength_nm`.
 pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     lens.validate()?;
+    lens.check_indices(wavelength_nm)?;
     let n: Vec<f64> = lens
         .surfaces
         .iter()
@@ -139,6 +142,20 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             (1.0 / (2.0 * r.u_last.abs()), u0 / r.u_last)
         }
     };
+    for (what, v) in [
+        ("effective focal length", efl),
+        ("back focal distance", bfd),
+        ("image distance", image_distance),
+        ("entrance pupil position", enp_z),
+        ("entrance pupil diameter", enp_r),
+        ("working F-number", working_fnum),
+    ] {
+        if !v.is_finite() {
+            return Err(Error::numerical(format!(
+                "paraxial {what} is {v} at {wavelength_nm} nm: the lens has no finite first-order image"
+            )));
+        }
+    }
     Ok(Paraxial {
         wavelength_nm,
         efl_mm: efl,

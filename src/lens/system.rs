@@ -1,6 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
-use super::{Lens, Material, SurfaceRole, N_ASPH};
+use super::{Lens, Material, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
 use crate::real::Real;
 
@@ -80,6 +80,11 @@ pub struct SurfaceRow<S> {
     pub rot: Mat3<S>,
     /// Vertex position in the global frame, mm.
     pub pos: Vec3<S>,
+    /// True when the gap before this surface is negative: the lens asks for virtual propagation
+    /// (as Zemax allows negative thicknesses), so an intersection behind the ray is accepted.
+    /// Otherwise a ray that would have to travel backwards to reach the surface stops with
+    /// [`crate::trace::RayStatus::Backward`].
+    pub virtual_ok: bool,
 }
 
 /// A compiled lens: flat, immutable, in number type `S`.
@@ -91,6 +96,8 @@ pub struct System<S> {
     pub image: Rigid<S>,
     /// True if the image plane is rotated.
     pub image_rotated: bool,
+    /// True when the last gap is negative (a virtual image plane; see [`SurfaceRow::virtual_ok`]).
+    pub image_virtual: bool,
     /// Medium after each surface.
     pub materials: Vec<Material>,
     /// Lifted (n_d, V_d) of each model glass (None for other materials), so that indices carry
@@ -144,19 +151,24 @@ impl<S: Real> System<S> {
             for (j, a) in asph.iter_mut().enumerate() {
                 *a = lift(Param::Asphere(i, j), S::cst(s.asph[j]));
             }
-            let n_asph = s.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
+            // A coefficient being differentiated counts as in use even at zero, so that its
+            // derivative (the sag term it switches on) is not lost with the asphere routine.
+            let n_asph = asph
+                .iter()
+                .rposition(|a| a.value() != 0.0 || !a.is_constant())
+                .map_or(0, |j| j + 1);
             // Flat refracting surfaces use the quadric routine, which is exact at c = 0 and keeps
             // curvature derivatives; only bare apertures take the plane shortcut.
             let kind = if n_asph > 0 {
                 SurfaceKind::Asphere
-            } else if s.role == SurfaceRole::Aperture {
+            } else if !lens.refracts(i) {
                 SurfaceKind::Plane
             } else {
                 SurfaceKind::Quadric
             };
             rows.push(SurfaceRow {
                 kind,
-                refract: s.role == SurfaceRole::Refractive,
+                refract: lens.refracts(i),
                 c,
                 k1: S::cst(1.0) + k,
                 asph,
@@ -165,6 +177,7 @@ impl<S: Real> System<S> {
                 rotated: !is_identity(&rot),
                 rot: lift_c(rot),
                 pos,
+                virtual_ok: i > 0 && lens.surfaces[i - 1].d_next_mm < 0.0,
             });
             z += lift(Param::Gap(i), S::cst(s.d_next_mm));
         }
@@ -183,6 +196,7 @@ impl<S: Real> System<S> {
             rows,
             image,
             image_rotated: !is_identity(&m.rotation),
+            image_virtual: lens.surfaces.last().is_some_and(|s| s.d_next_mm < 0.0),
             materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
             model_glass: lens
                 .surfaces
@@ -239,6 +253,7 @@ impl<S: Real> System<S> {
                     rotated: r.rotated,
                     rot: m3(&r.rot),
                     pos: r.pos.map_value(),
+                    virtual_ok: r.virtual_ok,
                 })
                 .collect(),
             image: Rigid {
@@ -246,6 +261,7 @@ impl<S: Real> System<S> {
                 translation: self.image.translation.map_value(),
             },
             image_rotated: self.image_rotated,
+            image_virtual: self.image_virtual,
             materials: self.materials.clone(),
             model_glass: self
                 .model_glass

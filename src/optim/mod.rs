@@ -220,11 +220,26 @@ pub struct SpotLoss {
     pub measure: SpotMeasure,
 }
 
+/// Spot-loss value of a bundle none of whose rays reaches the image, mm: far larger than any spot
+/// a design is trained to, so that losing a whole bundle is never rewarded (an empty bundle has
+/// no spot size, and counting it as 0 made the loss prefer lenses that lose their rays).
+pub const EMPTY_BUNDLE_PENALTY_MM: f64 = 10.0;
+
+/// The spot term of one bundle in a loss: its spot size, or [`EMPTY_BUNDLE_PENALTY_MM`] when no
+/// ray arrives.
+pub fn bundle_spot<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
+    if pts.is_empty() {
+        S::cst(EMPTY_BUNDLE_PENALTY_MM)
+    } else {
+        spot_size(pts, measure)
+    }
+}
+
 impl Objective for SpotLoss {
     fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
         let mut total = S::cst(0.0);
         for k in 0..self.bundles.sets.len() {
-            total += spot_size(&self.bundles.sensor_points(sys, k), self.measure);
+            total += bundle_spot(&self.bundles.sensor_points(sys, k), self.measure);
         }
         total
     }

@@ -5,7 +5,8 @@
 
 use super::adam::{cosine_schedule, Adam};
 use super::{
-    gradient, param_value, set_param, spot_size, Bundles, Objective, SpotMeasure, GRAD_WIDTH,
+    bundle_spot, gradient, param_value, set_param, spot_size, Bundles, Objective, SpotMeasure,
+    GRAD_WIDTH,
 };
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, SurfaceRole, System};
@@ -145,6 +146,73 @@ impl TrainConfig {
     }
 }
 
+impl TrainConfig {
+    /// Checks every setting a user can give: positive finite learning rates and weights,
+    /// non-negative finite loss weights, sizes within what a run can afford, and a positive
+    /// finite track or focal length where set.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] naming the setting and its value.
+    pub fn validate(&self) -> Result<()> {
+        let bad =
+            |what: &str, v: f64, need: &str| Err(Error::argument(format!("{what} {v}: {need}")));
+        for (what, v) in [
+            ("lr_curvature", self.lr_curvature),
+            ("lr_gap", self.lr_gap),
+            ("lr_image", self.lr_image),
+            ("tolerance_lr_scale", self.tolerance_lr_scale),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(what, v, "must be positive and finite");
+            }
+        }
+        for (what, v) in [
+            ("lambda_spot", self.lambda_spot),
+            ("lambda_psf", self.lambda_psf),
+            ("constraint weight", self.constraints.weight),
+            ("EFL weight", self.constraints.efl_weight),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return bad(what, v, "must be zero or positive, and finite");
+            }
+        }
+        for (what, v) in [
+            ("max_total_track_mm", self.constraints.max_total_track_mm),
+            ("target_efl_mm", self.constraints.target_efl_mm),
+        ] {
+            if let Some(v) = v {
+                if !(v > 0.0 && v.is_finite()) {
+                    return bad(what, v, "must be positive and finite (mm)");
+                }
+            }
+        }
+        for (what, v, lo, hi) in [
+            ("samples", self.samples, 1, 4096),
+            ("spot_grid", self.spot_grid, 1, 256),
+            ("psf_grid", self.psf_grid, 1, 64),
+            ("psf_spp", self.psf_spp, 1, 1 << 20),
+            ("pretrain_iters", self.pretrain_iters, 0, 10_000_000),
+            ("tolerance_iters", self.tolerance_iters, 0, 10_000_000),
+        ] {
+            if v < lo || v > hi {
+                return bad(what, v as f64, &format!("give {lo} to {hi}"));
+            }
+        }
+        if self.psf_ks < 3 || self.psf_ks % 2 == 0 || self.psf_ks > 255 {
+            return bad("psf_ks", self.psf_ks as f64, "must be odd, 3 to 255");
+        }
+        if self.fields.is_empty() || self.wavelengths_nm.is_empty() {
+            return Err(Error::argument(
+                "training needs at least one field and one wavelength",
+            ));
+        }
+        for &w in &self.wavelengths_nm {
+            crate::lens::material::check_wavelength_nm(w)?;
+        }
+        Ok(())
+    }
+}
+
 /// The design variables of a lens: every refracting surface's curvature and every gap (the last
 /// is the image distance); the stop's size and the glasses stay fixed.
 pub fn design_variables(lens: &Lens) -> Vec<Param> {
@@ -222,7 +290,7 @@ impl Objective for PretrainObjective<'_> {
     fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
         let mut total = S::cst(0.0);
         for k in 0..self.bundles.sets.len() {
-            total += spot_size(&self.bundles.sensor_points(sys, k), SpotMeasure::Rms);
+            total += bundle_spot(&self.bundles.sensor_points(sys, k), SpotMeasure::Rms);
         }
         total * S::cst(1.0 / self.bundles.sets.len() as f64)
             + penalties(self.lens, sys, self.constraints)
@@ -245,7 +313,7 @@ impl Objective for PatternObjective<'_> {
         };
         let mut spot = S::cst(0.0);
         for k in 0..self.spot.sets.len() {
-            spot += spot_size(&self.spot.sensor_points(sys, k), SpotMeasure::Mean);
+            spot += bundle_spot(&self.spot.sensor_points(sys, k), SpotMeasure::Mean);
         }
         let mut sim = S::cst(0.0);
         for k in 0..self.psf_rays.sets.len() {
@@ -332,7 +400,7 @@ fn learning_rates(lens: &Lens, vars: &[Param], cfg: &TrainConfig) -> Vec<f64> {
 
 /// Projects the variables back into their bounds: gaps above their minimum, curvatures inside
 /// the rim of their clear aperture.
-fn project(lens: &mut Lens, c: &Constraints) {
+pub(crate) fn project(lens: &mut Lens, c: &Constraints) {
     let n = lens.surfaces.len();
     for i in 0..n {
         let s = &mut lens.surfaces[i];

@@ -143,6 +143,10 @@ impl<T: Real, const N: usize> Real for Dual<T, N> {
         self.re.value()
     }
     #[inline(always)]
+    fn is_constant(self) -> bool {
+        self.re.is_constant() && self.eps.iter().all(|e| e.is_zero() && e.is_constant())
+    }
+    #[inline(always)]
     fn sqrt(self) -> Self {
         let s = self.re.sqrt();
         self.chain(s, T::cst(0.5) / s)

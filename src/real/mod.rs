@@ -80,6 +80,13 @@ pub trait Real:
     fn is_zero(self) -> bool {
         self.value() == 0.0
     }
+    /// True when no derivative part is carried (always for plain floats). The compiled lens uses it
+    /// so that a surface whose coefficient is being differentiated keeps the routine that coefficient
+    /// enters, even while its value is zero.
+    #[inline(always)]
+    fn is_constant(self) -> bool {
+        true
+    }
     /// Machine epsilon of the value type.
     const EPSILON: f64;
     /// Short type name for reports and benchmark labels.

@@ -24,7 +24,7 @@
 //! Each surface is applied to a group of blocks before the next surface, which amortizes the
 //! per-surface setup (about 7% faster than block by block).
 
-use super::{Block, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
+use super::{Block, CODE_BACKWARD, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
 use crate::lens::{SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::real::Real;
@@ -187,6 +187,14 @@ fn commit<S: Real>(
     dst.opl[l] = s(src.opl[l] + dopl, src.opl[l]);
 }
 
+/// True when the intersection at parameter `t` lies behind a ray at `p` (surface frame) by more
+/// than rounding: a ray starting on the surface (t = 0 up to rounding) is not behind it.
+#[inline(always)]
+pub(crate) fn behind<S: Real>(t: S, p: Vec3<S>) -> bool {
+    let tol = S::cst(64.0 * S::EPSILON) * (S::cst(1.0) + p.x.abs() + p.y.abs() + p.z.abs());
+    t.lt(-tol)
+}
+
 #[inline(always)]
 fn zero_lt<S: Real>(x: S) -> bool {
     S::cst(0.0).lt(x)
@@ -300,6 +308,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
                 d = row.rot.apply_t(d);
             }
             let (t, hit, nrm) = intersect::<S, KIND>(row, p, d);
+            let backward = !row.virtual_ok & behind(t, p);
             let h = p + d * t;
             let vignetted = CLIP & row.ap2.lt(h.x * h.x + h.y * h.y);
             // Refraction (vector Snell). The normal is flipped to face the incoming ray.
@@ -324,9 +333,10 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             } else {
                 (h + row.pos, dr)
             };
-            // The first failure in the order missed, vignetted, TIR; 0 if the ray goes on.
+            // The first failure in the order missed, backward, vignetted, TIR; 0 if the ray goes on.
             let mut why = select_u32(tir, CODE_TIR | code, 0);
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
+            why = select_u32(backward, CODE_BACKWARD | code, why);
             why = select_u32(!hit, CODE_MISSED | code, why);
             commit(s, b, l, why, og, dg, n1 * t);
         }
@@ -354,13 +364,15 @@ fn image_lanes<S: Real, const ROT: bool>(
             }
             let hit = !d.z.is_zero();
             let t = -p.z / S::pick(hit, d.z, S::cst(1.0));
+            let backward = !sys.image_virtual & behind(t, p);
             let h = p + d * t;
             let og = if ROT {
                 img.rotation.apply(h) + img.translation
             } else {
                 h + img.translation
             };
-            let why = select_u32(hit, 0, CODE_MISSED | code);
+            let why = select_u32(backward, CODE_BACKWARD | code, 0);
+            let why = select_u32(hit, why, CODE_MISSED | code);
             commit(s, b, l, why, og, d0, n_last * t);
         }
     }

@@ -38,12 +38,18 @@ pub enum RayStatus {
     Tir(u32),
     /// The input ray was invalid (non-finite numbers or a zero direction).
     Invalid,
+    /// The surface lies behind the ray: reaching it would take travel against the ray's
+    /// direction, which is refused unless the gap before the surface is negative (a lens that
+    /// asks for virtual propagation). A ray launched away from the lens, or starting behind a
+    /// surface, stops here instead of landing where the forward ray would.
+    Backward(u32),
 }
 
 pub(crate) const CODE_VIGNETTED: u32 = 1 << 24;
 pub(crate) const CODE_MISSED: u32 = 2 << 24;
 pub(crate) const CODE_TIR: u32 = 3 << 24;
 pub(crate) const CODE_INVALID: u32 = 4 << 24;
+pub(crate) const CODE_BACKWARD: u32 = 5 << 24;
 
 impl RayStatus {
     /// Decodes the packed status stored in a batch.
@@ -54,6 +60,7 @@ impl RayStatus {
             CODE_VIGNETTED => RayStatus::Vignetted(s),
             CODE_MISSED => RayStatus::Missed(s),
             CODE_TIR => RayStatus::Tir(s),
+            CODE_BACKWARD => RayStatus::Backward(s),
             _ => RayStatus::Invalid,
         }
     }
@@ -65,6 +72,7 @@ impl RayStatus {
             RayStatus::Missed(s) => CODE_MISSED | s,
             RayStatus::Tir(s) => CODE_TIR | s,
             RayStatus::Invalid => CODE_INVALID,
+            RayStatus::Backward(s) => CODE_BACKWARD | s,
         }
     }
     /// True if the ray reached the image plane.
@@ -81,6 +89,7 @@ impl std::fmt::Display for RayStatus {
             RayStatus::Missed(s) => write!(f, "missed@{s}"),
             RayStatus::Tir(s) => write!(f, "tir@{s}"),
             RayStatus::Invalid => write!(f, "invalid"),
+            RayStatus::Backward(s) => write!(f, "backward@{s}"),
         }
     }
 }

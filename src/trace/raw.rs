@@ -52,7 +52,9 @@ pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Vec<
     let mut out: Vec<Option<RawHit>> = vec![None; rays.len()];
     let mut wavelengths: Vec<f64> = rays.iter().map(|r| r.wavelength_nm).collect();
     wavelengths.sort_by(f64::total_cmp);
-    wavelengths.dedup();
+    // Grouped by the same relation that selects each group's rays below (0.0 and -0.0 differ
+    // under total_cmp), so every input ray is traced and reported exactly once.
+    wavelengths.dedup_by(|a, b| a.total_cmp(b).is_eq());
     for wl in wavelengths {
         let idx: Vec<usize> = (0..rays.len())
             .filter(|&i| rays[i].wavelength_nm.total_cmp(&wl).is_eq())

@@ -103,6 +103,9 @@ pub fn trace_ray(
         let Some((t, dz)) = intersect_local(row, p, dl) else {
             return fail(RayStatus::Missed(i as u32));
         };
+        if !row.virtual_ok && crate::trace::kernel::behind(t, p) {
+            return fail(RayStatus::Backward(i as u32));
+        }
         let h = p + dl * t;
         if clip && h.x * h.x + h.y * h.y > row.ap2 {
             return fail(RayStatus::Vignetted(i as u32));
@@ -140,6 +143,14 @@ pub fn trace_ray(
         };
     }
     let t = -p.z / dl.z;
+    if !sys.image_virtual && crate::trace::kernel::behind(t, p) {
+        return RefRay {
+            o,
+            d,
+            opl,
+            status: RayStatus::Backward(sys.rows.len() as u32),
+        };
+    }
     opl += n.last().copied().unwrap_or(1.0) * t;
     RefRay {
         o: sys.image.point_to_global(p + dl * t),
