@@ -338,15 +338,38 @@ pub fn psf_figure(tiles: &[Vec<f64>], ks: usize, cols: usize, title: &str) -> Ca
 /// # Errors
 /// [`crate::ErrorKind::Io`] naming the path.
 pub fn save_exr(path: &Path, width: usize, height: usize, values: &[f64]) -> Result<()> {
+    write_exr(path, width, height, |i| {
+        let v = values.get(i).copied().unwrap_or(0.0) as f32;
+        (v, v, v)
+    })
+}
+
+/// Writes planar linear RGB (`3 · width · height` values, channel-major) as a 32-bit float
+/// OpenEXR file, atomically.
+///
+/// # Errors
+/// [`crate::ErrorKind::Io`] naming the path.
+pub fn save_exr_rgb(path: &Path, width: usize, height: usize, planar: &[f32]) -> Result<()> {
+    let n = width * height;
+    write_exr(path, width, height, |i| {
+        let g = |c: usize| planar.get(c * n + i).copied().unwrap_or(0.0);
+        (g(0), g(1), g(2))
+    })
+}
+
+/// Writes an RGB EXR whose pixel `i` (row-major) is `rgb(i)`, through a temporary file.
+fn write_exr(
+    path: &Path,
+    width: usize,
+    height: usize,
+    rgb: impl Fn(usize) -> (f32, f32, f32) + Sync,
+) -> Result<()> {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}.{}.tmp.exr", std::process::id()));
-    let r = exr::prelude::write_rgb_file(&tmp, width, height, |x, y| {
-        let v = values.get(y * width + x).copied().unwrap_or(0.0) as f32;
-        (v, v, v)
-    });
+    let r = exr::prelude::write_rgb_file(&tmp, width, height, |x, y| rgb(y * width + x));
     let r = r
         .map_err(|e| std::io::Error::other(e.to_string()))
         .and_then(|_| std::fs::rename(&tmp, path));

@@ -17,11 +17,14 @@
 #![warn(missing_docs)]
 
 pub mod analysis;
+pub mod decoder;
+pub mod deep;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod error;
 pub mod ffi;
 pub mod figures;
+pub mod image;
 pub mod lens;
 pub mod math;
 pub mod optim;

@@ -17,6 +17,9 @@ use tolray::trace::raw::{parse_csv, parse_json, to_csv, trace_raw};
 use tolray::trace::{Field, Pupil, TraceOptions};
 use tolray::{figures, Lens, Object};
 
+#[path = "tolray/deep.rs"]
+mod deep;
+
 /// A bad flag value: exit code 2, as for what clap refuses.
 #[derive(Debug)]
 struct Usage(String);
@@ -30,9 +33,10 @@ impl std::fmt::Display for Usage {
 impl std::error::Error for Usage {}
 
 /// Returns a usage error (exit code 2) with a formatted message.
+#[macro_export]
 macro_rules! usage {
     ($($t:tt)*) => {
-        return Err(anyhow::Error::new(Usage(format!($($t)*))))
+        return Err(anyhow::Error::new($crate::Usage(format!($($t)*))))
     };
 }
 
@@ -285,11 +289,28 @@ enum Command {
         args: ValidateArgs,
     },
     /// The main job on built-in defaults: info, spots and pictures for every built-in lens.
+    /// The main job: the deep-optics study on lens1 with the built-in defaults (`deep lens1`),
+    /// or with --optics the tour of the optics half (paraxial data, spots, Monte Carlo).
     Demo {
         /// Output directory for the pictures and JSON reports.
         #[arg(long, default_value = "out")]
         out: PathBuf,
+        /// Run the optics tour instead of the deep-optics study.
+        #[arg(long)]
+        optics: bool,
+        /// Any further `deep` flags, after `--` (e.g. `-- --trials 20`).
+        #[arg(last = true)]
+        extra: Vec<String>,
     },
+    /// Deep optics: lens and decoder trained jointly, conventionally and tolerance-aware, and
+    /// evaluated over random fabricated units (PSNR/SSIM, manufacturing yield).
+    Deep(deep::DeepArgs),
+    /// Evaluates saved designs (lens + decoder) over random fabricated units.
+    Evaluate(deep::EvaluateArgs),
+    /// Combines `evaluate --shard` reports into the single-run report.
+    MergeEval(deep::MergeEvalArgs),
+    /// Simulates a capture: an image blurred by the lens' spatially variant RGB PSF map, plus noise.
+    Render(deep::RenderArgs),
 }
 
 #[derive(Args)]
@@ -1072,7 +1093,25 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             )?;
         }
         Command::Validate { lens, args } => validate(&lens, &args)?,
-        Command::Demo { out } => demo(&out)?,
+        Command::Demo {
+            out, optics: true, ..
+        } => demo(&out)?,
+        Command::Demo { out, extra, .. } => {
+            #[derive(Parser)]
+            struct DemoArgs {
+                #[command(flatten)]
+                a: deep::DeepArgs,
+            }
+            let out_s = out.to_string_lossy().into_owned();
+            let mut argv = vec!["demo", "lens1", "--out", out_s.as_str()];
+            argv.extend(extra.iter().map(String::as_str));
+            let d = DemoArgs::try_parse_from(argv)?;
+            deep::deep(&d.a)?
+        }
+        Command::Deep(a) => deep::deep(&a)?,
+        Command::Evaluate(a) => deep::evaluate_cmd(&a)?,
+        Command::MergeEval(a) => deep::merge_eval(&a)?,
+        Command::Render(a) => deep::render_cmd(&a)?,
         Command::Convert {
             input,
             output,

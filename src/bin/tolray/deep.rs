@@ -1,0 +1,457 @@
+//! The deep-optics commands: `deep` (the study), `evaluate`, `render`.
+
+use crate::{emit_line, usage, write_text};
+use anyhow::Context;
+use clap::Args;
+use std::path::{Path, PathBuf};
+use tolray::decoder::DecoderKind;
+use tolray::deep::eval::{evaluate, example_images, report, EvalConfig, EvalImages, Report};
+use tolray::deep::html::{render as render_html, Examples};
+use tolray::deep::study::{self, StudyConfig};
+use tolray::deep::{psf_options, rgb_psf_map, DeepConfig, DeepLog};
+use tolray::image::render::{add_gaussian_noise, render_map, PsfMap};
+use tolray::image::Image;
+use tolray::tolerance::{Perturbation, ToleranceSpec};
+use tolray::Lens;
+
+/// Settings of the evaluation, shared by `deep` and `evaluate`.
+#[derive(Args, Clone)]
+pub struct EvalArgs {
+    /// Random fabricated units (tolerance patterns) per design.
+    #[arg(long, default_value_t = 100)]
+    pub trials: usize,
+    /// Seed of the evaluation patterns (training uses another).
+    #[arg(long, default_value_t = 1_000_003)]
+    pub eval_seed: u64,
+    /// Rays per PSF of the evaluation PSF maps.
+    #[arg(long, default_value_t = 8192)]
+    pub eval_spp: usize,
+    /// Block side per PSF tile of the evaluation images, pixels (images are 8 x this).
+    #[arg(long, default_value_t = 48)]
+    pub patch: usize,
+    /// Built-in photographs in the evaluation set besides the dead-leaves image (0 to 4).
+    #[arg(long, default_value_t = 2)]
+    pub photos: usize,
+    /// Evaluate on the PNG/JPEG images of this folder instead (centre crops).
+    #[arg(long, value_name = "DIR")]
+    pub eval_images: Option<PathBuf>,
+    /// Refocus each fabricated unit to its best RMS focus (the assembly's compensator).
+    #[arg(long, value_name = "focus", value_parser = ["focus"])]
+    pub compensate: Option<String>,
+    /// Tolerance spec (default: the paper's Table A1).
+    #[arg(long, value_name = "SPEC.json")]
+    pub spec: Option<PathBuf>,
+}
+
+impl EvalArgs {
+    fn config(
+        &self,
+        lens: &Lens,
+        noise: f64,
+        grid: usize,
+        ks: usize,
+    ) -> anyhow::Result<(EvalConfig, EvalImages)> {
+        if self.trials == 0 || self.trials > 100_000 {
+            usage!("--trials {}: give 1 to 100000", self.trials);
+        }
+        if self.patch == 0 || self.patch % 8 != 0 || self.patch > 256 {
+            usage!("--patch {}: give a multiple of 8 up to 256", self.patch);
+        }
+        if self.photos > 4 {
+            usage!("--photos {}: there are 4 built-in photographs", self.photos);
+        }
+        let spec = match &self.spec {
+            Some(p) => ToleranceSpec::read(p)?,
+            None => ToleranceSpec::default(),
+        };
+        spec.validate(lens)?;
+        let cfg = EvalConfig {
+            trials: self.trials,
+            seed: self.eval_seed,
+            spec,
+            grid,
+            ks,
+            spp: self.eval_spp,
+            noise_sigma: noise,
+            patch_px: self.patch,
+            compensate_focus: self.compensate.is_some(),
+            bootstrap: 2000,
+        };
+        let side = grid * self.patch;
+        let images = match &self.eval_images {
+            Some(d) => EvalImages::from_dir(d, side)?,
+            None => EvalImages::builtin(side, self.photos, self.eval_seed)?,
+        };
+        Ok((cfg, images))
+    }
+}
+
+/// `tolray deep`: the study.
+#[derive(Args)]
+pub struct DeepArgs {
+    /// Lens JSON file or built-in name.
+    pub lens: String,
+    /// Output directory: designs, logs, report.json, report.html.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Iterations of the spot-loss focus fit (stage 0).
+    #[arg(long, default_value_t = 300)]
+    pub spot_iters: usize,
+    /// Iterations of stage 1 (lens and decoder, no tolerances).
+    #[arg(long, default_value_t = 200)]
+    pub stage1_iters: usize,
+    /// Iterations of each design's stage 2 (tolerance-aware; the conventional design trains as
+    /// long without tolerances).
+    #[arg(long, default_value_t = 100)]
+    pub stage2_iters: usize,
+    /// Training crops (and tolerance patterns) per iteration (the paper: 64).
+    #[arg(long, default_value_t = 32)]
+    pub samples: usize,
+    /// Side of the training crops, pixels (the paper: 256).
+    #[arg(long, default_value_t = 32)]
+    pub crop: usize,
+    /// Decoder: wiener, unet or wiener+unet.
+    #[arg(long, default_value = "wiener+unet")]
+    pub decoder: String,
+    /// U-Net width (channels of its first level).
+    #[arg(long, default_value_t = 8)]
+    pub unet_width: usize,
+    /// Rays per PSF during training.
+    #[arg(long, default_value_t = 256)]
+    pub psf_spp: usize,
+    /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01).
+    #[arg(long, default_value_t = 0.01)]
+    pub noise: f64,
+    /// Weight of the spot loss in the image stages (per mm).
+    #[arg(long, default_value_t = 0.1)]
+    pub lambda_spot: f64,
+    /// Weight of the PSF-similarity loss in stage 2.
+    #[arg(long, default_value_t = 0.01)]
+    pub lambda_psf: f64,
+    /// Skip the decoder-only control.
+    #[arg(long)]
+    pub no_decoder_only: bool,
+    /// Training seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub eval: EvalArgs,
+}
+
+pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
+    let lens = Lens::load(&a.lens)?;
+    let mut d = DeepConfig::for_lens(&lens);
+    d.optics.samples = a.samples;
+    d.optics.seed = a.seed;
+    d.optics.psf_spp = a.psf_spp;
+    d.crop_px = a.crop;
+    d.decoder = DecoderKind::parse(&a.decoder)?;
+    d.unet_width = a.unet_width;
+    d.noise_sigma = a.noise;
+    d.lambda_spot = a.lambda_spot;
+    d.lambda_psf = a.lambda_psf;
+    if let Some(p) = &a.eval.spec {
+        d.optics.spec = ToleranceSpec::read(p)?;
+    }
+    d.validate()?;
+    let (eval, images) = a
+        .eval
+        .config(&lens, a.noise, d.optics.psf_grid, d.optics.psf_ks)?;
+    let cfg = StudyConfig {
+        deep: d,
+        spot_iters: a.spot_iters,
+        stage1_iters: a.stage1_iters,
+        stage2_iters: a.stage2_iters,
+        decoder_only: !a.no_decoder_only,
+        eval,
+    };
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("{}: cannot create directory", a.out.display()))?;
+    write_text(
+        &a.out.join("study.json"),
+        &(serde_json::to_string_pretty(&cfg)? + "\n"),
+    )?;
+    let t0 = std::time::Instant::now();
+    let mut last = std::time::Instant::now();
+    let mut progress = |branch: &str, l: &DeepLog| {
+        if last.elapsed().as_secs_f64() > 5.0 || l.iter % 50 == 0 {
+            last = std::time::Instant::now();
+            eprintln!(
+                "[{:6.0} s] {branch:16} iter {:4}: image loss {:.3e}, batch PSNR {:.2} dB, spot {:.1} µm{}",
+                t0.elapsed().as_secs_f64(),
+                l.iter,
+                l.image_loss,
+                l.psnr_db,
+                l.spot_um,
+                l.psf_similarity
+                    .map_or(String::new(), |s| format!(", PSF similarity {s:.3}"))
+            );
+        }
+    };
+    let report = study::run(&lens, &cfg, &images, &a.out, &mut progress)?;
+    eprintln!("[{:6.0} s] evaluated", t0.elapsed().as_secs_f64());
+    finish(
+        &report,
+        &a.out,
+        &images,
+        &a.out.join("report.json"),
+        &a.out.join("report.html"),
+    )?;
+    Ok(())
+}
+
+/// `tolray evaluate`.
+#[derive(Args)]
+pub struct EvaluateArgs {
+    /// Design directories (each with lens.json and decoder.bin, as `deep` writes them).
+    #[arg(required = true)]
+    pub designs: Vec<PathBuf>,
+    /// Gaussian noise σ (linear [0, 1] units).
+    #[arg(long, default_value_t = 0.01)]
+    pub noise: f64,
+    /// Run only slice K of N of the trials (e.g. 0/4); `merge-eval` combines the slices.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<String>,
+    /// Output report.
+    #[arg(long, value_name = "FILE.json")]
+    pub json: PathBuf,
+    /// Output HTML report.
+    #[arg(long, value_name = "FILE.html")]
+    pub html: Option<PathBuf>,
+    #[command(flatten)]
+    pub eval: EvalArgs,
+}
+
+fn design_name(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
+/// Parses `K/N` into the trial range of slice K of N (the Monte Carlo's slicing).
+fn shard_range(s: &str, trials: usize) -> anyhow::Result<std::ops::Range<usize>> {
+    let kn = s.split_once('/').and_then(|(k, n)| {
+        Some((
+            k.trim().parse::<usize>().ok()?,
+            n.trim().parse::<usize>().ok()?,
+        ))
+    });
+    match kn {
+        Some((k, n)) if n > 0 && k < n => Ok(k * trials / n..(k + 1) * trials / n),
+        _ => usage!("--shard {s}: give K/N with 0 <= K < N"),
+    }
+}
+
+pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
+    let designs: Vec<_> = a
+        .designs
+        .iter()
+        .map(|p| Ok((design_name(p), study::load_design(p)?)))
+        .collect::<anyhow::Result<_>>()?;
+    let d0 = &designs[0].1;
+    let (cfg, images) = a
+        .eval
+        .config(&d0.lens, a.noise, d0.decoder.grid, d0.decoder.ks)?;
+    let range = match &a.shard {
+        None => 0..cfg.trials,
+        Some(s) => shard_range(s, cfg.trials)?,
+    };
+    let mut scores = Vec::new();
+    for (name, d) in &designs {
+        eprintln!("evaluating {name} on {} units", range.len());
+        scores.push(evaluate(name, d, &images, &cfg, range.clone())?);
+    }
+    let names: Vec<String> = designs.iter().map(|d| d.0.clone()).collect();
+    let pairs: Vec<(String, String)> = names
+        .iter()
+        .skip(1)
+        .map(|b| (names[0].clone(), b.clone()))
+        .collect();
+    let img_names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
+    let r = report(&cfg, &img_names, scores, &pairs)?;
+    let html = match &a.html {
+        Some(h) => Some((h.clone(), designs)),
+        None => None,
+    };
+    print_report(&r);
+    write_text(&a.json, &(serde_json::to_string_pretty(&r)? + "\n"))?;
+    eprintln!("wrote {}", a.json.display());
+    if let Some((path, designs)) = html {
+        let examples = examples(&r, &images, &designs)?;
+        write_text(&path, &render_html(&r, &examples))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// `tolray merge-eval`: combines evaluation shards into the single-run report.
+#[derive(Args)]
+pub struct MergeEvalArgs {
+    /// Shard reports (`evaluate --shard K/N --json ...`).
+    #[arg(required = true)]
+    pub parts: Vec<PathBuf>,
+    /// Output report.
+    #[arg(long, value_name = "FILE.json")]
+    pub json: PathBuf,
+}
+
+pub fn merge_eval(a: &MergeEvalArgs) -> anyhow::Result<()> {
+    let parts: Vec<Report> = a
+        .parts
+        .iter()
+        .map(|p| Ok(tolray::error::read_json(p)?))
+        .collect::<anyhow::Result<_>>()?;
+    let r = tolray::deep::eval::merge(&parts)?;
+    print_report(&r);
+    write_text(&a.json, &(serde_json::to_string_pretty(&r)? + "\n"))?;
+    eprintln!("wrote {}", a.json.display());
+    Ok(())
+}
+
+/// The best, median and worst unit of each design, rendered again for the HTML report.
+fn examples(
+    r: &Report,
+    images: &EvalImages,
+    designs: &[(String, tolray::deep::Design)],
+) -> anyhow::Result<Examples> {
+    let mut out = Vec::new();
+    for s in &r.scores {
+        let Some((_, d)) = designs.iter().find(|(n, _)| *n == s.name) else {
+            continue;
+        };
+        let mut order: Vec<&tolray::deep::eval::TrialScore> = s.trials.iter().collect();
+        order.sort_by(|a, b| b.psnr.total_cmp(&a.psnr));
+        let mut list = Vec::new();
+        if let (Some(best), Some(worst)) = (order.first(), order.last()) {
+            let median = order[order.len() / 2];
+            for (label, t) in [("best", *best), ("median", median), ("worst", *worst)] {
+                let imgs = example_images(d, images, &r.config, Some(t.index))?;
+                if let Some(first) = imgs.into_iter().next() {
+                    list.push((format!("{label} unit (pattern {})", t.index), t.psnr, first));
+                }
+            }
+        }
+        out.push((s.name.clone(), list));
+    }
+    Ok(out)
+}
+
+fn print_report(r: &Report) {
+    emit_line(&format!(
+        "{:<18} {:>8} {:>14} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8}",
+        "design", "spot µm", "PSNR dB", "SSIM", "PSF sim", "@90%", "@70%", "@50%", "@10%"
+    ));
+    for d in &r.designs {
+        let y = &d.psnr.yield_table;
+        emit_line(&format!(
+            "{:<18} {:>8.2} {:>8.2} ± {:<4.2} {:>7.4} {:>7.3} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
+            d.name,
+            d.rms_spot_um.mean,
+            d.psnr.mean,
+            d.psnr.std,
+            d.ssim.mean,
+            d.psf_similarity.mean,
+            y.y90,
+            y.y70,
+            y.y50,
+            y.y10
+        ));
+    }
+    for p in &r.pairs {
+        emit_line(&format!(
+            "{} − {}: mean PSNR {:+.3} dB [{:+.3}, {:+.3}], PSNR @90 % {:+.3} dB [{:+.3}, {:+.3}] (bootstrap 95 %)",
+            p.a, p.b, p.psnr_mean_diff, p.psnr_mean_diff_ci95[0], p.psnr_mean_diff_ci95[1],
+            p.psnr_yield90_diff, p.psnr_yield90_diff_ci95[0], p.psnr_yield90_diff_ci95[1]
+        ));
+    }
+}
+
+/// Writes the report (JSON and HTML with the examples of the study's designs in `dir`).
+fn finish(
+    r: &Report,
+    dir: &Path,
+    images: &EvalImages,
+    json: &Path,
+    html: &Path,
+) -> anyhow::Result<()> {
+    print_report(r);
+    write_text(json, &(serde_json::to_string_pretty(r)? + "\n"))?;
+    let designs: Vec<_> = r
+        .scores
+        .iter()
+        .map(|s| Ok((s.name.clone(), study::load_design(&dir.join(&s.name))?)))
+        .collect::<anyhow::Result<_>>()?;
+    write_text(html, &render_html(r, &examples(r, images, &designs)?))?;
+    eprintln!("wrote {} and {}", json.display(), html.display());
+    Ok(())
+}
+
+/// `tolray render`: a capture simulated through a lens' RGB PSF map.
+#[derive(Args)]
+pub struct RenderArgs {
+    /// Lens JSON file or built-in name.
+    pub lens: String,
+    /// Input image (PNG or JPEG, sRGB).
+    #[arg(long, value_name = "IN.png")]
+    pub image: PathBuf,
+    /// Output capture (PNG, sRGB).
+    #[arg(long, value_name = "OUT.png")]
+    pub out: PathBuf,
+    /// Also write the linear capture as OpenEXR.
+    #[arg(long, value_name = "OUT.exr")]
+    pub exr: Option<PathBuf>,
+    /// Trace the lens perturbed by this tolerance pattern.
+    #[arg(long, value_name = "PATTERN.json")]
+    pub perturb: Option<PathBuf>,
+    /// Gaussian noise σ (linear [0, 1] units).
+    #[arg(long, default_value_t = 0.01)]
+    pub noise: f64,
+    /// PSF grid per side.
+    #[arg(long, default_value_t = 8)]
+    pub grid: usize,
+    /// PSF kernel size, pixels (odd).
+    #[arg(long, default_value_t = 51)]
+    pub ks: usize,
+    /// Rays per PSF.
+    #[arg(long, default_value_t = 8192)]
+    pub spp: usize,
+    /// Seed of the rays and the noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+pub fn render_cmd(a: &RenderArgs) -> anyhow::Result<()> {
+    if !(a.noise >= 0.0 && a.noise.is_finite()) {
+        usage!("--noise {}: must be zero or positive", a.noise);
+    }
+    if a.grid == 0 || a.grid > 64 {
+        usage!("--grid {}: give 1 to 64", a.grid);
+    }
+    let lens = Lens::load(&a.lens)?;
+    let img = Image::load(&a.image)?;
+    let sys = match &a.perturb {
+        None => lens.compile(),
+        Some(p) => {
+            let (pl, adj) = Perturbation::read(p)?.apply(&lens)?;
+            tolray::lens::System::compile(&pl, &adj, &|_, v| v)
+        }
+    };
+    let opts = psf_options(&lens, a.ks, a.spp, a.seed);
+    tolray::psf::check_options(&opts)?;
+    let psfs = rgb_psf_map(&lens, &sys, a.grid, &lens.rgb_wavelengths_nm, &opts)?;
+    let map = PsfMap::new(a.grid, a.ks, psfs)?;
+    let mut y = render_map(&img, &map)?;
+    add_gaussian_noise(&mut y.data, a.noise as f32, a.seed, 0);
+    y.save_png(&a.out)?;
+    emit_line(&format!(
+        "rendered {} ({}x{} px) through {} with a {g}x{g} RGB PSF map of {k}x{k} px kernels, noise σ {}",
+        a.image.display(), img.width, img.height, a.lens, a.noise, g = a.grid, k = a.ks
+    ));
+    eprintln!("wrote {}", a.out.display());
+    if let Some(e) = &a.exr {
+        y.save_exr(e)?;
+        eprintln!("wrote {}", e.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,398 @@
+//! Image-reconstruction decoders trained jointly with the lens, written by hand with explicit
+//! backward passes (see ARCHITECTURE.md for why no framework): a per-tile Wiener/Tikhonov
+//! deconvolution ([`wiener`]) with learned regularization and PSF estimates, optionally followed
+//! by a small field-aware U-Net ([`unet`]) that adds a residual correction; and the image loss
+//! ([`loss`]).
+//!
+//! Parameters of every part live in one flat `f64` vector ([`Decoder::params`]) so that one
+//! Adam, with a learning rate per group, steps them together with the lens.
+
+pub mod loss;
+pub mod unet;
+pub mod wiener;
+
+pub use loss::ImageLossWeights;
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Which decoder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DecoderKind {
+    /// Per-tile Wiener filters alone.
+    Wiener,
+    /// A U-Net alone (on the captured image and the field coordinates).
+    Unet,
+    /// Per-tile Wiener filters, then a U-Net residual (the default).
+    WienerUnet,
+}
+
+impl DecoderKind {
+    /// Parses `wiener`, `unet` or `wiener+unet`.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] naming the text.
+    pub fn parse(s: &str) -> Result<DecoderKind> {
+        match s {
+            "wiener" => Ok(DecoderKind::Wiener),
+            "unet" => Ok(DecoderKind::Unet),
+            "wiener+unet" => Ok(DecoderKind::WienerUnet),
+            _ => Err(Error::argument(format!(
+                "decoder \"{s}\": give wiener, unet or wiener+unet"
+            ))),
+        }
+    }
+    fn has_wiener(self) -> bool {
+        self != DecoderKind::Unet
+    }
+    fn has_unet(self) -> bool {
+        self != DecoderKind::Wiener
+    }
+}
+
+/// One training or evaluation crop: the captured image `y` (3 x h x w planar, linear), the
+/// sharp target `x` (same shape; empty when decoding only), and the PSF tile it was imaged at.
+#[derive(Clone, Debug)]
+pub struct Crop {
+    /// PSF tile (row-major over the grid, row 0 at the top).
+    pub tile: usize,
+    /// Captured image.
+    pub y: Vec<f32>,
+    /// Sharp image.
+    pub x: Vec<f32>,
+    /// Width, pixels.
+    pub w: usize,
+    /// Height, pixels.
+    pub h: usize,
+}
+
+/// What a training pass over a batch returns.
+#[derive(Clone, Debug)]
+pub struct BatchOutput {
+    /// Mean image loss over the crops.
+    pub loss: f64,
+    /// PSNR of the decoded crops against the sharp ones (sRGB, pooled MSE), dB.
+    pub psnr_db: f64,
+    /// dL/dparams of the mean loss.
+    pub dparams: Vec<f64>,
+    /// dL/dy of the mean loss, per crop.
+    pub dy: Vec<Vec<f32>>,
+}
+
+/// A decoder: Wiener filters and/or a U-Net, with all parameters in one `f64` vector.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Decoder {
+    /// Which parts.
+    pub kind: DecoderKind,
+    /// PSF grid per side.
+    pub grid: usize,
+    /// PSF kernel size.
+    pub ks: usize,
+    /// U-Net width (first-level channels).
+    pub unet_width: usize,
+    /// Every parameter: the Wiener filters' first, then the U-Net's.
+    params: Vec<f64>,
+    /// Number of Wiener parameters at the front of `params`.
+    n_wiener: usize,
+}
+
+/// Input channels of the U-Net: the Wiener output (or the capture), the capture, and the field
+/// position of the tile (normalized sensor x and y, constant over a crop).
+const UNET_IN: usize = 8;
+
+impl Decoder {
+    /// A decoder whose Wiener filters start from `init_psfs` (the lens' RGB PSF map, tile-major,
+    /// `grid² · 3 · ks²`) with regularization set for noise `noise_sigma`, and whose U-Net starts
+    /// as the identity (zero last layer) with He-initialised weights from `seed`.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for sizes that do not match.
+    pub fn new(
+        kind: DecoderKind,
+        grid: usize,
+        ks: usize,
+        init_psfs: &[f32],
+        noise_sigma: f64,
+        unet_width: usize,
+        seed: u64,
+    ) -> Result<Decoder> {
+        let mut params = Vec::new();
+        if kind.has_wiener() {
+            // Noise-to-signal power: σ² over the variance of natural-image content (~0.05).
+            let log_lambda = ((noise_sigma * noise_sigma).max(1e-8) / 0.05).ln();
+            let w = wiener::Wiener::new(grid, ks, init_psfs, log_lambda, (1e-3f64).ln())?;
+            params.extend_from_slice(&w.params);
+        }
+        let n_wiener = params.len();
+        if kind.has_unet() {
+            let u = unet::Unet::new(Self::unet_config(unet_width), seed)?;
+            params.extend(u.params.iter().map(|&v| v as f64));
+        }
+        Ok(Decoder {
+            kind,
+            grid,
+            ks,
+            unet_width,
+            params,
+            n_wiener,
+        })
+    }
+
+    fn unet_config(width: usize) -> unet::UnetConfig {
+        unet::UnetConfig {
+            in_channels: UNET_IN,
+            width,
+            levels: 3,
+        }
+    }
+
+    /// Every parameter, Wiener filters first.
+    pub fn params(&self) -> &[f64] {
+        &self.params
+    }
+
+    /// Replaces every parameter.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for a vector of another length or with a non-finite value.
+    pub fn set_params(&mut self, p: &[f64]) -> Result<()> {
+        if p.len() != self.params.len() || p.iter().any(|v| !v.is_finite()) {
+            return Err(Error::argument(format!(
+                "decoder parameters: {} values (finite) expected, got {}",
+                self.params.len(),
+                p.len()
+            )));
+        }
+        self.params.copy_from_slice(p);
+        Ok(())
+    }
+
+    /// A learning rate per parameter: `psf` for the Wiener PSF estimates, `reg` for their log
+    /// regularization weights, `unet` for the U-Net weights.
+    pub fn learning_rates(&self, psf: f64, reg: f64, unet: f64) -> Vec<f64> {
+        let mut lr = vec![unet; self.params.len()];
+        if self.kind.has_wiener() {
+            let w = self.wiener();
+            for (i, l) in lr.iter_mut().enumerate().take(self.n_wiener) {
+                *l = if w.is_psf_param(i) { psf } else { reg };
+            }
+        }
+        lr
+    }
+
+    fn wiener(&self) -> wiener::Wiener {
+        wiener::Wiener {
+            grid: self.grid,
+            ks: self.ks,
+            params: self.params[..self.n_wiener].to_vec(),
+        }
+    }
+
+    fn unet(&self) -> Result<unet::Unet> {
+        let mut u = unet::Unet::new(Self::unet_config(self.unet_width), 0)?;
+        for (d, s) in u.params.iter_mut().zip(&self.params[self.n_wiener..]) {
+            *d = *s as f32;
+        }
+        Ok(u)
+    }
+
+    /// The U-Net input of a crop: base image, capture, field coordinates of its tile.
+    fn unet_input(&self, c: &Crop, base: &[f32]) -> Vec<f32> {
+        let n = c.w * c.h;
+        let mut v = Vec::with_capacity(UNET_IN * n);
+        v.extend_from_slice(base);
+        v.extend_from_slice(&c.y);
+        let g = self.grid as f32;
+        let (row, col) = ((c.tile / self.grid) as f32, (c.tile % self.grid) as f32);
+        v.extend(std::iter::repeat((2.0 * col + 1.0) / g - 1.0).take(n));
+        v.extend(std::iter::repeat(1.0 - (2.0 * row + 1.0) / g).take(n));
+        v
+    }
+
+    fn check(&self, crops: &[Crop]) -> Result<(usize, usize)> {
+        let first = crops
+            .first()
+            .ok_or_else(|| Error::argument("a decoder batch needs at least one crop"))?;
+        let (w, h) = (first.w, first.h);
+        for c in crops {
+            if c.w != w || c.h != h || c.y.len() != 3 * w * h || c.tile >= self.grid * self.grid {
+                return Err(Error::argument(format!(
+                    "decoder batch: crop of tile {} is {}x{} with {} values; all must be {w}x{h} RGB on the {}x{} grid",
+                    c.tile, c.w, c.h, c.y.len(), self.grid, self.grid
+                )));
+            }
+        }
+        Ok((w, h))
+    }
+
+    /// Decodes every crop (forward only).
+    ///
+    /// # Errors
+    /// Mismatched crops; U-Net sizes not divisible by 8.
+    pub fn decode_batch(&self, crops: &[Crop]) -> Result<Vec<Vec<f32>>> {
+        let (w, h) = self.check(crops)?;
+        let wiener = self.kind.has_wiener().then(|| self.wiener());
+        let base: Vec<Vec<f32>> = crops
+            .par_iter()
+            .map(|c| match &wiener {
+                Some(f) => Ok(f.forward_patch(c.tile, &c.y, w, h)?.0),
+                None => Ok(c.y.clone()),
+            })
+            .collect::<Result<_>>()?;
+        if !self.kind.has_unet() {
+            return Ok(base);
+        }
+        let u = self.unet()?;
+        let mut input = Vec::with_capacity(crops.len() * UNET_IN * w * h);
+        for (c, b) in crops.iter().zip(&base) {
+            input.extend(self.unet_input(c, b));
+        }
+        let (out, _) = u.forward(&input, crops.len(), h, w)?;
+        Ok(base
+            .into_iter()
+            .enumerate()
+            .map(|(j, mut b)| {
+                for (v, r) in b.iter_mut().zip(&out[j * 3 * w * h..(j + 1) * 3 * w * h]) {
+                    *v += r;
+                }
+                b
+            })
+            .collect())
+    }
+
+    /// Decodes the batch, evaluates the mean image loss against each crop's `x`, and returns its
+    /// gradients with respect to the parameters and to each capture.
+    ///
+    /// # Errors
+    /// As [`Decoder::decode_batch`]; crops without a sharp target.
+    pub fn train_batch(&self, crops: &[Crop], weights: &ImageLossWeights) -> Result<BatchOutput> {
+        let (w, h) = self.check(crops)?;
+        if crops.iter().any(|c| c.x.len() != 3 * w * h) {
+            return Err(Error::argument(
+                "decoder training needs the sharp image of every crop",
+            ));
+        }
+        let n = crops.len();
+        let wiener = self.kind.has_wiener().then(|| self.wiener());
+        let fwd: Vec<(Vec<f32>, Option<wiener::WienerCache>)> = crops
+            .par_iter()
+            .map(|c| match &wiener {
+                Some(f) => f
+                    .forward_patch(c.tile, &c.y, w, h)
+                    .map(|(o, k)| (o, Some(k))),
+                None => Ok((c.y.clone(), None)),
+            })
+            .collect::<Result<_>>()?;
+        // The U-Net residual.
+        let unet = if self.kind.has_unet() {
+            let u = self.unet()?;
+            let mut input = Vec::with_capacity(n * UNET_IN * w * h);
+            for (c, (b, _)) in crops.iter().zip(&fwd) {
+                input.extend(self.unet_input(c, b));
+            }
+            let (out, cache) = u.forward(&input, n, h, w)?;
+            Some((u, out, cache))
+        } else {
+            None
+        };
+        let m = 3 * w * h;
+        let xhat: Vec<Vec<f32>> = fwd
+            .iter()
+            .enumerate()
+            .map(|(j, (b, _))| match &unet {
+                Some((_, out, _)) => b
+                    .iter()
+                    .zip(&out[j * m..(j + 1) * m])
+                    .map(|(a, r)| a + r)
+                    .collect(),
+                None => b.clone(),
+            })
+            .collect();
+        // Loss per crop; the batch loss is their mean.
+        let inv = 1.0 / n as f64;
+        let losses: Vec<(f64, Vec<f32>)> = xhat
+            .par_iter()
+            .zip(crops.par_iter())
+            .map(|(xh, c)| {
+                let (l, mut g) = loss::image_loss(xh, &c.x, w, h, weights);
+                for v in g.iter_mut() {
+                    *v *= inv as f32;
+                }
+                (l * inv, g)
+            })
+            .collect();
+        let loss: f64 = losses.iter().map(|l| l.0).sum();
+        let mut se = 0.0;
+        for (xh, c) in xhat.iter().zip(crops) {
+            for (a, b) in xh.iter().zip(&c.x) {
+                let d = crate::image::linear_to_srgb(a.clamp(0.0, 1.0)) as f64
+                    - crate::image::linear_to_srgb(b.clamp(0.0, 1.0)) as f64;
+                se += d * d;
+            }
+        }
+        let psnr_db = -10.0 * (se / (n * m) as f64).max(1e-20).log10();
+        let mut dparams = vec![0.0; self.params.len()];
+        let mut dbase: Vec<Vec<f32>> = losses.iter().map(|l| l.1.clone()).collect();
+        let mut dy: Vec<Vec<f32>> = vec![vec![0.0; m]; n];
+        if let Some((u, _, cache)) = &unet {
+            let dout: Vec<f32> = losses.iter().flat_map(|l| l.1.iter().copied()).collect();
+            let mut dp = vec![0f32; u.params.len()];
+            let mut dinput = vec![0f32; n * UNET_IN * w * h];
+            u.backward(cache, &dout, &mut dp, &mut dinput);
+            for (d, s) in dparams[self.n_wiener..].iter_mut().zip(&dp) {
+                *d += *s as f64;
+            }
+            let k = UNET_IN * w * h;
+            for j in 0..n {
+                let di = &dinput[j * k..(j + 1) * k];
+                for (a, b) in dbase[j].iter_mut().zip(&di[..m]) {
+                    *a += b;
+                }
+                for (a, b) in dy[j].iter_mut().zip(&di[m..2 * m]) {
+                    *a += b;
+                }
+            }
+        }
+        match (&wiener, self.kind.has_wiener()) {
+            (Some(f), true) => {
+                // Each crop's Wiener backward, reduced in crop order (thread-count free).
+                let parts: Vec<(Vec<f64>, Vec<f32>)> = fwd
+                    .par_iter()
+                    .zip(crops.par_iter())
+                    .zip(dbase.par_iter())
+                    .map(|(((_, cache), c), db)| {
+                        let mut dp = vec![0.0; self.n_wiener];
+                        let mut dyj = vec![0f32; m];
+                        if let Some(cache) = cache {
+                            f.backward_patch(c.tile, cache, db, &mut dp, &mut dyj);
+                        }
+                        (dp, dyj)
+                    })
+                    .collect();
+                for (j, (dp, dyj)) in parts.into_iter().enumerate() {
+                    for (a, b) in dparams[..self.n_wiener].iter_mut().zip(&dp) {
+                        *a += b;
+                    }
+                    for (a, b) in dy[j].iter_mut().zip(&dyj) {
+                        *a += b;
+                    }
+                }
+            }
+            _ => {
+                for (d, b) in dy.iter_mut().zip(&dbase) {
+                    for (a, v) in d.iter_mut().zip(b) {
+                        *a += v;
+                    }
+                }
+            }
+        }
+        Ok(BatchOutput {
+            loss,
+            psnr_db,
+            dparams,
+            dy,
+        })
+    }
+}

@@ -1,0 +1,644 @@
+//! A small U-Net with hand-written forward and backward passes (im2col + `matrixmultiply`
+//! SGEMM), in the style of llm.c: each layer a forward/backward pair, gradients accumulated with
+//! `+=` into caller-zeroed buffers. Planar tensors, one sample at a time (`[channels][h][w]`);
+//! samples of a batch run in parallel and their weight gradients are summed in sample order, so
+//! results do not depend on the thread count.
+//!
+//! Architecture (`levels` = L, width c): per level two 3x3 convolutions with ReLU (c, 2c, 4c,
+//! ...), 2x2 average pooling down, a bottleneck of two convolutions, then per level nearest 2x
+//! upsampling, concatenation with the skip, two convolutions; a final 1x1 convolution to 3
+//! channels whose weights start at zero, so the network starts as a zero residual.
+
+use crate::error::{Error, Result};
+use rand::SeedableRng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// U-Net shape.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UnetConfig {
+    /// Input channels.
+    pub in_channels: usize,
+    /// Channels of the first level.
+    pub width: usize,
+    /// Levels (poolings); sizes must be divisible by 2^levels.
+    pub levels: usize,
+}
+
+/// One convolution: `cout x cin x k x k` weights at `w`, `cout` biases at `b` in the parameters.
+#[derive(Clone, Copy, Debug)]
+struct Conv {
+    cin: usize,
+    cout: usize,
+    k: usize,
+    w: usize,
+    b: usize,
+}
+
+/// The network: its convolutions in order and its flat parameters.
+#[derive(Clone, Debug)]
+pub struct Unet {
+    /// Shape.
+    pub cfg: UnetConfig,
+    convs: Vec<Conv>,
+    /// Every weight and bias (layout: the convolutions in order, weights then biases).
+    pub params: Vec<f32>,
+}
+
+/// What one sample's backward pass needs: the input of every convolution and the (post-ReLU)
+/// output of every ReLU convolution, in forward order.
+#[derive(Clone, Debug)]
+pub struct Cache {
+    h: usize,
+    w: usize,
+    ins: Vec<Vec<f32>>,
+    outs: Vec<Vec<f32>>,
+}
+
+/// im2col for a 3x3 (zero padding 1) or 1x1 convolution: `(cin · k²) x (h · w)`.
+fn im2col(inp: &[f32], cin: usize, h: usize, w: usize, k: usize) -> Vec<f32> {
+    if k == 1 {
+        return inp.to_vec();
+    }
+    let hw = h * w;
+    let mut col = vec![0f32; cin * 9 * hw];
+    for c in 0..cin {
+        for ky in 0..3 {
+            for kx in 0..3 {
+                let row = &mut col[(c * 9 + ky * 3 + kx) * hw..(c * 9 + ky * 3 + kx + 1) * hw];
+                for y in 0..h {
+                    let sy = y as isize + ky as isize - 1;
+                    if sy < 0 || sy >= h as isize {
+                        continue;
+                    }
+                    let src = &inp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
+                    let dst = &mut row[y * w..(y + 1) * w];
+                    match kx {
+                        0 => dst[1..].copy_from_slice(&src[..w - 1]),
+                        1 => dst.copy_from_slice(src),
+                        _ => dst[..w - 1].copy_from_slice(&src[1..]),
+                    }
+                }
+            }
+        }
+    }
+    col
+}
+
+/// The adjoint of [`im2col`]: adds the columns back into `dinp`.
+fn col2im(col: &[f32], cin: usize, h: usize, w: usize, k: usize, dinp: &mut [f32]) {
+    let hw = h * w;
+    if k == 1 {
+        for (d, c) in dinp.iter_mut().zip(col) {
+            *d += c;
+        }
+        return;
+    }
+    for c in 0..cin {
+        for ky in 0..3 {
+            for kx in 0..3 {
+                let row = &col[(c * 9 + ky * 3 + kx) * hw..(c * 9 + ky * 3 + kx + 1) * hw];
+                for y in 0..h {
+                    let sy = y as isize + ky as isize - 1;
+                    if sy < 0 || sy >= h as isize {
+                        continue;
+                    }
+                    let dst = &mut dinp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
+                    let src = &row[y * w..(y + 1) * w];
+                    match kx {
+                        0 => dst[..w - 1]
+                            .iter_mut()
+                            .zip(&src[1..])
+                            .for_each(|(d, s)| *d += s),
+                        1 => dst.iter_mut().zip(src).for_each(|(d, s)| *d += s),
+                        _ => dst[1..]
+                            .iter_mut()
+                            .zip(&src[..w - 1])
+                            .for_each(|(d, s)| *d += s),
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `c (m x n) = beta · c + a (m x k) · b (k x n)` with strides (row, column) for a and b.
+#[allow(clippy::too_many_arguments)]
+fn gemm(
+    m: usize,
+    k: usize,
+    n: usize,
+    a: &[f32],
+    (rsa, csa): (isize, isize),
+    b: &[f32],
+    (rsb, csb): (isize, isize),
+    beta: f32,
+    c: &mut [f32],
+) {
+    // SAFETY: the slices hold at least the strided extents: a is m x k, b is k x n, c is m x n
+    // (row-major, stride n), as every caller allocates them.
+    unsafe {
+        matrixmultiply::sgemm(
+            m,
+            k,
+            n,
+            1.0,
+            a.as_ptr(),
+            rsa,
+            csa,
+            b.as_ptr(),
+            rsb,
+            csb,
+            beta,
+            c.as_mut_ptr(),
+            n as isize,
+            1,
+        );
+    }
+}
+
+/// Convolution forward: `out[co] = b[co] + Σ W[co] · im2col(inp)`, `cout x (h · w)`.
+fn conv_forward(p: &[f32], cv: &Conv, inp: &[f32], h: usize, w: usize) -> Vec<f32> {
+    let hw = h * w;
+    let kk = cv.cin * cv.k * cv.k;
+    let col = im2col(inp, cv.cin, h, w, cv.k);
+    let mut out = vec![0f32; cv.cout * hw];
+    for (co, o) in out.chunks_mut(hw).enumerate() {
+        o.fill(p[cv.b + co]);
+    }
+    let wt = &p[cv.w..cv.w + cv.cout * kk];
+    gemm(
+        cv.cout,
+        kk,
+        hw,
+        wt,
+        (kk as isize, 1),
+        &col,
+        (hw as isize, 1),
+        1.0,
+        &mut out,
+    );
+    out
+}
+
+/// Convolution backward: adds dW, db into `dp` and dL/dinput into `dinp`.
+#[allow(clippy::too_many_arguments)]
+fn conv_backward(
+    p: &[f32],
+    cv: &Conv,
+    inp: &[f32],
+    h: usize,
+    w: usize,
+    dout: &[f32],
+    dp: &mut [f32],
+    dinp: &mut [f32],
+) {
+    let hw = h * w;
+    let kk = cv.cin * cv.k * cv.k;
+    let col = im2col(inp, cv.cin, h, w, cv.k);
+    // dW (cout x kk) += dout (cout x hw) · colᵀ (hw x kk).
+    gemm(
+        cv.cout,
+        hw,
+        kk,
+        dout,
+        (hw as isize, 1),
+        &col,
+        (1, hw as isize),
+        1.0,
+        &mut dp[cv.w..cv.w + cv.cout * kk],
+    );
+    for (co, d) in dout.chunks(hw).enumerate() {
+        dp[cv.b + co] += d.iter().sum::<f32>();
+    }
+    // dcol (kk x hw) = Wᵀ (kk x cout) · dout (cout x hw).
+    let mut dcol = vec![0f32; kk * hw];
+    let wt = &p[cv.w..cv.w + cv.cout * kk];
+    gemm(
+        kk,
+        cv.cout,
+        hw,
+        wt,
+        (1, kk as isize),
+        dout,
+        (hw as isize, 1),
+        0.0,
+        &mut dcol,
+    );
+    col2im(&dcol, cv.cin, h, w, cv.k, dinp);
+}
+
+fn relu(v: &mut [f32]) {
+    v.iter_mut().for_each(|x| *x = x.max(0.0));
+}
+
+/// dL/dpre-activation of a ReLU from dL/dout and its output.
+fn relu_backward(dout: &mut [f32], out: &[f32]) {
+    for (d, o) in dout.iter_mut().zip(out) {
+        if *o <= 0.0 {
+            *d = 0.0;
+        }
+    }
+}
+
+/// 2x2 average pooling of `c x h x w`.
+fn pool(inp: &[f32], c: usize, h: usize, w: usize) -> Vec<f32> {
+    let (h2, w2) = (h / 2, w / 2);
+    let mut out = vec![0f32; c * h2 * w2];
+    for ch in 0..c {
+        for y in 0..h2 {
+            for x in 0..w2 {
+                let i = ch * h * w + 2 * y * w + 2 * x;
+                out[ch * h2 * w2 + y * w2 + x] =
+                    0.25 * (inp[i] + inp[i + 1] + inp[i + w] + inp[i + w + 1]);
+            }
+        }
+    }
+    out
+}
+
+/// Adjoint of [`pool`]: adds into `dinp`.
+fn pool_backward(dout: &[f32], c: usize, h: usize, w: usize, dinp: &mut [f32]) {
+    let (h2, w2) = (h / 2, w / 2);
+    for ch in 0..c {
+        for y in 0..h2 {
+            for x in 0..w2 {
+                let g = 0.25 * dout[ch * h2 * w2 + y * w2 + x];
+                let i = ch * h * w + 2 * y * w + 2 * x;
+                for j in [i, i + 1, i + w, i + w + 1] {
+                    dinp[j] += g;
+                }
+            }
+        }
+    }
+}
+
+/// Nearest 2x upsampling of `c x h x w`.
+fn up(inp: &[f32], c: usize, h: usize, w: usize) -> Vec<f32> {
+    let (h2, w2) = (2 * h, 2 * w);
+    let mut out = vec![0f32; c * h2 * w2];
+    for ch in 0..c {
+        for y in 0..h2 {
+            for x in 0..w2 {
+                out[ch * h2 * w2 + y * w2 + x] = inp[ch * h * w + (y / 2) * w + x / 2];
+            }
+        }
+    }
+    out
+}
+
+/// Adjoint of [`up`] (from the upsampled size `2h x 2w`): adds into `dinp`.
+fn up_backward(dout: &[f32], c: usize, h: usize, w: usize, dinp: &mut [f32]) {
+    let (h2, w2) = (2 * h, 2 * w);
+    for ch in 0..c {
+        for y in 0..h2 {
+            for x in 0..w2 {
+                dinp[ch * h * w + (y / 2) * w + x / 2] += dout[ch * h2 * w2 + y * w2 + x];
+            }
+        }
+    }
+}
+
+impl Unet {
+    /// A network of shape `cfg` with He-initialised weights from `seed`, zero biases and a zero
+    /// output layer.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for a zero width or input, or more than 6 levels.
+    pub fn new(cfg: UnetConfig, seed: u64) -> Result<Unet> {
+        if cfg.width == 0 || cfg.in_channels == 0 || cfg.levels > 6 {
+            return Err(Error::argument(format!(
+                "U-Net {cfg:?}: width and inputs must be positive, at most 6 levels"
+            )));
+        }
+        let mut convs = Vec::new();
+        let mut n = 0;
+        let mut add = |cin: usize, cout: usize, k: usize| {
+            let c = Conv {
+                cin,
+                cout,
+                k,
+                w: n,
+                b: n + cout * cin * k * k,
+            };
+            n = c.b + cout;
+            convs.push(c);
+        };
+        let ch = |l: usize| cfg.width << l;
+        let mut cin = cfg.in_channels;
+        for l in 0..=cfg.levels {
+            add(cin, ch(l), 3);
+            add(ch(l), ch(l), 3);
+            cin = ch(l);
+        }
+        for l in (0..cfg.levels).rev() {
+            add(ch(l + 1) + ch(l), ch(l), 3);
+            add(ch(l), ch(l), 3);
+        }
+        add(cfg.width, 3, 1);
+        let mut params = vec![0f32; n];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let last = convs.len() - 1;
+        for (i, c) in convs.iter().enumerate() {
+            if i == last {
+                continue;
+            }
+            let std = (2.0 / (c.cin * c.k * c.k) as f32).sqrt();
+            for v in &mut params[c.w..c.b] {
+                // Box–Muller normal.
+                let (u1, u2): (f32, f32) = (
+                    1.0 - rand::Rng::random::<f32>(&mut rng),
+                    rand::Rng::random(&mut rng),
+                );
+                *v = std * (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos();
+            }
+        }
+        Ok(Unet { cfg, convs, params })
+    }
+
+    /// Number of parameters.
+    pub fn n_params(&self) -> usize {
+        self.params.len()
+    }
+
+    fn check(&self, len: usize, n: usize, h: usize, w: usize) -> Result<()> {
+        let m = 1 << self.cfg.levels;
+        if h == 0 || w == 0 || h % m != 0 || w % m != 0 || len != n * self.cfg.in_channels * h * w {
+            return Err(Error::argument(format!(
+                "U-Net: {len} values for {n} x {} x {h}x{w}; sizes must be multiples of {m}",
+                self.cfg.in_channels
+            )));
+        }
+        Ok(())
+    }
+
+    fn forward_one(&self, x: &[f32], h: usize, w: usize) -> (Vec<f32>, Cache) {
+        let p = &self.params;
+        let (mut ins, mut outs) = (Vec::new(), Vec::new());
+        let mut ci = 0;
+        let mut conv_relu =
+            |x: Vec<f32>, h: usize, w: usize, ins: &mut Vec<Vec<f32>>, outs: &mut Vec<Vec<f32>>| {
+                let mut o = conv_forward(p, &self.convs[ci], &x, h, w);
+                relu(&mut o);
+                ins.push(x);
+                outs.push(o.clone());
+                ci += 1;
+                o
+            };
+        let ch = |l: usize| self.cfg.width << l;
+        let (mut x, mut hh, mut ww) = (x.to_vec(), h, w);
+        let mut skips = Vec::new();
+        for l in 0..=self.cfg.levels {
+            let a = conv_relu(x, hh, ww, &mut ins, &mut outs);
+            let b = conv_relu(a, hh, ww, &mut ins, &mut outs);
+            if l < self.cfg.levels {
+                skips.push(b.clone());
+                x = pool(&b, ch(l), hh, ww);
+                hh /= 2;
+                ww /= 2;
+            } else {
+                x = b;
+            }
+        }
+        for l in (0..self.cfg.levels).rev() {
+            let mut u = up(&x, ch(l + 1), hh, ww);
+            hh *= 2;
+            ww *= 2;
+            u.extend_from_slice(&skips[l]);
+            let a = conv_relu(u, hh, ww, &mut ins, &mut outs);
+            x = conv_relu(a, hh, ww, &mut ins, &mut outs);
+        }
+        let out = conv_forward(p, &self.convs[self.convs.len() - 1], &x, h, w);
+        ins.push(x);
+        (out, Cache { h, w, ins, outs })
+    }
+
+    fn backward_one(&self, cache: &Cache, dout: &[f32], dp: &mut [f32]) -> Vec<f32> {
+        let p = &self.params;
+        let (h, w, l_n) = (cache.h, cache.w, self.cfg.levels);
+        let ch = |l: usize| self.cfg.width << l;
+        let nc = self.convs.len();
+        // Output layer.
+        let mut dx = vec![0f32; cache.ins[nc - 1].len()];
+        conv_backward(
+            p,
+            &self.convs[nc - 1],
+            &cache.ins[nc - 1],
+            h,
+            w,
+            dout,
+            dp,
+            &mut dx,
+        );
+        // A ReLU convolution backward: from dL/dout to dL/dinput.
+        let back = |i: usize, mut d: Vec<f32>, hh: usize, ww: usize, dp: &mut [f32]| {
+            relu_backward(&mut d, &cache.outs[i]);
+            let mut di = vec![0f32; cache.ins[i].len()];
+            conv_backward(p, &self.convs[i], &cache.ins[i], hh, ww, &d, dp, &mut di);
+            di
+        };
+        let mut dskips: Vec<Vec<f32>> = (0..l_n).map(|_| Vec::new()).collect();
+        let (mut hh, mut ww) = (h, w);
+        let mut i = nc - 1;
+        for l in 0..l_n {
+            i -= 2;
+            let da = back(i + 1, dx, hh, ww, dp);
+            let dcat = back(i, da, hh, ww, dp);
+            let nu = ch(l + 1) * hh * ww;
+            dskips[l] = dcat[nu..].to_vec();
+            let mut dprev = vec![0f32; ch(l + 1) * (hh / 2) * (ww / 2)];
+            up_backward(&dcat[..nu], ch(l + 1), hh / 2, ww / 2, &mut dprev);
+            dx = dprev;
+            hh /= 2;
+            ww /= 2;
+        }
+        for l in (0..=l_n).rev() {
+            if l < l_n {
+                // dx is dL/d(pooled b); add the skip's gradient to dL/db.
+                let mut db = dskips[l].clone();
+                pool_backward(&dx, ch(l), hh * 2, ww * 2, &mut db);
+                dx = db;
+                hh *= 2;
+                ww *= 2;
+            }
+            i -= 2;
+            let da = back(i + 1, dx, hh, ww, dp);
+            dx = back(i, da, hh, ww, dp);
+        }
+        dx
+    }
+
+    /// Forward pass over a batch `input` of `n` samples of `in_channels x h x w`; returns the
+    /// `n x 3 x h x w` output and the caches.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for sizes that do not fit.
+    pub fn forward(
+        &self,
+        input: &[f32],
+        n: usize,
+        h: usize,
+        w: usize,
+    ) -> Result<(Vec<f32>, Vec<Cache>)> {
+        self.check(input.len(), n, h, w)?;
+        let k = self.cfg.in_channels * h * w;
+        let per: Vec<(Vec<f32>, Cache)> = (0..n)
+            .into_par_iter()
+            .map(|j| self.forward_one(&input[j * k..(j + 1) * k], h, w))
+            .collect();
+        let mut out = Vec::with_capacity(n * 3 * h * w);
+        let mut caches = Vec::with_capacity(n);
+        for (o, c) in per {
+            out.extend(o);
+            caches.push(c);
+        }
+        Ok((out, caches))
+    }
+
+    /// Backward pass: adds dL/dparams into `dparams` (summed over samples in sample order) and
+    /// writes dL/dinput (`n x in_channels x h x w`) into `dinput`.
+    pub fn backward(
+        &self,
+        caches: &[Cache],
+        dout: &[f32],
+        dparams: &mut [f32],
+        dinput: &mut [f32],
+    ) {
+        let n = caches.len();
+        if n == 0 {
+            return;
+        }
+        let m = 3 * caches[0].h * caches[0].w;
+        let per: Vec<(Vec<f32>, Vec<f32>)> = caches
+            .par_iter()
+            .enumerate()
+            .map(|(j, c)| {
+                let mut dp = vec![0f32; self.params.len()];
+                let dx = self.backward_one(c, &dout[j * m..(j + 1) * m], &mut dp);
+                (dp, dx)
+            })
+            .collect();
+        let k = dinput.len() / n;
+        for (j, (dp, dx)) in per.into_iter().enumerate() {
+            for (a, b) in dparams.iter_mut().zip(&dp) {
+                *a += b;
+            }
+            dinput[j * k..(j + 1) * k].copy_from_slice(&dx);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(n: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (s >> 8) as f32 / (1 << 24) as f32 - 0.5
+            })
+            .collect()
+    }
+
+    /// L = Σ out · g in f64.
+    fn loss(u: &Unet, x: &[f32], n: usize, h: usize, w: usize, g: &[f32]) -> f64 {
+        let (o, _) = u.forward(x, n, h, w).unwrap();
+        o.iter().zip(g).map(|(a, b)| *a as f64 * *b as f64).sum()
+    }
+
+    #[test]
+    fn gradients_match_central_differences_and_layers_are_adjoint() {
+        let cfg = UnetConfig {
+            in_channels: 3,
+            width: 2,
+            levels: 2,
+        };
+        let mut u = Unet::new(cfg, 5).unwrap();
+        // A nonzero output layer and biases, so that every path carries gradient.
+        let n_p = u.params.len();
+        for (k, v) in u.params.iter_mut().enumerate() {
+            if *v == 0.0 {
+                *v = 0.05 * (((k * 7919) % 13) as f32 / 13.0 - 0.4);
+            }
+        }
+        let (n, h, w) = (2, 8, 8);
+        let x = lcg(n * 3 * h * w, 1);
+        let g = lcg(n * 3 * h * w, 2);
+        let (_, caches) = u.forward(&x, n, h, w).unwrap();
+        let mut dp = vec![0f32; n_p];
+        let mut dx = vec![0f32; x.len()];
+        u.backward(&caches, &g, &mut dp, &mut dx);
+        let check = |fd: f64, an: f32, what: String| {
+            assert!(
+                (fd - an as f64).abs() < 2e-2 * fd.abs().max(0.05),
+                "{what}: FD {fd} vs {an}"
+            );
+        };
+        for k in (0..x.len()).step_by(37) {
+            let e = 1e-2;
+            let (mut a, mut b) = (x.clone(), x.clone());
+            a[k] += e;
+            b[k] -= e;
+            check(
+                (loss(&u, &a, n, h, w, &g) - loss(&u, &b, n, h, w, &g)) / (2.0 * e as f64),
+                dx[k],
+                format!("input {k}"),
+            );
+        }
+        for c in &u.convs {
+            for k in [c.w, c.w + (c.b - c.w) / 2, c.b] {
+                // A bias moves every pre-activation of its channel: steps of 1e-2 carry some across
+                // a ReLU kink, steps below 1e-3 drown in f32 rounding (measured on this net).
+                let e = 1e-3;
+                let (mut a, mut b) = (u.clone(), u.clone());
+                a.params[k] += e;
+                b.params[k] -= e;
+                check(
+                    (loss(&a, &x, n, h, w, &g) - loss(&b, &x, n, h, w, &g)) / (2.0 * e as f64),
+                    dp[k],
+                    format!("param {k}"),
+                );
+            }
+        }
+        // Pooling and upsampling are each other's adjoint up to a factor 4: <up x, y> = 4 <x, pool y>.
+        let (a, b) = (lcg(2 * 4 * 4, 3), lcg(2 * 8 * 8, 4));
+        let lhs: f32 = up(&a, 2, 4, 4).iter().zip(&b).map(|(p, q)| p * q).sum();
+        let rhs: f32 = a.iter().zip(pool(&b, 2, 8, 8)).map(|(p, q)| p * q).sum();
+        assert!((lhs - 4.0 * rhs).abs() < 1e-4);
+    }
+
+    #[test]
+    fn starts_as_zero_and_is_thread_count_free() {
+        let u = Unet::new(
+            UnetConfig {
+                in_channels: 8,
+                width: 4,
+                levels: 3,
+            },
+            1,
+        )
+        .unwrap();
+        let x = lcg(3 * 8 * 16 * 16, 9);
+        let (o, _) = u.forward(&x, 3, 16, 16).unwrap();
+        assert!(o.iter().all(|&v| v == 0.0));
+        assert!(u.forward(&x, 3, 12, 16).is_err());
+        let mut v = u.clone();
+        v.params.iter_mut().for_each(|p| *p += 0.01);
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let (o, c) = v.forward(&x, 3, 16, 16).unwrap();
+                let mut dp = vec![0f32; v.params.len()];
+                let mut dx = vec![0f32; x.len()];
+                v.backward(&c, &o, &mut dp, &mut dx);
+                (o, dp, dx)
+            })
+        };
+        assert_eq!(run(1), run(2));
+    }
+}

@@ -1,0 +1,595 @@
+//! Manufacturing-yield evaluation of deep-optics designs: the same held-out random tolerance
+//! patterns for every design (paired), each fabricated unit imaging the evaluation images through
+//! its own RGB PSF map, the design's decoder reconstructing them, and PSNR/SSIM per unit; per
+//! design the mean, standard deviation and the yield table (the PSNR that 90/70/50/10 % of units
+//! exceed, the paper's Table 2), and for pairs of designs the paired difference with a bootstrap
+//! 95 % interval.
+//!
+//! An evaluation image is `grid · patch` pixels square: tile `t` of the PSF grid covers its
+//! `patch x patch` block, blurred by that tile's PSF over the block plus a halo from the
+//! reflect-padded image (so the image is rendered as [`crate::image::render::render_map`] does,
+//! with hard tile edges) and decoded by the decoder's filter of that tile. The sensor pitch is
+//! the lens', so each tile's block is a `patch`-pixel window of the full-resolution sensor at
+//! that field: a stratified sample of the sensor, one block per PSF, not the whole 2048-pixel
+//! frame (which is what the paper renders and what `patch = 256` gives).
+
+use super::{psf_options, rgb_psf_map, Design};
+use crate::decoder::Crop;
+use crate::error::{Error, Result};
+use crate::image::metrics::{paired_bootstrap, psnr, ssim, YieldTable};
+use crate::image::render::{add_gaussian_noise, blur_patch, pad_reflect};
+use crate::image::Image;
+use crate::lens::System;
+use crate::math::Vec3;
+use crate::tolerance::analysis::{perturbed_rms, McOptions};
+use crate::tolerance::ToleranceSpec;
+use crate::trace::{Field, Pupil};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Evaluation settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalConfig {
+    /// Number of random fabricated units (tolerance patterns).
+    pub trials: usize,
+    /// Seed of the patterns (use one that training did not).
+    pub seed: u64,
+    /// Tolerances.
+    pub spec: ToleranceSpec,
+    /// PSF grid per side.
+    pub grid: usize,
+    /// PSF kernel size, pixels.
+    pub ks: usize,
+    /// Rays per PSF.
+    pub spp: usize,
+    /// Additive Gaussian noise, linear [0, 1] units.
+    pub noise_sigma: f64,
+    /// Block side per PSF tile, pixels (the evaluation images are `grid · patch` square).
+    pub patch_px: usize,
+    /// Refocus each unit to its best RMS focus before imaging (the assembly's focus
+    /// compensator).
+    pub compensate_focus: bool,
+    /// Bootstrap resamples of the paired intervals.
+    pub bootstrap: usize,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        EvalConfig {
+            trials: 100,
+            seed: 1_000_003,
+            spec: ToleranceSpec::default(),
+            grid: 8,
+            ks: 51,
+            spp: 8192,
+            noise_sigma: 0.01,
+            patch_px: 48,
+            compensate_focus: false,
+            bootstrap: 2000,
+        }
+    }
+}
+
+/// One unit's scores.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrialScore {
+    /// Pattern index.
+    pub index: usize,
+    /// Mean over the evaluation images of the PSNR of the decoded image (sRGB, dB).
+    pub psnr: f64,
+    /// Mean over the evaluation images of the SSIM of the decoded image (sRGB).
+    pub ssim: f64,
+    /// Mean over fields 0, 0.7 and 1 of the polychromatic RMS spot radius, µm.
+    pub rms_spot_um: f64,
+    /// Mean over tiles and channels of the PSF similarity to the design's nominal PSF map.
+    pub psf_similarity: f64,
+}
+
+/// The evaluation images, linear RGB, each `grid · patch` square.
+#[derive(Clone, Debug)]
+pub struct EvalImages {
+    /// Name and image.
+    pub images: Vec<(String, Image)>,
+}
+
+/// Which trial's images a report shows.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Example {
+    /// `best`, `median` or `worst` (by PSNR).
+    pub which: String,
+    /// Pattern index.
+    pub trial: usize,
+    /// Its PSNR, dB.
+    pub psnr: f64,
+    /// Sharp, captured and reconstructed first evaluation image.
+    #[serde(skip)]
+    pub images: Option<[Image; 3]>,
+}
+
+/// One design's results.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct DesignScores {
+    /// Design name.
+    pub name: String,
+    /// Per-unit scores, by pattern index.
+    pub trials: Vec<TrialScore>,
+    /// Scores of the nominal lens (no tolerance).
+    pub nominal: TrialScore,
+}
+
+/// Renders the evaluation images through `sys` (RGB PSF map of `design.lens`) and decodes them
+/// with the design's decoder; returns per image (sharp, captured, reconstructed) when `keep`,
+/// and the mean PSNR and SSIM. Noise of image `i` comes from stream `noise_stream + i`.
+fn image_scores(
+    design: &Design,
+    map: &[f32],
+    images: &EvalImages,
+    cfg: &EvalConfig,
+    noise_stream: u64,
+    keep: bool,
+) -> Result<(f64, f64, Vec<[Image; 3]>)> {
+    let (g, p, ks) = (cfg.grid, cfg.patch_px, cfg.ks);
+    let nc = 3;
+    let ks2 = ks * ks;
+    let mut psnr_sum = 0.0;
+    let mut ssim_sum = 0.0;
+    let mut kept = Vec::new();
+    for (i, (name, img)) in images.images.iter().enumerate() {
+        if img.width != g * p || img.height != g * p {
+            return Err(Error::argument(format!(
+                "evaluation image {name} is {}x{}; the settings need {s}x{s}",
+                img.width,
+                img.height,
+                s = g * p
+            )));
+        }
+        let half = (ks - 1) / 2;
+        let padded = pad_reflect(img, half)?;
+        // Each tile's block plus its halo, blurred by the tile's PSF.
+        let crops: Vec<Crop> = (0..g * g)
+            .into_par_iter()
+            .map(|t| -> Result<Crop> {
+                let (row, col) = (t / g, t % g);
+                let xpad = padded.crop(col * p, row * p, p + ks - 1, p + ks - 1)?;
+                let psf = &map[t * nc * ks2..(t + 1) * nc * ks2];
+                let mut y = blur_patch(&xpad.data, p, p, psf, ks)?;
+                add_gaussian_noise(
+                    &mut y,
+                    cfg.noise_sigma as f32,
+                    cfg.seed ^ 0x6576_616c,
+                    (noise_stream + i as u64) * 4096 + t as u64,
+                );
+                let x = xpad.crop(half, half, p, p)?.data;
+                Ok(Crop {
+                    tile: t,
+                    y,
+                    x,
+                    w: p,
+                    h: p,
+                })
+            })
+            .collect::<Result<_>>()?;
+        let xhat = design.decoder.decode_batch(&crops)?;
+        let mut captured = Image::new(g * p, g * p)?;
+        let mut recon = Image::new(g * p, g * p)?;
+        for (t, (c, r)) in crops.iter().zip(&xhat).enumerate() {
+            let (row, col) = (t / g, t % g);
+            for ch in 0..nc {
+                for yy in 0..p {
+                    let dst = ch * g * p * g * p + (row * p + yy) * g * p + col * p;
+                    let src = ch * p * p + yy * p;
+                    captured.data[dst..dst + p].copy_from_slice(&c.y[src..src + p]);
+                    recon.data[dst..dst + p].copy_from_slice(&r[src..src + p]);
+                }
+            }
+        }
+        let (sharp, rec) = (img.to_srgb(), recon.to_srgb());
+        psnr_sum += psnr(&sharp, &rec)?;
+        ssim_sum += ssim(&sharp, &rec)?;
+        if keep {
+            kept.push([img.clone(), captured, recon]);
+        }
+    }
+    let n = images.images.len() as f64;
+    Ok((psnr_sum / n, ssim_sum / n, kept))
+}
+
+/// Scores `design` on the patterns `range` of `cfg` (all trials when `None`), in parallel over
+/// patterns, plus the nominal lens. Deterministic whatever the thread count.
+///
+/// # Errors
+/// Bad settings or images; a unit that loses every ray of a field or whose PSF receives no ray
+/// (named with its pattern index).
+pub fn evaluate(
+    name: &str,
+    design: &Design,
+    images: &EvalImages,
+    cfg: &EvalConfig,
+    range: std::ops::Range<usize>,
+) -> Result<DesignScores> {
+    if images.images.is_empty() {
+        return Err(Error::argument("evaluation needs at least one image"));
+    }
+    let lens = &design.lens;
+    cfg.spec.validate(lens)?;
+    let wavelengths = lens.rgb_wavelengths_nm.to_vec();
+    let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
+    let nominal_map = rgb_psf_map(lens, &lens.compile(), cfg.grid, &wavelengths, &opts)?;
+    let mc = McOptions {
+        spec: cfg.spec.clone(),
+        trials: 1,
+        seed: cfg.seed,
+        fields: [0.0, 0.7, 1.0].map(Field::fraction).to_vec(),
+        wavelengths_nm: wavelengths.clone(),
+        pupil: Pupil::grid(16),
+        compensate_focus: cfg.compensate_focus,
+        apertures: true,
+    };
+    let ks2 = cfg.ks * cfg.ks;
+    let score = |k: Option<usize>| -> Result<TrialScore> {
+        let (plens, adj, rms) = match k {
+            Some(k) => {
+                let pattern = cfg.spec.sample(lens, cfg.seed, k as u64)?;
+                let (rms, delta) = perturbed_rms(lens, &mc, &pattern)?;
+                let (plens, mut adj) = pattern.apply(lens)?;
+                if let Some(d) = delta {
+                    // Refocus: the sensor moves along its normal.
+                    let r = adj.image_motion.rotation;
+                    adj.image_motion.translation =
+                        adj.image_motion.translation + r.apply(Vec3::new(0.0, 0.0, d));
+                }
+                (plens, adj, rms)
+            }
+            None => {
+                let empty = crate::tolerance::Perturbation::default();
+                let (rms, _) = perturbed_rms(lens, &mc, &empty)?;
+                let (plens, adj) = empty.apply(lens)?;
+                (plens, adj, rms)
+            }
+        };
+        let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
+        let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
+        let sim = nominal_map
+            .chunks(ks2)
+            .zip(map.chunks(ks2))
+            .map(|(a, b)| {
+                let a: Vec<f64> = a.iter().map(|&v| v as f64).collect();
+                let b: Vec<f64> = b.iter().map(|&v| v as f64).collect();
+                crate::psf::psf_similarity(&a, &b, cfg.ks)
+            })
+            .sum::<f64>()
+            / (nominal_map.len() / ks2) as f64;
+        let stream = k.map_or(0, |k| k as u64 + 1) * 64;
+        let (psnr, ssim, _) = image_scores(design, &map, images, cfg, stream, false)?;
+        let index = k.unwrap_or(usize::MAX);
+        let s = TrialScore {
+            index,
+            psnr,
+            ssim,
+            rms_spot_um: rms.iter().sum::<f64>() / rms.len() as f64,
+            psf_similarity: sim,
+        };
+        if [s.psnr, s.ssim, s.rms_spot_um, s.psf_similarity]
+            .iter()
+            .any(|v| !v.is_finite())
+        {
+            return Err(Error::numerical(format!(
+                "design {name}, pattern {index}: a score is not finite ({s:?})"
+            )));
+        }
+        Ok(s)
+    };
+    let nominal = score(None).map_err(|e| e.context(format!("design {name}, nominal lens")))?;
+    let trials = range
+        .into_par_iter()
+        .map(|k| score(Some(k)).map_err(|e| e.context(format!("design {name}, pattern {k}"))))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(DesignScores {
+        name: name.to_string(),
+        trials,
+        nominal,
+    })
+}
+
+/// The sharp, captured and reconstructed evaluation images of one pattern (`None`: the nominal
+/// lens), as in [`evaluate`].
+///
+/// # Errors
+/// As [`evaluate`].
+pub fn example_images(
+    design: &Design,
+    images: &EvalImages,
+    cfg: &EvalConfig,
+    pattern: Option<usize>,
+) -> Result<Vec<[Image; 3]>> {
+    let lens = &design.lens;
+    let wavelengths = lens.rgb_wavelengths_nm.to_vec();
+    let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
+    let (plens, adj) = match pattern {
+        Some(k) => cfg.spec.sample(lens, cfg.seed, k as u64)?.apply(lens)?,
+        None => (
+            lens.clone(),
+            crate::lens::Adjustments::none(lens.surfaces.len()),
+        ),
+    };
+    let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
+    let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
+    let stream = pattern.map_or(0, |k| k as u64 + 1) * 64;
+    Ok(image_scores(design, &map, images, cfg, stream, true)?.2)
+}
+
+/// Mean, standard deviation and yield table of a set of values.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Mean.
+    pub mean: f64,
+    /// Standard deviation (population).
+    pub std: f64,
+    /// The value that 90/70/50/10 % of units exceed.
+    #[serde(rename = "yield")]
+    pub yield_table: YieldTable,
+}
+
+impl Summary {
+    /// Summarizes `v`.
+    pub fn of(v: &[f64]) -> Summary {
+        let n = v.len().max(1) as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let std = (v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n).sqrt();
+        Summary {
+            mean,
+            std,
+            yield_table: YieldTable::from(v),
+        }
+    }
+}
+
+/// A design's row of the report.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct DesignRow {
+    /// Design name.
+    pub name: String,
+    /// Number of units.
+    pub trials: usize,
+    /// PSNR, dB.
+    pub psnr: Summary,
+    /// SSIM.
+    pub ssim: Summary,
+    /// RMS spot, µm.
+    pub rms_spot_um: Summary,
+    /// PSF similarity to the design's nominal PSFs.
+    pub psf_similarity: Summary,
+    /// PSNR of the nominal lens, dB.
+    pub nominal_psnr: f64,
+}
+
+/// Paired comparison of design `a` against design `b` (differences are a minus b).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairRow {
+    /// Design a.
+    pub a: String,
+    /// Design b.
+    pub b: String,
+    /// Mean PSNR difference, dB.
+    pub psnr_mean_diff: f64,
+    /// Its bootstrap 95 % interval.
+    pub psnr_mean_diff_ci95: [f64; 2],
+    /// Difference of the PSNR at 90 % yield, dB.
+    pub psnr_yield90_diff: f64,
+    /// Its bootstrap 95 % interval.
+    pub psnr_yield90_diff_ci95: [f64; 2],
+}
+
+/// The evaluation report: settings, design rows, pairs and every unit's scores (so that shards
+/// merge into exactly the single-run report).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    /// Settings.
+    pub config: EvalConfig,
+    /// Names of the evaluation images.
+    pub images: Vec<String>,
+    /// One row per design.
+    pub designs: Vec<DesignRow>,
+    /// Paired comparisons.
+    pub pairs: Vec<PairRow>,
+    /// Per-design unit scores.
+    pub scores: Vec<DesignScores>,
+}
+
+/// Builds the report from per-design scores; `pairs` names (a, b) design pairs.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for a pair naming an unknown design, or designs scored on
+/// different patterns.
+pub fn report(
+    config: &EvalConfig,
+    images: &[String],
+    scores: Vec<DesignScores>,
+    pairs: &[(String, String)],
+) -> Result<Report> {
+    let designs = scores
+        .iter()
+        .map(|s| {
+            let col = |f: fn(&TrialScore) -> f64| s.trials.iter().map(f).collect::<Vec<_>>();
+            DesignRow {
+                name: s.name.clone(),
+                trials: s.trials.len(),
+                psnr: Summary::of(&col(|t| t.psnr)),
+                ssim: Summary::of(&col(|t| t.ssim)),
+                rms_spot_um: Summary::of(&col(|t| t.rms_spot_um)),
+                psf_similarity: Summary::of(&col(|t| t.psf_similarity)),
+                nominal_psnr: s.nominal.psnr,
+            }
+        })
+        .collect();
+    let find = |n: &str| {
+        scores.iter().find(|s| s.name == n).ok_or_else(|| {
+            Error::argument(format!(
+                "pair names design \"{n}\", which was not evaluated"
+            ))
+        })
+    };
+    let mut rows = Vec::new();
+    for (a, b) in pairs {
+        let (sa, sb) = (find(a)?, find(b)?);
+        let ia: Vec<usize> = sa.trials.iter().map(|t| t.index).collect();
+        let ib: Vec<usize> = sb.trials.iter().map(|t| t.index).collect();
+        if ia != ib {
+            return Err(Error::argument(format!(
+                "designs {a} and {b} were scored on different patterns; a paired comparison needs the same"
+            )));
+        }
+        let pa: Vec<f64> = sa.trials.iter().map(|t| t.psnr).collect();
+        let pb: Vec<f64> = sb.trials.iter().map(|t| t.psnr).collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let y90 = |v: &[f64]| YieldTable::from(v).y90;
+        let (dm, cim) = paired_bootstrap(&pa, &pb, mean, config.bootstrap, config.seed)?;
+        let (dy, ciy) = paired_bootstrap(&pa, &pb, y90, config.bootstrap, config.seed ^ 1)?;
+        rows.push(PairRow {
+            a: a.clone(),
+            b: b.clone(),
+            psnr_mean_diff: dm,
+            psnr_mean_diff_ci95: cim,
+            psnr_yield90_diff: dy,
+            psnr_yield90_diff_ci95: ciy,
+        });
+    }
+    Ok(Report {
+        config: config.clone(),
+        images: images.to_vec(),
+        designs,
+        pairs: rows,
+        scores,
+    })
+}
+
+/// The built-in evaluation photographs (`data/images/`, public domain or CC0; see
+/// `data/images/SOURCES.md`), 384 x 384 sRGB PNG.
+const BUILTIN_PHOTOS: [(&str, &[u8]); 4] = [
+    (
+        "astronaut",
+        include_bytes!("../../data/images/astronaut.png"),
+    ),
+    ("coffee", include_bytes!("../../data/images/coffee.png")),
+    ("rocket", include_bytes!("../../data/images/rocket.png")),
+    ("camera", include_bytes!("../../data/images/camera.png")),
+];
+
+/// The centre `side x side` crop of `img`.
+fn centre_crop(name: &str, img: &Image, side: usize) -> Result<Image> {
+    if img.width < side || img.height < side {
+        return Err(Error::argument(format!(
+            "evaluation image {name} is {}x{}; at least {side}x{side} is needed (PSF grid x patch)",
+            img.width, img.height
+        )));
+    }
+    img.crop((img.width - side) / 2, (img.height - side) / 2, side, side)
+}
+
+impl EvalImages {
+    /// The built-in set: a dead-leaves image (seed `seed`) and the first `photos` built-in
+    /// photographs (at most 4), centre crops of `side` pixels (at most 384 for the photographs).
+    ///
+    /// # Errors
+    /// A side larger than the photographs.
+    pub fn builtin(side: usize, photos: usize, seed: u64) -> Result<EvalImages> {
+        let mut images = vec![(
+            "dead-leaves".to_string(),
+            crate::image::deadleaves::DeadLeaves::default().generate(side, side, seed, u64::MAX)?,
+        )];
+        for (name, bytes) in BUILTIN_PHOTOS.iter().take(photos) {
+            let img = Image::decode(bytes).map_err(|e| e.context(name))?;
+            images.push((name.to_string(), centre_crop(name, &img, side)?));
+        }
+        Ok(EvalImages { images })
+    }
+
+    /// Every PNG or JPEG file in `dir` (sorted by name), centre crops of `side` pixels.
+    ///
+    /// # Errors
+    /// I/O and decoding errors naming the file; a folder without images; an image smaller than
+    /// `side`.
+    pub fn from_dir(dir: &std::path::Path, side: usize) -> Result<EvalImages> {
+        let mut files: Vec<_> = std::fs::read_dir(dir)
+            .map_err(|e| Error::io(dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                    matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg")
+                })
+            })
+            .collect();
+        files.sort();
+        if files.is_empty() {
+            return Err(Error::argument(format!(
+                "{}: no PNG or JPEG image in this folder",
+                dir.display()
+            )));
+        }
+        let images = files
+            .iter()
+            .map(|p| {
+                let name = p
+                    .file_name()
+                    .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+                let img = Image::load(p)?;
+                Ok((
+                    name.clone(),
+                    centre_crop(&name, &img, side).map_err(|e| e.context(p.display()))?,
+                ))
+            })
+            .collect::<Result<_>>()?;
+        Ok(EvalImages { images })
+    }
+}
+
+/// Combines the reports of evaluation shards (the same designs, settings and images, disjoint
+/// trial slices) into exactly the report of a single run, bootstrap intervals included.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] when the parts differ in settings, designs or images, overlap,
+/// or leave trials out.
+pub fn merge(parts: &[Report]) -> Result<Report> {
+    let first = parts
+        .first()
+        .ok_or_else(|| Error::argument("merge needs at least one report"))?;
+    let names: Vec<&str> = first.scores.iter().map(|s| s.name.as_str()).collect();
+    let mut scores: Vec<DesignScores> = first
+        .scores
+        .iter()
+        .map(|s| DesignScores {
+            name: s.name.clone(),
+            trials: Vec::new(),
+            nominal: s.nominal.clone(),
+        })
+        .collect();
+    for (k, p) in parts.iter().enumerate() {
+        let pn: Vec<&str> = p.scores.iter().map(|s| s.name.as_str()).collect();
+        if p.config != first.config || p.images != first.images || pn != names {
+            return Err(Error::argument(format!(
+                "part {k}: settings, images or designs differ from part 0"
+            )));
+        }
+        for (dst, src) in scores.iter_mut().zip(&p.scores) {
+            dst.trials.extend(src.trials.iter().cloned());
+        }
+    }
+    for s in &mut scores {
+        s.trials.sort_by_key(|t| t.index);
+        let idx: Vec<usize> = s.trials.iter().map(|t| t.index).collect();
+        if idx != (0..first.config.trials).collect::<Vec<_>>() {
+            return Err(Error::argument(format!(
+                "design {}: the parts hold {} trials, not each of 0..{} once",
+                s.name,
+                idx.len(),
+                first.config.trials
+            )));
+        }
+    }
+    let pairs: Vec<(String, String)> = first
+        .pairs
+        .iter()
+        .map(|p| (p.a.clone(), p.b.clone()))
+        .collect();
+    report(&first.config, &first.images, scores, &pairs)
+}

@@ -1,0 +1,729 @@
+//! Deep optics: a lens and an image-reconstruction decoder trained together, first on the
+//! nominal lens and then with random manufacturing tolerances in the loop (the paper's two
+//! stages), and judged by the quality of decoded images over randomly fabricated units
+//! ([`eval`]).
+//!
+//! One iteration: `samples` training crops (dead leaves, [`crate::image::deadleaves`]), crop `j`
+//! imaged through its own lens (the nominal design in stage 1, a random tolerance pattern in
+//! stage 2) at field `j mod grid²` of the PSF grid, by that field's RGB PSF plus Gaussian noise
+//! ([`crate::image::render`]); the decoder reconstructs every crop and the image loss is averaged
+//! over the batch. The gradients meet at one seam ([`PatternObjective`]): reverse mode through
+//! the decoder and the rendering gives dL/dPSF for each crop's PSF, and the lens gradient is
+//! the forward-mode (dual number) derivative of `<dL/dPSF, PSF(θ)>`, i.e. Jᵀ dL/dPSF, traced
+//! through the same rays as the PSF that blurred the crop. Nothing else knows both halves.
+
+pub mod eval;
+pub mod html;
+pub mod study;
+
+use crate::decoder::{Crop, Decoder, DecoderKind, ImageLossWeights};
+use crate::error::{Error, Result};
+use crate::image::deadleaves::DeadLeaves;
+use crate::image::render::{add_gaussian_noise, blur_patch, blur_patch_psf_adjoint};
+use crate::lens::{Adjustments, Lens, Param, System};
+use crate::optim::adam::{cosine_schedule, Adam};
+use crate::optim::train::{design_variables, TrainConfig};
+use crate::optim::GRAD_WIDTH;
+use crate::optim::{
+    bundle_spot, gradient, param_value, set_param, Bundles, Objective, SpotMeasure,
+};
+use crate::psf::{grid_fields, psf_of, psf_similarity, PsfCentre, PsfOptions, PsfRays};
+use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// What a training phase optimizes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Phase {
+    /// Stage 1 of the paper (and the conventional design's continuation): lens and decoder on
+    /// the nominal lens, no tolerances.
+    Nominal,
+    /// Stage 2: lens and decoder with random tolerance patterns in the loop.
+    Tolerance,
+    /// The paper's decoder-only ablation: the lens is frozen, the decoder trains with random
+    /// tolerance patterns.
+    DecoderOnly,
+}
+
+impl Phase {
+    fn trains_lens(self) -> bool {
+        self != Phase::DecoderOnly
+    }
+    fn samples_tolerances(self) -> bool {
+        self != Phase::Nominal
+    }
+}
+
+/// Settings of the image stages. Optics settings (tolerances, PSF grid and kernel, rays per PSF,
+/// wavelengths, constraints, learning rates, seed) come from [`TrainConfig`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeepConfig {
+    /// Optics settings shared with the optics-only trainer.
+    pub optics: TrainConfig,
+    /// Side of each training crop, pixels (the paper: 256).
+    pub crop_px: usize,
+    /// Standard deviation of the additive Gaussian noise, in linear [0, 1] units (paper: 0.01).
+    pub noise_sigma: f64,
+    /// The decoder.
+    pub decoder: DecoderKind,
+    /// Base width (channels of the first level) of the U-Net.
+    pub unet_width: usize,
+    /// Learning rate of the U-Net weights.
+    pub lr_unet: f64,
+    /// Learning rate of the Wiener filters' PSF estimates.
+    pub lr_wiener_psf: f64,
+    /// Learning rate of the Wiener filters' log regularization weights.
+    pub lr_wiener_reg: f64,
+    /// Factor on the optics learning rates of `optics` in the image phases (they fine-tune a
+    /// focused design).
+    pub optics_lr_scale: f64,
+    /// Image-loss weights.
+    pub loss: ImageLossWeights,
+    /// Weight of the spot loss (per mm of mean spot distance) in the image phases.
+    pub lambda_spot: f64,
+    /// Weight of the PSF-similarity loss in the tolerance phase.
+    pub lambda_psf: f64,
+}
+
+impl DeepConfig {
+    /// Defaults sized for a CPU (see the README's cost table): 64-pixel crops, 64 patterns per
+    /// iteration, σ = 0.01, a Wiener + U-Net decoder of width 8.
+    pub fn for_lens(lens: &Lens) -> DeepConfig {
+        DeepConfig {
+            optics: TrainConfig::for_lens(lens),
+            crop_px: 64,
+            noise_sigma: 0.01,
+            decoder: DecoderKind::WienerUnet,
+            unet_width: 8,
+            lr_unet: 2e-3,
+            lr_wiener_psf: 2e-5,
+            lr_wiener_reg: 0.05,
+            optics_lr_scale: 0.1,
+            loss: ImageLossWeights::default(),
+            lambda_spot: 0.1,
+            lambda_psf: 0.01,
+        }
+    }
+
+    /// Checks the settings.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] naming the setting.
+    pub fn validate(&self) -> Result<()> {
+        self.optics.validate()?;
+        if !(8..=1024).contains(&self.crop_px) || self.crop_px % 8 != 0 {
+            return Err(Error::argument(format!(
+                "crop {} px: give a multiple of 8 from 8 to 1024",
+                self.crop_px
+            )));
+        }
+        for (what, v) in [
+            ("noise sigma", self.noise_sigma),
+            ("lambda_spot", self.lambda_spot),
+            ("lambda_psf", self.lambda_psf),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(Error::argument(format!(
+                    "{what} {v}: must be zero or positive"
+                )));
+            }
+        }
+        for (what, v) in [
+            ("lr_unet", self.lr_unet),
+            ("lr_wiener_psf", self.lr_wiener_psf),
+            ("lr_wiener_reg", self.lr_wiener_reg),
+            ("optics_lr_scale", self.optics_lr_scale),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(Error::argument(format!("{what} {v}: must be positive")));
+            }
+        }
+        if !(1..=256).contains(&self.unet_width) {
+            return Err(Error::argument(format!(
+                "U-Net width {}: give 1 to 256",
+                self.unet_width
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A lens and its decoder: what deep optics designs and what evaluation judges.
+#[derive(Clone, Debug)]
+pub struct Design {
+    /// The lens.
+    pub lens: Lens,
+    /// The decoder trained with it.
+    pub decoder: Decoder,
+}
+
+/// The joint trainer's state: enough to continue exactly.
+#[derive(Clone, Debug)]
+pub struct DeepState {
+    /// Settings.
+    pub config: DeepConfig,
+    /// The current design.
+    pub design: Design,
+    /// Design variables of the lens.
+    pub vars: Vec<Param>,
+    /// Adam over the lens variables (fresh at each phase).
+    pub adam_lens: Adam,
+    /// Adam over the decoder parameters (kept across phases).
+    pub adam_decoder: Adam,
+    /// The phase being run.
+    pub phase: Phase,
+    /// Iterations of this phase.
+    pub phase_iters: usize,
+    /// Next iteration of this phase.
+    pub phase_iter: usize,
+    /// Iterations run before this phase (so that every iteration draws fresh crops and
+    /// patterns).
+    pub iter_offset: usize,
+}
+
+/// What one iteration measured.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeepLog {
+    /// Global iteration (over all phases).
+    pub iter: usize,
+    /// Phase.
+    pub phase: Phase,
+    /// Mean image loss of the batch.
+    pub image_loss: f64,
+    /// PSNR of the decoded batch against the sharp crops (sRGB, dB).
+    pub psnr_db: f64,
+    /// Mean spot distance of the batch's bundles, µm.
+    pub spot_um: f64,
+    /// Mean PSF similarity to the nominal design (tolerance phases).
+    pub psf_similarity: Option<f64>,
+}
+
+impl DeepState {
+    /// A state that starts `phase` for `iters` iterations from `design`, with a fresh decoder
+    /// initialised from the lens' own PSFs when `decoder` is `None`.
+    ///
+    /// # Errors
+    /// Invalid settings, ray-generation errors.
+    pub fn new(
+        config: DeepConfig,
+        lens: Lens,
+        decoder: Option<Decoder>,
+        phase: Phase,
+        iters: usize,
+        iter_offset: usize,
+    ) -> Result<DeepState> {
+        config.validate()?;
+        let decoder = match decoder {
+            Some(d) => d,
+            None => {
+                let psfs = nominal_psf_map(&lens, &config.optics, config.optics.psf_spp.max(2048))?;
+                Decoder::new(
+                    config.decoder,
+                    config.optics.psf_grid,
+                    config.optics.psf_ks,
+                    &psfs,
+                    config.noise_sigma,
+                    config.unet_width,
+                    config.optics.seed,
+                )?
+            }
+        };
+        let vars = design_variables(&lens);
+        let adam_lens = Adam::new(lens_learning_rates(&lens, &vars, &config));
+        let adam_decoder = Adam::new(decoder.learning_rates(
+            config.lr_wiener_psf,
+            config.lr_wiener_reg,
+            config.lr_unet,
+        ));
+        Ok(DeepState {
+            config,
+            design: Design { lens, decoder },
+            vars,
+            adam_lens,
+            adam_decoder,
+            phase,
+            phase_iters: iters,
+            phase_iter: 0,
+            iter_offset,
+        })
+    }
+
+    /// Switches to `phase` for `iters` iterations, keeping the design and the decoder's
+    /// optimizer state; the lens optimizer starts afresh.
+    pub fn start_phase(&mut self, phase: Phase, iters: usize) {
+        self.iter_offset += self.phase_iter;
+        self.phase = phase;
+        self.phase_iters = iters;
+        self.phase_iter = 0;
+        self.adam_lens = Adam::new(lens_learning_rates(
+            &self.design.lens,
+            &self.vars,
+            &self.config,
+        ));
+    }
+
+    /// True when the phase has run all its iterations.
+    pub fn done(&self) -> bool {
+        self.phase_iter >= self.phase_iters
+    }
+}
+
+fn lens_learning_rates(lens: &Lens, vars: &[Param], cfg: &DeepConfig) -> Vec<f64> {
+    let last = lens.surfaces.len() - 1;
+    let o = &cfg.optics;
+    vars.iter()
+        .map(|p| {
+            cfg.optics_lr_scale
+                * match p {
+                    Param::Curvature(_) => o.lr_curvature,
+                    Param::Gap(i) if *i == last => o.lr_image,
+                    _ => o.lr_gap,
+                }
+        })
+        .collect()
+}
+
+/// PSF options of the image stages: `ks` pixels at the sensor pitch, chief-ray centred, `spp`
+/// random pupil rays of seed `seed`.
+pub fn psf_options(lens: &Lens, ks: usize, spp: usize, seed: u64) -> PsfOptions {
+    let mut psf = PsfOptions::for_lens(lens);
+    psf.ks = ks;
+    psf.centre = PsfCentre::Chief;
+    psf.pupil = Pupil {
+        pattern: PupilPattern::Random { n: spp, seed },
+        scale: 1.0,
+        aim: false,
+    };
+    psf
+}
+
+/// The RGB PSFs of `sys` over the `grid x grid` field grid of `lens`, as f32 in the layout of
+/// [`crate::image::render::PsfMap`]: tile-major, then channel (the lens' RGB wavelengths), then
+/// `ks x ks`.
+///
+/// # Errors
+/// Ray-generation errors; a PSF into whose window no ray lands.
+pub fn rgb_psf_map(
+    lens: &Lens,
+    sys: &System<f64>,
+    grid: usize,
+    wavelengths_nm: &[f64],
+    opts: &PsfOptions,
+) -> Result<Vec<f32>> {
+    let ks2 = opts.ks * opts.ks;
+    let nc = wavelengths_nm.len();
+    let mut out = vec![0f32; grid * grid * nc * ks2];
+    for (c, &wl) in wavelengths_nm.iter().enumerate() {
+        let map = crate::psf::psf_map(lens, sys, grid, wl, opts)?;
+        for (t, p) in map.iter().enumerate() {
+            crate::psf::check_landed(p, &format!("PSF of grid cell {t} at {wl} nm"))?;
+            let dst = &mut out[(t * nc + c) * ks2..(t * nc + c + 1) * ks2];
+            for (d, s) in dst.iter_mut().zip(p) {
+                *d = *s as f32;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The nominal lens' RGB PSF map with `spp` rays per PSF (used to initialise a decoder).
+fn nominal_psf_map(lens: &Lens, cfg: &TrainConfig, spp: usize) -> Result<Vec<f32>> {
+    let opts = psf_options(lens, cfg.psf_ks, spp, cfg.seed);
+    rgb_psf_map(
+        lens,
+        &lens.compile(),
+        cfg.psf_grid,
+        &cfg.wavelengths_nm,
+        &opts,
+    )
+}
+
+/// The lens objective of one training crop's pattern: the spot and PSF-similarity terms (weighted
+/// by `weight`, the batch mean) plus the image term `<dL/dPSF, PSF(θ)>`, whose dual-number
+/// derivative is the image loss' gradient through this crop's PSF (a vector-Jacobian product
+/// from the forward-mode Jacobian).
+pub struct PatternObjective {
+    /// Spot bundles at the crop's field (one per wavelength).
+    pub spot: Bundles,
+    /// Rays of the crop's RGB PSF.
+    pub psf_rays: PsfRays,
+    /// PSF settings.
+    pub psf: PsfOptions,
+    /// Nominal-design PSFs for the similarity term (empty in the nominal phase).
+    pub ideal: Vec<Vec<f64>>,
+    /// dL/dPSF per channel (`ks²` each).
+    pub image_grad: Vec<Vec<f64>>,
+    /// Weight of the spot and similarity terms (1 / batch size).
+    pub weight: f64,
+    /// λ_spot, per mm.
+    pub lambda_spot: f64,
+    /// λ_psf.
+    pub lambda_psf: f64,
+    /// Trace options.
+    pub trace: TraceOptions,
+}
+
+impl Objective for PatternObjective {
+    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+        let mut spot = S::cst(0.0);
+        for k in 0..self.spot.sets.len() {
+            spot += bundle_spot(&self.spot.sensor_points(sys, k), SpotMeasure::Mean);
+        }
+        let mut total =
+            spot * S::cst(self.weight * self.lambda_spot / self.spot.sets.len().max(1) as f64);
+        let mut sim = S::cst(0.0);
+        for k in 0..self.psf_rays.sets.len() {
+            let (p, _) = psf_of(sys, &self.psf_rays, k, &self.psf, self.trace);
+            if let Some(ideal) = self.ideal.get(k) {
+                sim += psf_similarity(ideal, &p, self.psf.ks);
+            }
+            for (g, v) in self.image_grad[k].iter().zip(&p) {
+                if *g != 0.0 {
+                    total += *v * S::cst(*g);
+                }
+            }
+        }
+        if !self.ideal.is_empty() {
+            let n = S::cst(1.0 / self.ideal.len() as f64);
+            total += (S::cst(1.0) - sim * n) * S::cst(self.weight * self.lambda_psf);
+        }
+        total
+    }
+}
+
+/// One training crop of an iteration, everything drawn: its tile, tolerance pattern, rays,
+/// sharp image (with the halo the blur needs) and noise. Replaying a batch with another lens or
+/// decoder changes nothing else, so its loss is a deterministic function of the design (what the
+/// gradient checks difference).
+#[derive(Clone, Debug)]
+pub struct BatchCrop {
+    /// PSF tile (field of the grid).
+    pub tile: usize,
+    /// The crop's tolerance pattern (none in the nominal phase).
+    pub pattern: Option<crate::tolerance::Perturbation>,
+    /// Rays of its RGB PSF, launched from the design at the start of the iteration.
+    pub rays: PsfRays,
+    /// Spot bundles at its field (likewise).
+    pub spot: Bundles,
+    /// Nominal-design PSFs (the similarity term's constant reference; tolerance phases only).
+    pub ideal: Vec<Vec<f64>>,
+    /// Sharp image with a halo of (ks - 1) / 2 pixels, 3 planes of (crop + ks - 1)².
+    pub xpad: Vec<f32>,
+    /// The noise added to its capture, 3 planes of crop².
+    pub noise: Vec<f32>,
+}
+
+/// The crops of one iteration.
+#[derive(Clone, Debug)]
+pub struct Batch {
+    /// Global iteration.
+    pub iter: usize,
+    /// The crops.
+    pub crops: Vec<BatchCrop>,
+    /// PSF settings (rays of this iteration).
+    pub psf: PsfOptions,
+    /// Trace options.
+    pub trace: TraceOptions,
+}
+
+/// Draws the batch of global iteration `it` for `lens`: crop `j` at tile `j mod grid²`, its
+/// pattern, dead-leaves image and noise from (seed, it · samples + j).
+///
+/// # Errors
+/// Ray-generation errors; invalid patterns.
+pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Result<Batch> {
+    let o = &cfg.optics;
+    let fields = grid_fields(lens, o.psf_grid);
+    let trace = TraceOptions {
+        apertures: o.apertures,
+    };
+    let psf = psf_options(
+        lens,
+        o.psf_ks,
+        o.psf_spp,
+        o.seed ^ (it as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+    );
+    let nominal = lens.compile();
+    let (c, ks) = (cfg.crop_px, o.psf_ks);
+    let side = c + ks - 1;
+    let leaves = DeadLeaves::default();
+    let n = o.samples;
+    let crops = (0..n)
+        .into_par_iter()
+        .map(|j| -> Result<BatchCrop> {
+            let stream = (it * n + j) as u64;
+            let tile = j % fields.len();
+            let pattern = if phase.samples_tolerances() {
+                Some(o.spec.sample(lens, o.seed, stream)?)
+            } else {
+                None
+            };
+            let pairs: Vec<(Field, f64)> = o
+                .wavelengths_nm
+                .iter()
+                .map(|&w| (fields[tile], w))
+                .collect();
+            let rays = PsfRays::new(lens, &pairs, &psf.pupil)?;
+            let ideal = if phase.samples_tolerances() {
+                (0..pairs.len())
+                    .map(|k| psf_of(&nominal, &rays, k, &psf, trace).0)
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            let spot = Bundles::new(
+                lens,
+                &[fields[tile]],
+                &o.wavelengths_nm,
+                &Pupil::grid((o.spot_grid / 2).max(2)),
+                trace,
+            )?;
+            let xpad = leaves.generate(side, side, o.seed, stream)?.data;
+            let mut noise = vec![0f32; 3 * c * c];
+            add_gaussian_noise(
+                &mut noise,
+                cfg.noise_sigma as f32,
+                o.seed ^ 0x6e6f_6973_65,
+                stream,
+            );
+            Ok(BatchCrop {
+                tile,
+                pattern,
+                rays,
+                spot,
+                ideal,
+                xpad,
+                noise,
+            })
+        })
+        .collect::<Result<_>>()?;
+    Ok(Batch {
+        iter: it,
+        crops,
+        psf,
+        trace,
+    })
+}
+
+/// A crop's lens: its pattern applied to `lens`, compiled in f64, with the adjustments.
+fn crop_lens(lens: &Lens, bc: &BatchCrop) -> Result<(Lens, Adjustments)> {
+    match &bc.pattern {
+        Some(p) => p.apply(lens),
+        None => Ok((lens.clone(), Adjustments::none(lens.surfaces.len()))),
+    }
+}
+
+/// What a batch evaluation gives.
+#[derive(Clone, Debug)]
+pub struct BatchEval {
+    /// Total loss: mean image loss + the spot and similarity terms (batch means).
+    pub loss: f64,
+    /// Mean image loss.
+    pub image_loss: f64,
+    /// Batch PSNR, dB.
+    pub psnr_db: f64,
+    /// Mean spot distance, µm.
+    pub spot_um: f64,
+    /// Mean PSF similarity (tolerance phases).
+    pub psf_similarity: Option<f64>,
+    /// dL/dθ over the lens variables (empty unless asked).
+    pub dlens: Vec<f64>,
+    /// dL/dφ over the decoder parameters.
+    pub ddecoder: Vec<f64>,
+}
+
+/// Evaluates the batch with `lens` and `decoder`: renders every crop through its own PSF (the
+/// crop's pattern applied to `lens`, traced with the batch's rays), decodes, scores; with
+/// `vars`, also the exact gradient with respect to those lens variables (dual numbers through
+/// [`PatternObjective`]).
+///
+/// # Errors
+/// A crop whose PSF receives no ray; decoder errors.
+pub fn eval_batch(
+    cfg: &DeepConfig,
+    batch: &Batch,
+    lens: &Lens,
+    decoder: &Decoder,
+    vars: Option<&[Param]>,
+) -> Result<BatchEval> {
+    let o = &cfg.optics;
+    let (c, ks) = (cfg.crop_px, o.psf_ks);
+    let n = batch.crops.len();
+    let (psf, trace) = (batch.psf, batch.trace);
+    // 1. Each crop's PSFs (values) and capture.
+    let rendered: Vec<(Vec<Vec<f64>>, Crop, f64, f64)> = batch
+        .crops
+        .par_iter()
+        .enumerate()
+        .map(|(j, bc)| -> Result<_> {
+            let (plens, adj) = crop_lens(lens, bc)?;
+            let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
+            let psfs: Vec<Vec<f64>> = (0..bc.rays.sets.len())
+                .map(|k| psf_of(&sys, &bc.rays, k, &psf, trace).0)
+                .collect();
+            for (k, p) in psfs.iter().enumerate() {
+                crate::psf::check_landed(
+                    p,
+                    &format!(
+                        "iteration {}, crop {j}, {} nm",
+                        batch.iter, bc.rays.sets[k].1
+                    ),
+                )?;
+            }
+            let psf32: Vec<f32> = psfs.iter().flatten().map(|&v| v as f32).collect();
+            let mut y = blur_patch(&bc.xpad, c, c, &psf32, ks)?;
+            for (a, b) in y.iter_mut().zip(&bc.noise) {
+                *a += b;
+            }
+            let x = crop_centre(&bc.xpad, c + ks - 1, (ks - 1) / 2, c);
+            let spot_mm = (0..bc.spot.sets.len())
+                .map(|k| bundle_spot(&bc.spot.sensor_points(&sys, k), SpotMeasure::Mean))
+                .sum::<f64>()
+                / bc.spot.sets.len().max(1) as f64;
+            let sim = if bc.ideal.is_empty() {
+                1.0
+            } else {
+                bc.ideal
+                    .iter()
+                    .zip(&psfs)
+                    .map(|(i, p)| psf_similarity(i, p, ks))
+                    .sum::<f64>()
+                    / bc.ideal.len() as f64
+            };
+            let crop = Crop {
+                tile: bc.tile,
+                y,
+                x,
+                w: c,
+                h: c,
+            };
+            Ok((psfs, crop, spot_mm, sim))
+        })
+        .collect::<Result<_>>()?;
+    let crops: Vec<Crop> = rendered.iter().map(|r| r.1.clone()).collect();
+    // 2. The decoder, forward and backward.
+    let out = decoder.train_batch(&crops, &cfg.loss)?;
+    let inv = 1.0 / n as f64;
+    let spot_mm: f64 = rendered.iter().map(|r| r.2).sum::<f64>() * inv;
+    let sim: f64 = rendered.iter().map(|r| r.3).sum::<f64>() * inv;
+    let tol = batch.crops.iter().any(|b| !b.ideal.is_empty());
+    let loss = out.loss
+        + cfg.lambda_spot * spot_mm
+        + if tol {
+            cfg.lambda_psf * (1.0 - sim)
+        } else {
+            0.0
+        };
+    // 3. The lens gradient: dL/dPSF of each crop, then Jᵀ dL/dPSF by dual numbers.
+    let dlens = match vars {
+        None => Vec::new(),
+        Some(vars) => {
+            let ks2 = ks * ks;
+            let per: Vec<Vec<f64>> = batch
+                .crops
+                .par_iter()
+                .zip(out.dy.par_iter())
+                .map(|(bc, dy)| -> Result<Vec<f64>> {
+                    let g = blur_patch_psf_adjoint(&bc.xpad, c, c, ks, dy)?;
+                    let obj = PatternObjective {
+                        spot: bc.spot.clone(),
+                        psf_rays: bc.rays.clone(),
+                        psf,
+                        ideal: bc.ideal.clone(),
+                        image_grad: g
+                            .chunks(ks2)
+                            .map(|ch| ch.iter().map(|&v| v as f64).collect())
+                            .collect(),
+                        weight: inv,
+                        lambda_spot: cfg.lambda_spot,
+                        lambda_psf: cfg.lambda_psf,
+                        trace,
+                    };
+                    let (plens, adj) = crop_lens(lens, bc)?;
+                    Ok(gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, vars)?.1)
+                })
+                .collect::<Result<_>>()?;
+            let mut g = vec![0.0; vars.len()];
+            for gj in &per {
+                for (a, b) in g.iter_mut().zip(gj) {
+                    *a += b;
+                }
+            }
+            g
+        }
+    };
+    Ok(BatchEval {
+        loss,
+        image_loss: out.loss,
+        psnr_db: out.psnr_db,
+        spot_um: spot_mm * 1e3,
+        psf_similarity: tol.then_some(sim),
+        dlens,
+        ddecoder: out.dparams,
+    })
+}
+
+/// The centre `c x c` block (offset `off`) of a 3-plane square image of side `side`.
+fn crop_centre(xpad: &[f32], side: usize, off: usize, c: usize) -> Vec<f32> {
+    let mut x = Vec::with_capacity(3 * c * c);
+    for ch in 0..3 {
+        for r in 0..c {
+            let s = ch * side * side + (r + off) * side + off;
+            x.extend_from_slice(&xpad[s..s + c]);
+        }
+    }
+    x
+}
+
+/// Runs one iteration of the current phase and returns its log. Crops, patterns, noise and
+/// pupil samples derive from (seed, global iteration, crop index): the same state gives the
+/// same numbers whatever the thread count.
+///
+/// # Errors
+/// Ray-generation errors; a crop whose PSF receives no ray; a non-finite loss.
+pub fn step(state: &mut DeepState) -> Result<DeepLog> {
+    let it = state.iter_offset + state.phase_iter;
+    let phase = state.phase;
+    let batch = draw_batch(&state.config, &state.design.lens, phase, it)?;
+    let vars = phase.trains_lens().then_some(state.vars.as_slice());
+    let e = eval_batch(
+        &state.config,
+        &batch,
+        &state.design.lens,
+        &state.design.decoder,
+        vars,
+    )?;
+    if !e.loss.is_finite() {
+        return Err(Error::numerical(format!(
+            "iteration {it}: the loss is not finite"
+        )));
+    }
+    let scale = cosine_schedule(state.phase_iter as u64, state.phase_iters as u64, 0.05);
+    if phase.trains_lens() {
+        let mut lens = state.design.lens.clone();
+        let mut x: Vec<f64> = state
+            .vars
+            .iter()
+            .map(|&p| param_value(&lens, p))
+            .collect::<Result<_>>()?;
+        state.adam_lens.step(&mut x, &e.dlens, scale);
+        for (&p, &v) in state.vars.iter().zip(&x) {
+            set_param(&mut lens, p, v)?;
+        }
+        crate::optim::train::project(&mut lens, &state.config.optics.constraints);
+        state.design.lens = lens;
+    }
+    let mut params = state.design.decoder.params().to_vec();
+    state.adam_decoder.step(&mut params, &e.ddecoder, scale);
+    state.design.decoder.set_params(&params)?;
+    state.phase_iter += 1;
+    Ok(DeepLog {
+        iter: it,
+        phase,
+        image_loss: e.image_loss,
+        psnr_db: e.psnr_db,
+        spot_um: e.spot_um,
+        psf_similarity: e.psf_similarity,
+    })
+}

@@ -1,0 +1,213 @@
+//! The deep-optics study: one lens designed three ways from the same start and judged on the
+//! same held-out fabricated units. Stage 0 fits the prescription's focus with the spot loss;
+//! stage 1 trains lens and decoder on the nominal lens; from there three branches run equally
+//! long: the conventional design (stage 1 continued, no tolerances), the tolerance-aware design
+//! (stage 2, tolerances in the loop) and the decoder-only control (stage-1 lens frozen, decoder
+//! trained on tolerances). Each design is saved (`lens.json`, `decoder.bin`) and evaluated.
+
+use super::eval::{evaluate, report, EvalConfig, EvalImages, Report};
+use super::{step, DeepConfig, DeepLog, DeepState, Design, Phase};
+use crate::decoder::Decoder;
+use crate::error::{write_atomic, Error, ErrorKind, Result};
+use crate::lens::Lens;
+use crate::optim::train::TrainState;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Names of the study's designs.
+pub const CONVENTIONAL: &str = "conventional";
+/// The tolerance-aware design.
+pub const TOLERANCE_AWARE: &str = "tolerance-aware";
+/// The decoder-only control.
+pub const DECODER_ONLY: &str = "decoder-only";
+
+/// Study settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StudyConfig {
+    /// Joint-training settings.
+    pub deep: DeepConfig,
+    /// Iterations of the spot-loss focus fit (stage 0).
+    pub spot_iters: usize,
+    /// Iterations of stage 1.
+    pub stage1_iters: usize,
+    /// Iterations of each branch after stage 1.
+    pub stage2_iters: usize,
+    /// Also train and evaluate the decoder-only control.
+    pub decoder_only: bool,
+    /// Evaluation settings.
+    pub eval: EvalConfig,
+}
+
+/// Writes a decoder as `decoder.bin`: the magic `TOLRDEC1`, a little-endian `u32` header length,
+/// a JSON header (the decoder's settings and parameter count), then every parameter as a
+/// little-endian `f64` (exact).
+///
+/// # Errors
+/// I/O errors naming the path.
+pub fn save_decoder(d: &Decoder, path: &Path) -> Result<()> {
+    let header = serde_json::json!({
+        "kind": d.kind, "grid": d.grid, "ks": d.ks, "unet_width": d.unet_width,
+        "n_params": d.params().len(), "dtype": "f64le",
+    })
+    .to_string();
+    let mut bytes = Vec::with_capacity(12 + header.len() + 8 * d.params().len());
+    bytes.extend_from_slice(b"TOLRDEC1");
+    bytes.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in d.params() {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    write_atomic(path, &bytes)
+}
+
+/// Reads a decoder written by [`save_decoder`].
+///
+/// # Errors
+/// [`ErrorKind::Io`], or [`ErrorKind::Parse`] naming the path and what is wrong.
+pub fn load_decoder(path: &Path) -> Result<Decoder> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bad = |m: &str| Error::new(ErrorKind::Parse, format!("{}: {m}", path.display()));
+    if bytes.len() < 12 || &bytes[..8] != b"TOLRDEC1" {
+        return Err(bad("not a tolray decoder (no TOLRDEC1 magic)"));
+    }
+    let hl = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
+    let header = bytes
+        .get(12..12 + hl)
+        .ok_or_else(|| bad("truncated header"))?;
+    let h: serde_json::Value =
+        serde_json::from_slice(header).map_err(|e| bad(&format!("header: {e}")))?;
+    let get = |k: &str| {
+        h.get(k)
+            .and_then(|v| v.as_u64())
+            .ok_or_else(|| bad(&format!("header lacks {k}")))
+    };
+    let kind = serde_json::from_value(h["kind"].clone()).map_err(|e| bad(&format!("kind: {e}")))?;
+    let (grid, ks, width, n) = (
+        get("grid")? as usize,
+        get("ks")? as usize,
+        get("unet_width")? as usize,
+        get("n_params")? as usize,
+    );
+    let data = &bytes[12 + hl..];
+    if data.len() != 8 * n {
+        return Err(bad(&format!(
+            "{} parameter bytes, {} expected",
+            data.len(),
+            8 * n
+        )));
+    }
+    if !(1..=64).contains(&grid) || ks % 2 == 0 || !(3..=255).contains(&ks) {
+        return Err(bad(&format!("grid {grid} or kernel {ks} out of range")));
+    }
+    let ks2 = ks * ks;
+    let mut d = Decoder::new(
+        kind,
+        grid,
+        ks,
+        &vec![0f32; grid * grid * 3 * ks2],
+        0.01,
+        width,
+        0,
+    )
+    .map_err(|e| e.context(path.display()))?;
+    let params: Vec<f64> = data
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+        .collect();
+    d.set_params(&params)
+        .map_err(|e| e.context(path.display()))?;
+    Ok(d)
+}
+
+/// Saves a design into `dir` (`lens.json`, `decoder.bin`).
+///
+/// # Errors
+/// I/O errors naming the path.
+pub fn save_design(d: &Design, dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    crate::lens::json::write_file(&d.lens, &dir.join("lens.json"))?;
+    save_decoder(&d.decoder, &dir.join("decoder.bin"))
+}
+
+/// Loads a design saved by [`save_design`].
+///
+/// # Errors
+/// As the readers.
+pub fn load_design(dir: &Path) -> Result<Design> {
+    let lens = crate::lens::json::read_file(&dir.join("lens.json"))?;
+    let decoder = load_decoder(&dir.join("decoder.bin"))?;
+    Ok(Design { lens, decoder })
+}
+
+/// Runs the study on `lens`, writing the designs and their training logs under `out`; returns
+/// the evaluation report. `progress` receives each iteration's log and the name of the branch.
+///
+/// # Errors
+/// Training, evaluation and I/O errors.
+pub fn run(
+    lens: &Lens,
+    cfg: &StudyConfig,
+    images: &EvalImages,
+    out: &Path,
+    progress: &mut dyn FnMut(&str, &DeepLog),
+) -> Result<Report> {
+    cfg.deep.validate()?;
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    // Stage 0: the spot loss brings the prescription into focus.
+    let mut optics = cfg.deep.optics.clone();
+    optics.pretrain_iters = cfg.spot_iters;
+    optics.tolerance_iters = 0;
+    let mut st = TrainState::new(lens, optics);
+    for _ in 0..cfg.spot_iters {
+        crate::optim::train::step(&mut st)?;
+    }
+    let focused = st.lens()?;
+    let mut log = String::new();
+    let mut s1 = DeepState::new(
+        cfg.deep.clone(),
+        focused,
+        None,
+        Phase::Nominal,
+        cfg.stage1_iters,
+        0,
+    )?;
+    while !s1.done() {
+        let l = step(&mut s1)?;
+        log.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
+        progress("stage 1", &l);
+    }
+    save_design(&s1.design, &out.join("stage1"))?;
+    let mut branches = vec![
+        (CONVENTIONAL, Phase::Nominal),
+        (TOLERANCE_AWARE, Phase::Tolerance),
+    ];
+    if cfg.decoder_only {
+        branches.push((DECODER_ONLY, Phase::DecoderOnly));
+    }
+    let mut designs = Vec::new();
+    for (name, phase) in branches {
+        let mut s = s1.clone();
+        s.start_phase(phase, cfg.stage2_iters);
+        let mut blog = log.clone();
+        while !s.done() {
+            let l = step(&mut s)?;
+            blog.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
+            progress(name, &l);
+        }
+        let dir = out.join(name);
+        save_design(&s.design, &dir)?;
+        write_atomic(&dir.join("log.jsonl"), blog.as_bytes())?;
+        designs.push((name, s.design));
+    }
+    let mut scores = Vec::new();
+    for (name, d) in &designs {
+        scores.push(evaluate(name, d, images, &cfg.eval, 0..cfg.eval.trials)?);
+    }
+    let mut pairs = vec![(TOLERANCE_AWARE.to_string(), CONVENTIONAL.to_string())];
+    if cfg.decoder_only {
+        pairs.push((DECODER_ONLY.to_string(), CONVENTIONAL.to_string()));
+        pairs.push((TOLERANCE_AWARE.to_string(), DECODER_ONLY.to_string()));
+    }
+    let names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
+    report(&cfg.eval, &names, scores, &pairs)
+}

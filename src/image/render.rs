@@ -1,0 +1,449 @@
+//! Image formation: spatially variant convolution by a PSF map, its adjoint with respect to the
+//! PSF, and sensor noise.
+//!
+//! Convention: `y[c][r][q] = Σ_{j,i} psf[c][j][i] · x[c][r − (j − h)][q − (i − h)]`, `h = ks / 2`
+//! (a point source at pixel p spreads to p + (i − h, j − h) with weight `psf[j][i]`; PSF row 0 is
+//! +y on the sensor, as the image's row 0). The image is cut into `grid x grid` tiles (tile row
+//! `i` spans rows `i·H/grid .. (i+1)·H/grid`); each tile is convolved with its own PSF over its
+//! pixels plus a halo of `h` pixels from the whole image, reflect-padded at the border, so there
+//! are no seams inside the image and PSFs change at tile edges (as DeepLens and the paper).
+//! Each tile is one FFT convolution of size the smallest 2^a 3^b 5^c covering tile + halo.
+
+use super::Image;
+use crate::error::{Error, Result};
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// RGB PSFs on a `grid x grid` field grid: tile `t = row · grid + col` (row 0 at the top), each
+/// `3 · ks · ks` values, channel-major, unit sum per channel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PsfMap {
+    /// Fields per side.
+    pub grid: usize,
+    /// Kernel size, pixels (odd).
+    pub ks: usize,
+    /// `grid² · 3 · ks²` values.
+    pub psfs: Vec<f32>,
+}
+
+impl PsfMap {
+    /// A map from its values.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for an even kernel, an empty grid or a wrong length.
+    pub fn new(grid: usize, ks: usize, psfs: Vec<f32>) -> Result<PsfMap> {
+        if grid == 0 || ks % 2 == 0 || psfs.len() != grid * grid * 3 * ks * ks {
+            return Err(Error::argument(format!(
+                "PSF map: {} values for a {grid}x{grid} grid of {ks}x{ks} RGB kernels (odd size)",
+                psfs.len()
+            )));
+        }
+        Ok(PsfMap { grid, ks, psfs })
+    }
+
+    /// The RGB PSF of tile `t`.
+    pub fn psf(&self, t: usize) -> &[f32] {
+        let n = 3 * self.ks * self.ks;
+        &self.psfs[t * n..(t + 1) * n]
+    }
+}
+
+/// Smallest 2^a 3^b 5^c >= n.
+fn fast_size(n: usize) -> usize {
+    let mut m = n.max(1);
+    loop {
+        let mut k = m;
+        for p in [2, 3, 5] {
+            while k % p == 0 {
+                k /= p;
+            }
+        }
+        if k == 1 {
+            return m;
+        }
+        m += 1;
+    }
+}
+
+/// Forward and inverse FFT plans of one length, cached per thread.
+type Plans = (Arc<dyn Fft<f32>>, Arc<dyn Fft<f32>>);
+
+thread_local! {
+    static PLANS: std::cell::RefCell<(FftPlanner<f32>, HashMap<usize, Plans>)> =
+        std::cell::RefCell::new((FftPlanner::new(), HashMap::new()));
+}
+
+fn plans(n: usize) -> Plans {
+    PLANS.with(|p| {
+        let mut p = p.borrow_mut();
+        let (planner, cache) = &mut *p;
+        if let Some(x) = cache.get(&n) {
+            return x.clone();
+        }
+        let x = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
+        cache.insert(n, x.clone());
+        x
+    })
+}
+
+/// In-place 2-D FFT of an `nx x ny` row-major array (rows, then columns).
+fn fft2(a: &mut [Complex<f32>], nx: usize, ny: usize, inverse: bool) {
+    let (fx, ix) = plans(nx);
+    let (fy, iy) = plans(ny);
+    let (px, py) = if inverse { (ix, iy) } else { (fx, fy) };
+    px.process(a);
+    let mut col = vec![Complex::default(); ny];
+    for x in 0..nx {
+        for y in 0..ny {
+            col[y] = a[y * nx + x];
+        }
+        py.process(&mut col);
+        for y in 0..ny {
+            a[y * nx + x] = col[y];
+        }
+    }
+}
+
+/// Places a `w x h` real array at the origin of a zeroed `nx x ny` complex array.
+fn embed(src: &[f32], w: usize, h: usize, nx: usize, ny: usize) -> Vec<Complex<f32>> {
+    let mut a = vec![Complex::default(); nx * ny];
+    for y in 0..h {
+        for x in 0..w {
+            a[y * nx + x] = Complex::new(src[y * w + x], 0.0);
+        }
+    }
+    a
+}
+
+fn check_patch(xpad: &[f32], w: usize, h: usize, ks: usize) -> Result<(usize, usize)> {
+    let (pw, ph) = (w + ks - 1, h + ks - 1);
+    if ks % 2 == 0 || w == 0 || h == 0 || xpad.len() != 3 * pw * ph {
+        return Err(Error::argument(format!(
+            "patch: {} values for a {pw}x{ph} RGB image with halo (output {w}x{h}, odd kernel {ks})",
+            xpad.len()
+        )));
+    }
+    Ok((pw, ph))
+}
+
+/// The blur of one patch by one RGB PSF: `xpad` is a 3-plane image of `(w + ks − 1) x
+/// (h + ks − 1)` pixels (the patch and its halo), the result the `3 · w · h` pixels of the
+/// patch ('valid' convolution, by FFT).
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for sizes that do not match.
+pub fn blur_patch(xpad: &[f32], w: usize, h: usize, psf: &[f32], ks: usize) -> Result<Vec<f32>> {
+    let (pw, ph) = check_patch(xpad, w, h, ks)?;
+    if psf.len() != 3 * ks * ks {
+        return Err(Error::argument(format!(
+            "PSF: {} values for 3 x {ks}x{ks}",
+            psf.len()
+        )));
+    }
+    let (nx, ny) = (fast_size(pw), fast_size(ph));
+    let scale = 1.0 / (nx * ny) as f32;
+    let mut out = vec![0f32; 3 * w * h];
+    for c in 0..3 {
+        let mut a = embed(&xpad[c * pw * ph..(c + 1) * pw * ph], pw, ph, nx, ny);
+        let mut k = embed(&psf[c * ks * ks..(c + 1) * ks * ks], ks, ks, nx, ny);
+        fft2(&mut a, nx, ny, false);
+        fft2(&mut k, nx, ny, false);
+        for (u, v) in a.iter_mut().zip(&k) {
+            *u *= v;
+        }
+        fft2(&mut a, nx, ny, true);
+        // y[r][q] = full[r + ks - 1][q + ks - 1].
+        let o = &mut out[c * w * h..(c + 1) * w * h];
+        for r in 0..h {
+            for q in 0..w {
+                o[r * w + q] = a[(r + ks - 1) * nx + q + ks - 1].re * scale;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The adjoint of [`blur_patch`] with respect to the PSF: dL/dpsf (`3 · ks²`) from dL/dy
+/// (`3 · w · h`), i.e. `dpsf[c][j][i] = Σ_{r,q} dy[c][r][q] · xpad[c][r + ks − 1 − j][q + ks − 1 − i]`.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for sizes that do not match.
+pub fn blur_patch_psf_adjoint(
+    xpad: &[f32],
+    w: usize,
+    h: usize,
+    ks: usize,
+    dy: &[f32],
+) -> Result<Vec<f32>> {
+    let (pw, ph) = check_patch(xpad, w, h, ks)?;
+    if dy.len() != 3 * w * h {
+        return Err(Error::argument(format!(
+            "dL/dy: {} values for 3 x {w}x{h}",
+            dy.len()
+        )));
+    }
+    let (nx, ny) = (fast_size(pw), fast_size(ph));
+    let scale = 1.0 / (nx * ny) as f32;
+    let mut out = vec![0f32; 3 * ks * ks];
+    for c in 0..3 {
+        let mut a = embed(&xpad[c * pw * ph..(c + 1) * pw * ph], pw, ph, nx, ny);
+        // dy placed at offset (ks - 1, ks - 1); then a circular correlation with xpad.
+        let mut d = vec![Complex::default(); nx * ny];
+        for r in 0..h {
+            for q in 0..w {
+                d[(r + ks - 1) * nx + q + ks - 1] = Complex::new(dy[c * w * h + r * w + q], 0.0);
+            }
+        }
+        fft2(&mut a, nx, ny, false);
+        fft2(&mut d, nx, ny, false);
+        for (u, v) in d.iter_mut().zip(&a) {
+            *u *= v.conj();
+        }
+        fft2(&mut d, nx, ny, true);
+        let o = &mut out[c * ks * ks..(c + 1) * ks * ks];
+        for j in 0..ks {
+            for i in 0..ks {
+                o[j * ks + i] = d[j * nx + i].re * scale;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// `img` padded by `p` pixels on every side by reflection about the edge pixels (numpy's
+/// 'reflect': the edge is not repeated).
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] when `p` is not smaller than the image.
+pub fn pad_reflect(img: &Image, p: usize) -> Result<Image> {
+    let (w, h) = (img.width, img.height);
+    if p >= w || p >= h {
+        return Err(Error::argument(format!(
+            "reflect padding of {p} px needs an image larger than that, not {w}x{h}"
+        )));
+    }
+    let idx = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        let i = if i < 0 { -i } else { i };
+        (if i >= n { 2 * (n - 1) - i } else { i }) as usize
+    };
+    let (pw, ph) = (w + 2 * p, h + 2 * p);
+    let mut out = Image::new(pw, ph)?;
+    for c in 0..3 {
+        let src = img.plane(c);
+        let dst = out.plane_mut(c);
+        for y in 0..ph {
+            let sy = idx(y as isize - p as isize, h);
+            for x in 0..pw {
+                dst[y * pw + x] = src[sy * w + idx(x as isize - p as isize, w)];
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The image blurred by the PSF map, tile by tile (see the module documentation), in parallel
+/// over tiles.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for an image smaller than the grid or than the kernel's halo.
+pub fn render_map(img: &Image, map: &PsfMap) -> Result<Image> {
+    let (w, h, g, ks) = (img.width, img.height, map.grid, map.ks);
+    if w < g || h < g {
+        return Err(Error::argument(format!(
+            "a {w}x{h} image cannot be cut into {g}x{g} tiles"
+        )));
+    }
+    let half = ks / 2;
+    let padded = pad_reflect(img, half)?;
+    let tiles: Vec<(usize, usize, usize, usize, Vec<f32>)> = (0..g * g)
+        .into_par_iter()
+        .map(|t| -> Result<_> {
+            let (row, col) = (t / g, t % g);
+            let (y0, y1) = (row * h / g, (row + 1) * h / g);
+            let (x0, x1) = (col * w / g, (col + 1) * w / g);
+            let (tw, th) = (x1 - x0, y1 - y0);
+            let xpad = padded.crop(x0, y0, tw + ks - 1, th + ks - 1)?;
+            Ok((
+                x0,
+                y0,
+                tw,
+                th,
+                blur_patch(&xpad.data, tw, th, map.psf(t), ks)?,
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let mut out = Image::new(w, h)?;
+    for (x0, y0, tw, th, v) in tiles {
+        for c in 0..3 {
+            for r in 0..th {
+                let d = c * w * h + (y0 + r) * w + x0;
+                out.data[d..d + tw]
+                    .copy_from_slice(&v[c * tw * th + r * tw..c * tw * th + (r + 1) * tw]);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Standard normal samples by Box–Muller from ChaCha8 (`seed`, `stream`).
+fn normals(n: usize, seed: u64, stream: u64) -> Vec<f32> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(stream);
+    let mut out = Vec::with_capacity(n + 1);
+    while out.len() < n {
+        let u1: f64 = 1.0 - rng.random::<f64>();
+        let u2: f64 = rng.random();
+        let r = (-2.0 * u1.ln()).sqrt();
+        let a = std::f64::consts::TAU * u2;
+        out.push((r * a.cos()) as f32);
+        out.push((r * a.sin()) as f32);
+    }
+    out.truncate(n);
+    out
+}
+
+/// Adds white Gaussian noise of standard deviation `sigma` (linear [0, 1] units; the paper's
+/// 1 % is 0.01), deterministic per (`seed`, `stream`). No clipping.
+pub fn add_gaussian_noise(data: &mut [f32], sigma: f32, seed: u64, stream: u64) {
+    if sigma == 0.0 {
+        return;
+    }
+    let z = normals(data.len(), seed, stream);
+    for (v, z) in data.iter_mut().zip(z) {
+        *v += sigma * z;
+    }
+}
+
+/// Adds Poisson–Gaussian sensor noise in its Gaussian approximation: per pixel variance
+/// `x / full_well_electrons + read_sigma²` (shot noise of a signal `x` of a full well, plus read
+/// noise), deterministic per (`seed`, `stream`). No clipping.
+pub fn add_poisson_gaussian_noise(
+    data: &mut [f32],
+    full_well_electrons: f32,
+    read_sigma: f32,
+    seed: u64,
+    stream: u64,
+) {
+    let z = normals(data.len(), seed, stream);
+    for (v, z) in data.iter_mut().zip(z) {
+        let var = v.max(0.0) / full_well_electrons.max(1.0) + read_sigma * read_sigma;
+        *v += var.sqrt() * z;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(n: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (s >> 8) as f32 / (1 << 24) as f32
+            })
+            .collect()
+    }
+
+    /// The convention written out as loops.
+    fn direct(xpad: &[f32], w: usize, h: usize, psf: &[f32], ks: usize) -> Vec<f32> {
+        let (pw, ph) = (w + ks - 1, h + ks - 1);
+        let mut y = vec![0f32; 3 * w * h];
+        for c in 0..3 {
+            for r in 0..h {
+                for q in 0..w {
+                    let mut s = 0.0;
+                    for j in 0..ks {
+                        for i in 0..ks {
+                            s += psf[c * ks * ks + j * ks + i]
+                                * xpad[c * pw * ph + (r + ks - 1 - j) * pw + q + ks - 1 - i];
+                        }
+                    }
+                    y[c * w * h + r * w + q] = s;
+                }
+            }
+        }
+        y
+    }
+
+    #[test]
+    fn blur_matches_direct_convolution_and_its_adjoint() {
+        let (w, h, ks) = (13, 9, 5);
+        let xpad = lcg(3 * (w + ks - 1) * (h + ks - 1), 1);
+        let psf = lcg(3 * ks * ks, 2);
+        let y = blur_patch(&xpad, w, h, &psf, ks).unwrap();
+        let d = direct(&xpad, w, h, &psf, ks);
+        for (a, b) in y.iter().zip(&d) {
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+        // <blur(x, k), g> = <k, adjoint(x, g)>
+        let g = lcg(3 * w * h, 3);
+        let lhs: f64 = y.iter().zip(&g).map(|(a, b)| (a * b) as f64).sum();
+        let adj = blur_patch_psf_adjoint(&xpad, w, h, ks, &g).unwrap();
+        let rhs: f64 = psf.iter().zip(&adj).map(|(a, b)| (a * b) as f64).sum();
+        assert!((lhs - rhs).abs() < 1e-4 * lhs.abs(), "{lhs} vs {rhs}");
+        assert!(blur_patch(&xpad, w + 1, h, &psf, ks).is_err());
+    }
+
+    #[test]
+    fn map_of_one_psf_is_one_convolution_and_a_delta_is_the_identity() {
+        let mut img = Image::new(40, 30).unwrap();
+        img.data = lcg(3 * 40 * 30, 4);
+        let ks = 7;
+        let psf = lcg(3 * ks * ks, 5);
+        let map = PsfMap::new(4, ks, psf.repeat(16)).unwrap();
+        let y = render_map(&img, &map).unwrap();
+        let whole = blur_patch(&pad_reflect(&img, 3).unwrap().data, 40, 30, &psf, ks).unwrap();
+        for (a, b) in y.data.iter().zip(&whole) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        let mut delta = vec![0f32; 3 * ks * ks];
+        for c in 0..3 {
+            delta[c * ks * ks + ks * ks / 2] = 1.0;
+        }
+        let id = render_map(&img, &PsfMap::new(3, ks, delta.repeat(9)).unwrap()).unwrap();
+        for (a, b) in id.data.iter().zip(&img.data) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        // A point source spreads as the PSF says: one pixel right of centre lands right.
+        let mut shift = vec![0f32; 3 * ks * ks];
+        for c in 0..3 {
+            shift[c * ks * ks + (ks / 2) * ks + ks / 2 + 1] = 1.0;
+        }
+        let mut dot = Image::new(20, 20).unwrap();
+        dot.data[10 * 20 + 10] = 1.0;
+        let s = render_map(&dot, &PsfMap::new(1, ks, shift).unwrap()).unwrap();
+        assert!((s.data[10 * 20 + 11] - 1.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn noise_is_seeded_and_thread_count_free() {
+        let mut a = vec![0.5f32; 1001];
+        let mut b = a.clone();
+        add_gaussian_noise(&mut a, 0.01, 7, 3);
+        add_gaussian_noise(&mut b, 0.01, 7, 3);
+        assert_eq!(a, b);
+        let m = a.iter().map(|v| (*v - 0.5) as f64).sum::<f64>() / 1001.0;
+        let s = (a.iter().map(|v| ((*v - 0.5) as f64).powi(2)).sum::<f64>() / 1001.0).sqrt();
+        assert!(m.abs() < 0.002 && (s - 0.01).abs() < 0.001, "{m} {s}");
+        let mut img = Image::new(64, 48).unwrap();
+        img.data = lcg(3 * 64 * 48, 6);
+        let map = PsfMap::new(4, 5, lcg(16 * 75, 8)).unwrap();
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let two = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let y1 = one.install(|| render_map(&img, &map).unwrap());
+        let y2 = two.install(|| render_map(&img, &map).unwrap());
+        assert_eq!(y1, y2);
+    }
+}
