@@ -664,8 +664,8 @@ tolray_status tolray_pattern_to_json(const struct tolray_pattern *pattern,
 
 /**
  * The geometric PSF of one field at one wavelength: `kernel_px`² values, row-major with row 0
- * at +y, summing to 1 (all zeros if no ray lands in the window). `out_len` must equal
- * `kernel_px * kernel_px`.
+ * at +y, summing to 1. A PSF into whose window no ray lands is an error
+ * (`TOLRAY_ERROR_NUMERICAL`), not a result. `out_len` must equal `kernel_px * kernel_px`.
  *
  * # Safety
  * `system`, `field`, `opts` are valid pointers; `out` holds `out_len` writable doubles.
@@ -705,6 +705,30 @@ tolray_status tolray_psf_loss_gradient(const struct tolray_system *system,
  */
 tolray_status tolray_psf_options_default(const struct tolray_system *system,
                                          struct tolray_psf_options *out);
+
+/**
+ * Simulates a capture through `system` (its lens with its tolerance pattern): the image is cut
+ * into `grid x grid` tiles, each blurred by the RGB PSF of its field (the lens' RGB wavelengths,
+ * `opts` for kernel size, pitch and rays; chief-ray centred) over the tile plus a halo from the
+ * reflect-padded image, then white Gaussian noise of standard deviation `noise_sigma` (linear
+ * [0, 1] units; 0 for none) from `seed` is added. `in` and `out` are planar linear RGB,
+ * `3 * width * height` floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must
+ * equal that count.
+ *
+ * # Safety
+ * `system` and `opts` are valid pointers; `in` holds `3 * width * height` readable floats and
+ * `out` `out_len` writable floats.
+ */
+tolray_status tolray_render(const struct tolray_system *system,
+                            const struct tolray_psf_options *opts,
+                            uint32_t grid,
+                            double noise_sigma,
+                            uint64_t seed,
+                            uint32_t width,
+                            uint32_t height,
+                            const float *input,
+                            float *out,
+                            size_t out_len);
 
 /**
  * The default tolerance spec: the paper's Table A1 (element decenter ±0.04 mm, tilt ±0.05°,

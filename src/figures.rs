@@ -447,3 +447,81 @@ pub fn training_figure(logs: &[crate::optim::train::IterLog], title: &str) -> Ca
     );
     cv
 }
+
+/// Training curves of a deep-optics study: per branch, the batch PSNR (thin) and the validation
+/// PSNR (dots joined by a line) against the iteration (top), and the batch image loss on a log10
+/// scale (bottom); a grey line marks the end of stage 1 (where the branches start).
+pub fn deep_training_figure(
+    branches: &[(String, Vec<crate::deep::DeepLog>)],
+    title: &str,
+) -> Canvas {
+    let mut cv = Canvas::new(900, 680);
+    cv.set_view((0, 0, 900, 40), (0.0, 1.0), (0.0, 1.0), false);
+    cv.title(title);
+    let all = || branches.iter().flat_map(|b| b.1.iter());
+    let n = all().map(|l| l.iter + 1).max().unwrap_or(2).max(2) as f64;
+    let split = branches
+        .iter()
+        .filter_map(|b| b.1.iter().find(|l| l.phase != crate::deep::Phase::Nominal))
+        .map(|l| l.iter)
+        .min();
+    let range = |v: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = v
+            .filter(|x| x.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(x), b.max(x))
+            });
+        if lo.is_finite() && hi > lo {
+            (lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        } else {
+            (lo.min(0.0), lo.max(0.0) + 1.0)
+        }
+    };
+    // Top panel: PSNR.
+    let yr = range(
+        &mut all()
+            .flat_map(|l| [Some(l.psnr_db), l.val_psnr_db])
+            .flatten(),
+    );
+    cv.set_view((80, 70, 660, 260), (0.0, n), yr, false);
+    if let Some(s) = split {
+        cv.line((s as f64, yr.0), (s as f64, yr.1), [170, 170, 170]);
+    }
+    for (k, (_, logs)) in branches.iter().enumerate() {
+        let c = PALETTE[k % PALETTE.len()];
+        let faint = c.map(|v| ((u16::from(v) + 2 * 255) / 3) as u8);
+        let pts: Vec<_> = logs.iter().map(|l| (l.iter as f64, l.psnr_db)).collect();
+        cv.polyline(&pts, faint);
+        let val: Vec<_> = logs
+            .iter()
+            .filter_map(|l| l.val_psnr_db.map(|v| (l.iter as f64, v)))
+            .collect();
+        cv.polyline(&val, c);
+        for &p in &val {
+            cv.dot(p, 2.5, c);
+        }
+    }
+    cv.axes("iteration", "PSNR (dB): batch (light), validation (dots)");
+    // Legend.
+    for (k, (name, _)) in branches.iter().enumerate() {
+        let c = PALETTE[k % PALETTE.len()];
+        let y = 80 + 16 * k as i32;
+        cv.rect_px(752, y, 14, 8, c, true);
+        cv.text_px(772, y, name, 1, [0, 0, 0]);
+    }
+    // Bottom panel: log10 image loss.
+    let yr = range(&mut all().map(|l| l.image_loss.max(1e-300).log10()));
+    cv.set_view((80, 410, 660, 220), (0.0, n), yr, false);
+    if let Some(s) = split {
+        cv.line((s as f64, yr.0), (s as f64, yr.1), [170, 170, 170]);
+    }
+    for (k, (_, logs)) in branches.iter().enumerate() {
+        let pts: Vec<_> = logs
+            .iter()
+            .map(|l| (l.iter as f64, l.image_loss.max(1e-300).log10()))
+            .collect();
+        cv.polyline(&pts, PALETTE[k % PALETTE.len()]);
+    }
+    cv.axes("iteration", "log10 of the batch image loss");
+    cv
+}

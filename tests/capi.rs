@@ -475,3 +475,118 @@ fn install_script_serves_pkg_config_and_cmake_users() {
     let out = ok(&mut Command::new(build.join("spot")), "examples/cpp/spot");
     assert!(out.starts_with("RMS spot"), "{out}");
 }
+
+/// `tolray_render` gives the library's capture (same PSF map, same noise), and refuses a short
+/// output buffer, a NULL input and a bad grid with a status.
+#[test]
+fn render_through_the_c_abi_matches_the_library() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    let name = std::ffi::CString::new("lens2").unwrap();
+    let mut lens = null_mut();
+    let mut sys = null_mut();
+    let mut opts = std::mem::MaybeUninit::<tolray_psf_options>::uninit();
+    // SAFETY: valid pointers; handles freed below.
+    unsafe {
+        assert_eq!(
+            tolray_lens_load(name.as_ptr(), &mut lens),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_system_new(lens, std::ptr::null(), &mut sys),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_psf_options_default(sys, opts.as_mut_ptr()),
+            tolray_status::TOLRAY_OK
+        );
+    }
+    // SAFETY: written by the call above.
+    let mut opts = unsafe { opts.assume_init() };
+    opts.kernel_px = 31;
+    opts.pupil.n = 512;
+    let (w, h) = (64u32, 48u32);
+    let img = tolray::image::deadleaves::DeadLeaves::default()
+        .generate(64, 48, 1, 2)
+        .unwrap();
+    let mut out = vec![0f32; img.data.len()];
+    // SAFETY: buffers of the stated sizes.
+    let st = unsafe {
+        tolray_render(
+            sys,
+            &opts,
+            4,
+            0.01,
+            5,
+            w,
+            h,
+            img.data.as_ptr(),
+            out.as_mut_ptr(),
+            out.len(),
+        )
+    };
+    assert_eq!(st, tolray_status::TOLRAY_OK);
+    let l = tolray::Lens::load("lens2").unwrap();
+    let mut o = tolray::deep::psf_options(&l, 31, 512, 0);
+    o.pupil = tolray::trace::Pupil {
+        pattern: tolray::trace::PupilPattern::Random {
+            n: 512,
+            seed: opts.pupil.seed,
+        },
+        scale: 1.0,
+        aim: false,
+    };
+    let map = tolray::deep::rgb_psf_map(&l, &l.compile(), 4, &l.rgb_wavelengths_nm, &o).unwrap();
+    let mut y = tolray::image::render::render_map(
+        &img,
+        &tolray::image::render::PsfMap::new(4, 31, map).unwrap(),
+    )
+    .unwrap();
+    tolray::image::render::add_gaussian_noise(&mut y.data, 0.01, 5, 0);
+    assert_eq!(out, y.data);
+    // SAFETY: as above; the error cases write nothing.
+    unsafe {
+        let short = out.len() - 1;
+        let p = out.as_mut_ptr();
+        assert_ne!(
+            tolray_render(sys, &opts, 4, 0.01, 5, w, h, img.data.as_ptr(), p, short),
+            tolray_status::TOLRAY_OK
+        );
+        assert_ne!(
+            tolray_render(sys, &opts, 4, 0.01, 5, w, h, std::ptr::null(), p, out.len()),
+            tolray_status::TOLRAY_OK
+        );
+        assert_ne!(
+            tolray_render(
+                sys,
+                &opts,
+                0,
+                0.01,
+                5,
+                w,
+                h,
+                img.data.as_ptr(),
+                p,
+                out.len()
+            ),
+            tolray_status::TOLRAY_OK
+        );
+        assert_ne!(
+            tolray_render(
+                sys,
+                &opts,
+                4,
+                f64::NAN,
+                5,
+                w,
+                h,
+                img.data.as_ptr(),
+                p,
+                out.len()
+            ),
+            tolray_status::TOLRAY_OK
+        );
+        tolray_system_free(sys);
+        tolray_lens_free(lens);
+    }
+}

@@ -175,7 +175,7 @@ fn layout_and_demo_write_pictures() {
     assert_eq!(code, 0, "{err}");
     assert_eq!(image_size(&png), (1100, 560));
     let dir = tmp("demo");
-    let (code, out, err) = tolray(&["demo", "--out", dir.to_str().unwrap()]);
+    let (code, out, err) = tolray(&["demo", "--optics", "--out", dir.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("cooke-triplet"));
     for n in [

@@ -293,3 +293,81 @@ fn the_vjp_seam_is_exact_in_f64() {
         );
     }
 }
+
+/// The study on reduced sizes (CI runs it once, `.ci/run`; `cargo test -- --ignored` here):
+/// the directions that held in every full-size run (README, "Deep optics") must hold here too,
+/// on held-out fabricated units: the tolerance-aware lens keeps its PSFs closer to the nominal
+/// design's than the conventional lens, and the decoder trained on tolerances (decoder-only
+/// control) decodes fabricated units better than the conventional decoder, with the paired
+/// bootstrap interval above zero. The tolerance-aware minus conventional PSNR is printed, not
+/// asserted: at full size it was +0.19 and +0.04 dB over two seeds, with intervals touching zero
+/// in one (README).
+#[test]
+#[ignore = "a reduced deep-optics study (about a minute of two cores); .ci/run executes it"]
+fn reduced_study_keeps_the_paper_s_directions() {
+    use tolray::deep::study::{run, StudyConfig, CONVENTIONAL, DECODER_ONLY, TOLERANCE_AWARE};
+    let lens = Lens::load("lens1").unwrap();
+    let mut deep = DeepConfig::for_lens(&lens);
+    deep.optics.samples = 16;
+    deep.crop_px = 32;
+    let cfg = StudyConfig {
+        deep,
+        spot_iters: 200,
+        stage1_iters: 60,
+        stage2_iters: 40,
+        decoder_only: true,
+        validate_every: 0,
+        eval: EvalConfig {
+            trials: 16,
+            spp: 2048,
+            patch_px: 32,
+            bootstrap: 1000,
+            ..EvalConfig::default()
+        },
+    };
+    let images = EvalImages::builtin(8 * 32, 1, cfg.eval.seed).unwrap();
+    let out = std::env::temp_dir().join(format!("tolray-study-{}", std::process::id()));
+    let t0 = std::time::Instant::now();
+    let r = run(&lens, &cfg, &images, &out, &mut |_, _| {}).unwrap();
+    let row = |n: &str| r.designs.iter().find(|d| d.name == n).unwrap();
+    let pair = |a: &str, b: &str| r.pairs.iter().find(|p| p.a == a && p.b == b).unwrap();
+    let (conv, ta, dec) = (row(CONVENTIONAL), row(TOLERANCE_AWARE), row(DECODER_ONLY));
+    for d in [conv, ta, dec] {
+        eprintln!(
+            "{:16} PSNR {:.2} ± {:.2} dB (@90 {:.2}), SSIM {:.3}, PSF similarity {:.3}, spot {:.1} µm",
+            d.name,
+            d.psnr.mean,
+            d.psnr.std,
+            d.psnr.yield_table.y90,
+            d.ssim.mean,
+            d.psf_similarity.mean,
+            d.rms_spot_um.mean
+        );
+    }
+    for p in &r.pairs {
+        eprintln!(
+            "{} - {}: mean {:+.3} dB {:?}, @90 {:+.3} dB {:?}",
+            p.a,
+            p.b,
+            p.psnr_mean_diff,
+            p.psnr_mean_diff_ci95,
+            p.psnr_yield90_diff,
+            p.psnr_yield90_diff_ci95
+        );
+    }
+    eprintln!("{:.0} s", t0.elapsed().as_secs_f64());
+    assert!(
+        ta.psf_similarity.mean > conv.psf_similarity.mean,
+        "PSF similarity: tolerance-aware {} vs conventional {}",
+        ta.psf_similarity.mean,
+        conv.psf_similarity.mean
+    );
+    let d = pair(DECODER_ONLY, CONVENTIONAL);
+    assert!(
+        d.psnr_mean_diff > 0.0 && d.psnr_mean_diff_ci95[0] > 0.0,
+        "decoder-only - conventional: {} dB {:?}",
+        d.psnr_mean_diff,
+        d.psnr_mean_diff_ci95
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}

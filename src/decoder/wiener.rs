@@ -408,7 +408,8 @@ mod tests {
     }
 
     /// A blurred, noisy dead-leaves crop deconvolved with the true PSF gains over 1 dB (measured:
-    /// 17.2 -> 19.0 dB with the untrained regularization).
+    /// 20.45 -> 21.80 dB with λ = μ = 1e-2; a sweep of λ in 1e-4..1e-2 and μ in 1e-5..1e-2 gives
+    /// 14.7 to 21.8 dB, so the regularization is what this test checks as much as the filter).
     #[test]
     fn deconvolution_sharpens_a_blurred_noisy_picture() {
         use crate::image::{deadleaves::DeadLeaves, metrics::psnr, render, Image};
@@ -429,7 +430,7 @@ mod tests {
             .unwrap();
         let mut y = render::blur_patch(&xpad.data, c, c, &psf, ks).unwrap();
         render::add_gaussian_noise(&mut y, 0.01, 3, 4);
-        let f = Wiener::new(1, ks, &psf, (0.01f64 * 0.01 / 0.05).ln(), (1e-3f64).ln()).unwrap();
+        let f = Wiener::new(1, ks, &psf, (1e-2f64).ln(), (1e-2f64).ln()).unwrap();
         let (xh, _) = f.forward_patch(0, &y, c, c).unwrap();
         let img = |d: Vec<f32>| {
             Image {

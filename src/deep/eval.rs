@@ -20,12 +20,14 @@ use crate::image::metrics::{paired_bootstrap, psnr, ssim, YieldTable};
 use crate::image::render::{add_gaussian_noise, blur_patch, pad_reflect};
 use crate::image::Image;
 use crate::lens::System;
-use crate::math::Vec3;
 use crate::tolerance::analysis::{perturbed_rms, McOptions};
 use crate::tolerance::ToleranceSpec;
-use crate::trace::{Field, Pupil};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+/// Margin of capture around each tile's block that the decoder sees, pixels (a multiple of 8,
+/// the U-Net's size step).
+pub const DECODE_MARGIN_PX: usize = 8;
 
 /// Evaluation settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -169,16 +171,42 @@ fn image_scores(
                 })
             })
             .collect::<Result<_>>()?;
-        let xhat = design.decoder.decode_batch(&crops)?;
         let mut captured = Image::new(g * p, g * p)?;
-        let mut recon = Image::new(g * p, g * p)?;
-        for (t, (c, r)) in crops.iter().zip(&xhat).enumerate() {
+        for (t, c) in crops.iter().enumerate() {
             let (row, col) = (t / g, t % g);
             for ch in 0..nc {
                 for yy in 0..p {
                     let dst = ch * g * p * g * p + (row * p + yy) * g * p + col * p;
                     let src = ch * p * p + yy * p;
                     captured.data[dst..dst + p].copy_from_slice(&c.y[src..src + p]);
+                }
+            }
+        }
+        // Each tile is decoded with a margin of the capture around it (reflected at the image
+        // border) and only its own block kept, so that tiles do not show seams.
+        let m = DECODE_MARGIN_PX;
+        let cpad = pad_reflect(&captured, m)?;
+        let views: Vec<Crop> = (0..g * g)
+            .map(|t| {
+                let (row, col) = (t / g, t % g);
+                Ok(Crop {
+                    tile: t,
+                    y: cpad.crop(col * p, row * p, p + 2 * m, p + 2 * m)?.data,
+                    x: Vec::new(),
+                    w: p + 2 * m,
+                    h: p + 2 * m,
+                })
+            })
+            .collect::<Result<_>>()?;
+        let xhat = design.decoder.decode_batch(&views)?;
+        let mut recon = Image::new(g * p, g * p)?;
+        let q = p + 2 * m;
+        for (t, r) in xhat.iter().enumerate() {
+            let (row, col) = (t / g, t % g);
+            for ch in 0..nc {
+                for yy in 0..p {
+                    let dst = ch * g * p * g * p + (row * p + yy) * g * p + col * p;
+                    let src = ch * q * q + (yy + m) * q + m;
                     recon.data[dst..dst + p].copy_from_slice(&r[src..src + p]);
                 }
             }
@@ -216,14 +244,8 @@ pub fn evaluate(
     let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
     let nominal_map = rgb_psf_map(lens, &lens.compile(), cfg.grid, &wavelengths, &opts)?;
     let mc = McOptions {
-        spec: cfg.spec.clone(),
-        trials: 1,
-        seed: cfg.seed,
-        fields: [0.0, 0.7, 1.0].map(Field::fraction).to_vec(),
-        wavelengths_nm: wavelengths.clone(),
-        pupil: Pupil::grid(16),
         compensate_focus: cfg.compensate_focus,
-        apertures: true,
+        ..super::refocus_options(lens)
     };
     let ks2 = cfg.ks * cfg.ks;
     let score = |k: Option<usize>| -> Result<TrialScore> {
@@ -231,13 +253,7 @@ pub fn evaluate(
             Some(k) => {
                 let pattern = cfg.spec.sample(lens, cfg.seed, k as u64)?;
                 let (rms, delta) = perturbed_rms(lens, &mc, &pattern)?;
-                let (plens, mut adj) = pattern.apply(lens)?;
-                if let Some(d) = delta {
-                    // Refocus: the sensor moves along its normal.
-                    let r = adj.image_motion.rotation;
-                    adj.image_motion.translation =
-                        adj.image_motion.translation + r.apply(Vec3::new(0.0, 0.0, d));
-                }
+                let (plens, adj) = super::unit_lens(lens, &pattern, delta)?;
                 (plens, adj, rms)
             }
             None => {
@@ -510,22 +526,7 @@ impl EvalImages {
     /// I/O and decoding errors naming the file; a folder without images; an image smaller than
     /// `side`.
     pub fn from_dir(dir: &std::path::Path, side: usize) -> Result<EvalImages> {
-        let mut files: Vec<_> = std::fs::read_dir(dir)
-            .map_err(|e| Error::io(dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-                    matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg")
-                })
-            })
-            .collect();
-        files.sort();
-        if files.is_empty() {
-            return Err(Error::argument(format!(
-                "{}: no PNG or JPEG image in this folder",
-                dir.display()
-            )));
-        }
+        let files = crate::image::source::image_files(dir)?;
         let images = files
             .iter()
             .map(|p| {

@@ -74,13 +74,19 @@ fn histogram_svg(
             "<line x1='{x}' y1='{}' x2='{x}' y2='{}' stroke='#333'/><text x='{x}' y='{}' text-anchor='middle'>{v:.2}</text>",
             mt + ph, mt + ph + 5.0, mt + ph + 18.0
         ));
-        let c = cmax * k as f64 / 4.0;
-        let y = mt + ph - ph * k as f64 / 4.0;
+    }
+    // Whole-number count ticks.
+    let step = (cmax / 4.0).ceil().max(1.0);
+    let mut c = 0.0;
+    while c <= cmax {
+        let y = mt + ph - ph * c / cmax;
         svg.push_str(&format!(
-            "<text x='{}' y='{}' text-anchor='end'>{c:.0}</text>",
-            ml - 6.0,
+            "<line x1='{}' y1='{y}' x2='{ml}' y2='{y}' stroke='#333'/><text x='{}' y='{}' text-anchor='end'>{c:.0}</text>",
+            ml - 5.0,
+            ml - 8.0,
             y + 4.0
         ));
+        c += step;
     }
     svg.push_str(&format!(
         "<text x='{}' y='{}' text-anchor='middle'>{}</text><text x='14' y='{}' text-anchor='middle' transform='rotate(-90 14 {})'>units</text>",
@@ -217,6 +223,12 @@ pub fn render(report: &Report, examples: &Examples) -> String {
             id += 1;
         }
     }
+    // For headless checks (and curious readers): how many images decoded once the page loaded.
+    h.push_str(
+        "<script>window.addEventListener('load',()=>{const im=[...document.images];\
+         const ok=im.filter(i=>i.complete&&i.naturalWidth>0).length;\
+         document.body.setAttribute('data-images',ok+'/'+im.length);});</script>",
+    );
     h.push_str("</body></html>\n");
     h
 }

@@ -3,7 +3,8 @@
 //! stages), and judged by the quality of decoded images over randomly fabricated units
 //! ([`eval`]).
 //!
-//! One iteration: `samples` training crops (dead leaves, [`crate::image::deadleaves`]), crop `j`
+//! One iteration: `samples` training crops ([`crate::image::source`]: dead leaves by default, or
+//! random flipped blocks of a folder of photographs), crop `j`
 //! imaged through its own lens (the nominal design in stage 1, a random tolerance pattern in
 //! stage 2) at field `j mod grid²` of the PSF grid, by that field's RGB PSF plus Gaussian noise
 //! ([`crate::image::render`]); the decoder reconstructs every crop and the image loss is averaged
@@ -18,8 +19,8 @@ pub mod study;
 
 use crate::decoder::{Crop, Decoder, DecoderKind, ImageLossWeights};
 use crate::error::{Error, Result};
-use crate::image::deadleaves::DeadLeaves;
 use crate::image::render::{add_gaussian_noise, blur_patch, blur_patch_psf_adjoint};
+use crate::image::source::TrainImages;
 use crate::lens::{Adjustments, Lens, Param, System};
 use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
@@ -84,6 +85,15 @@ pub struct DeepConfig {
     pub lambda_spot: f64,
     /// Weight of the PSF-similarity loss in the tolerance phase.
     pub lambda_psf: f64,
+    /// Training images: dead leaves (default) or a folder of photographs.
+    #[serde(default)]
+    pub train_images: TrainImages,
+    /// Refocus each sampled unit of the tolerance phases to its best RMS focus before imaging
+    /// it (the assembly's focus compensator, as evaluation's `compensate_focus`). The refocus is
+    /// found once per crop when the batch is drawn and held fixed: the lens gradient is that of
+    /// the objective with the sensor at the drawn refocus.
+    #[serde(default)]
+    pub compensate_focus: bool,
 }
 
 impl DeepConfig {
@@ -103,6 +113,8 @@ impl DeepConfig {
             loss: ImageLossWeights::default(),
             lambda_spot: 0.1,
             lambda_psf: 0.01,
+            train_images: TrainImages::default(),
+            compensate_focus: false,
         }
     }
 
@@ -197,6 +209,10 @@ pub struct DeepLog {
     pub spot_um: f64,
     /// Mean PSF similarity to the nominal design (tolerance phases).
     pub psf_similarity: Option<f64>,
+    /// PSNR of the validation batch ([`validation_psnr`]) after this iteration, dB, when it was
+    /// measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub val_psnr_db: Option<f64>,
 }
 
 impl DeepState {
@@ -402,6 +418,8 @@ pub struct BatchCrop {
     pub tile: usize,
     /// The crop's tolerance pattern (none in the nominal phase).
     pub pattern: Option<crate::tolerance::Perturbation>,
+    /// Sensor refocus along the image-plane normal, mm (with `compensate_focus`).
+    pub refocus_mm: Option<f64>,
     /// Rays of its RGB PSF, launched from the design at the start of the iteration.
     pub rays: PsfRays,
     /// Spot bundles at its field (likewise).
@@ -428,7 +446,7 @@ pub struct Batch {
 }
 
 /// Draws the batch of global iteration `it` for `lens`: crop `j` at tile `j mod grid²`, its
-/// pattern, dead-leaves image and noise from (seed, it · samples + j).
+/// pattern, training crop and noise from (seed, it · samples + j).
 ///
 /// # Errors
 /// Ray-generation errors; invalid patterns.
@@ -447,7 +465,6 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
     let nominal = lens.compile();
     let (c, ks) = (cfg.crop_px, o.psf_ks);
     let side = c + ks - 1;
-    let leaves = DeadLeaves::default();
     let n = o.samples;
     let crops = (0..n)
         .into_par_iter()
@@ -458,6 +475,12 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 Some(o.spec.sample(lens, o.seed, stream)?)
             } else {
                 None
+            };
+            let refocus_mm = match (&pattern, cfg.compensate_focus) {
+                (Some(p), true) => {
+                    crate::tolerance::analysis::perturbed_rms(lens, &refocus_options(lens), p)?.1
+                }
+                _ => None,
             };
             let pairs: Vec<(Field, f64)> = o
                 .wavelengths_nm
@@ -479,7 +502,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 &Pupil::grid((o.spot_grid / 2).max(2)),
                 trace,
             )?;
-            let xpad = leaves.generate(side, side, o.seed, stream)?.data;
+            let xpad = cfg.train_images.crop(side, o.seed, stream)?.data;
             let mut noise = vec![0f32; 3 * c * c];
             add_gaussian_noise(
                 &mut noise,
@@ -490,6 +513,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
             Ok(BatchCrop {
                 tile,
                 pattern,
+                refocus_mm,
                 rays,
                 spot,
                 ideal,
@@ -506,10 +530,43 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
     })
 }
 
-/// A crop's lens: its pattern applied to `lens`, compiled in f64, with the adjustments.
+/// How a fabricated unit is refocused (training and evaluation alike): best RMS focus over
+/// the fields 0, 0.7 and 1 at the lens's RGB wavelengths, a 16 x 16 pupil grid, apertures on.
+pub fn refocus_options(lens: &Lens) -> crate::tolerance::analysis::McOptions {
+    crate::tolerance::analysis::McOptions {
+        spec: crate::tolerance::ToleranceSpec::default(),
+        trials: 1,
+        seed: 0,
+        fields: [0.0, 0.7, 1.0].map(Field::fraction).to_vec(),
+        wavelengths_nm: lens.rgb_wavelengths_nm.to_vec(),
+        pupil: Pupil::grid(16),
+        compensate_focus: true,
+        apertures: true,
+    }
+}
+
+/// `pattern` applied to `lens`, with the sensor moved by `refocus_mm` along its normal.
+///
+/// # Errors
+/// An invalid pattern.
+pub fn unit_lens(
+    lens: &Lens,
+    pattern: &crate::tolerance::Perturbation,
+    refocus_mm: Option<f64>,
+) -> Result<(Lens, Adjustments)> {
+    let (plens, mut adj) = pattern.apply(lens)?;
+    if let Some(d) = refocus_mm {
+        let r = adj.image_motion.rotation;
+        adj.image_motion.translation =
+            adj.image_motion.translation + r.apply(crate::math::Vec3::new(0.0, 0.0, d));
+    }
+    Ok((plens, adj))
+}
+
+/// A crop's lens: its pattern (and refocus) applied to `lens`, with the adjustments.
 fn crop_lens(lens: &Lens, bc: &BatchCrop) -> Result<(Lens, Adjustments)> {
     match &bc.pattern {
-        Some(p) => p.apply(lens),
+        Some(p) => unit_lens(lens, p, bc.refocus_mm),
         None => Ok((lens.clone(), Adjustments::none(lens.surfaces.len()))),
     }
 }
@@ -725,5 +782,30 @@ pub fn step(state: &mut DeepState) -> Result<DeepLog> {
         psnr_db: e.psnr_db,
         spot_um: e.spot_um,
         psf_similarity: e.psf_similarity,
+        val_psnr_db: None,
     })
+}
+
+/// Seed offset of the validation batch: its crops, patterns and noise are never trained on.
+const VALIDATION_SEED: u64 = 0x7661_6c69_6461_7465;
+
+/// PSNR (sRGB, dB) of the current design on a fixed validation batch: `samples` crops from the
+/// training source, each through its own random fabricated unit (a pattern of the spec, refocused
+/// when the config says so), drawn from a seed that training never uses. The same batch for
+/// every branch and iteration of a run, so the curves compare.
+///
+/// # Errors
+/// As [`eval_batch`].
+pub fn validation_psnr(state: &DeepState) -> Result<f64> {
+    let mut cfg = state.config.clone();
+    cfg.optics.seed ^= VALIDATION_SEED;
+    let batch = draw_batch(&cfg, &state.design.lens, Phase::Tolerance, 0)?;
+    Ok(eval_batch(
+        &cfg,
+        &batch,
+        &state.design.lens,
+        &state.design.decoder,
+        None,
+    )?
+    .psnr_db)
 }

@@ -34,6 +34,10 @@ pub struct StudyConfig {
     pub stage2_iters: usize,
     /// Also train and evaluate the decoder-only control.
     pub decoder_only: bool,
+    /// Iterations between validation-PSNR measurements (0: none); the last iteration of every
+    /// phase is always measured.
+    #[serde(default)]
+    pub validate_every: usize,
     /// Evaluation settings.
     pub eval: EvalConfig,
 }
@@ -171,8 +175,18 @@ pub fn run(
         cfg.stage1_iters,
         0,
     )?;
+    let validate = |s: &DeepState, l: &mut DeepLog| -> Result<()> {
+        let k = s.phase_iter;
+        if cfg.validate_every > 0 && (k % cfg.validate_every == 0 || s.done()) {
+            l.val_psnr_db = Some(super::validation_psnr(s)?);
+        }
+        Ok(())
+    };
+    let mut logs1 = Vec::new();
     while !s1.done() {
-        let l = step(&mut s1)?;
+        let mut l = step(&mut s1)?;
+        validate(&s1, &mut l)?;
+        logs1.push(l.clone());
         log.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
         progress("stage 1", &l);
     }
@@ -185,12 +199,16 @@ pub fn run(
         branches.push((DECODER_ONLY, Phase::DecoderOnly));
     }
     let mut designs = Vec::new();
+    let mut curves = Vec::new();
     for (name, phase) in branches {
         let mut s = s1.clone();
         s.start_phase(phase, cfg.stage2_iters);
         let mut blog = log.clone();
+        let mut logs = logs1.clone();
         while !s.done() {
-            let l = step(&mut s)?;
+            let mut l = step(&mut s)?;
+            validate(&s, &mut l)?;
+            logs.push(l.clone());
             blog.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
             progress(name, &l);
         }
@@ -198,7 +216,12 @@ pub fn run(
         save_design(&s.design, &dir)?;
         write_atomic(&dir.join("log.jsonl"), blog.as_bytes())?;
         designs.push((name, s.design));
+        curves.push((name.to_string(), logs));
     }
+    crate::figures::save(
+        &crate::figures::deep_training_figure(&curves, "deep-optics training"),
+        &out.join("training.png"),
+    )?;
     let mut scores = Vec::new();
     for (name, d) in &designs {
         scores.push(evaluate(name, d, images, &cfg.eval, 0..cfg.eval.trials)?);

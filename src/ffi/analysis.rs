@@ -461,8 +461,8 @@ pub unsafe extern "C" fn tolray_psf_options_default(
 }
 
 /// The geometric PSF of one field at one wavelength: `kernel_px`² values, row-major with row 0
-/// at +y, summing to 1 (all zeros if no ray lands in the window). `out_len` must equal
-/// `kernel_px * kernel_px`.
+/// at +y, summing to 1. A PSF into whose window no ray lands is an error
+/// (`TOLRAY_ERROR_NUMERICAL`), not a result. `out_len` must equal `kernel_px * kernel_px`.
 ///
 /// # Safety
 /// `system`, `field`, `opts` are valid pointers; `out` holds `out_len` writable doubles.
@@ -607,5 +607,75 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
         let ideal: System<f64> = s.nominal.compile();
         let loss = PsfLoss::new(rays, &ideal, opts, TraceOptions::default());
         write_gradient(s, &loss, &vars, value_out, grad_out)
+    })
+}
+
+/// Simulates a capture through `system` (its lens with its tolerance pattern): the image is cut
+/// into `grid x grid` tiles, each blurred by the RGB PSF of its field (the lens' RGB wavelengths,
+/// `opts` for kernel size, pitch and rays; chief-ray centred) over the tile plus a halo from the
+/// reflect-padded image, then white Gaussian noise of standard deviation `noise_sigma` (linear
+/// [0, 1] units; 0 for none) from `seed` is added. `in` and `out` are planar linear RGB,
+/// `3 * width * height` floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must
+/// equal that count.
+///
+/// # Safety
+/// `system` and `opts` are valid pointers; `in` holds `3 * width * height` readable floats and
+/// `out` `out_len` writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_render(
+    system: *const tolray_system,
+    opts: *const tolray_psf_options,
+    grid: u32,
+    noise_sigma: f64,
+    seed: u64,
+    width: u32,
+    height: u32,
+    input: *const f32,
+    out: *mut f32,
+    out_len: usize,
+) -> tolray_status {
+    boundary("tolray_render", || {
+        let s = unsafe { nonnull(system, "system") }?;
+        let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
+        let (w, h) = (width as usize, height as usize);
+        let n = 3usize.saturating_mul(w).saturating_mul(h);
+        if !(1..=64).contains(&grid) || w < grid as usize || h < grid as usize {
+            return Err(FfiError::size(format!(
+                "grid {grid} must be 1 to 64 and at most the image size {width}x{height}"
+            )));
+        }
+        if !(noise_sigma >= 0.0 && noise_sigma.is_finite()) {
+            return Err(FfiError::new(
+                tolray_status::TOLRAY_ERROR_ARGUMENT,
+                format!("noise_sigma {noise_sigma} must be zero or positive"),
+            ));
+        }
+        if out_len != n {
+            return Err(FfiError::size(format!(
+                "out_len is {out_len}; a {width}x{height} RGB image needs {n}"
+            )));
+        }
+        if out.is_null() {
+            return Err(FfiError::null("out"));
+        }
+        let data = unsafe { c_slice(input, n, "in") }?.to_vec();
+        let img = crate::image::Image {
+            width: w,
+            height: h,
+            data,
+        };
+        let psfs = crate::deep::rgb_psf_map(
+            &s.nominal,
+            &s.sys,
+            grid as usize,
+            &s.nominal.rgb_wavelengths_nm,
+            &opts,
+        )?;
+        let map = crate::image::render::PsfMap::new(grid as usize, opts.ks, psfs)?;
+        let mut y = crate::image::render::render_map(&img, &map)?;
+        crate::image::render::add_gaussian_noise(&mut y.data, noise_sigma as f32, seed, 0);
+        // SAFETY: `out` holds `out_len` == y.data.len() writable floats.
+        unsafe { std::ptr::copy_nonoverlapping(y.data.as_ptr(), out, n) };
+        Ok(())
     })
 }

@@ -7,6 +7,7 @@
 pub mod deadleaves;
 pub mod metrics;
 pub mod render;
+pub mod source;
 
 use crate::error::{write_atomic, Error, ErrorKind, Result};
 use std::path::Path;

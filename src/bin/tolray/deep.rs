@@ -10,6 +10,7 @@ use tolray::deep::html::{render as render_html, Examples};
 use tolray::deep::study::{self, StudyConfig};
 use tolray::deep::{psf_options, rgb_psf_map, DeepConfig, DeepLog};
 use tolray::image::render::{add_gaussian_noise, render_map, PsfMap};
+use tolray::image::source::TrainImages;
 use tolray::image::Image;
 use tolray::tolerance::{Perturbation, ToleranceSpec};
 use tolray::Lens;
@@ -128,9 +129,21 @@ pub struct DeepArgs {
     /// Weight of the PSF-similarity loss in stage 2.
     #[arg(long, default_value_t = 0.01)]
     pub lambda_psf: f64,
+    /// Train on random flipped blocks of the PNG/JPEG images of this folder (e.g. DIV2K) instead
+    /// of the built-in dead leaves.
+    #[arg(long, value_name = "DIR")]
+    pub images: Option<PathBuf>,
+    /// Refocus each sampled unit in the tolerance phases before imaging it (what a fabricated,
+    /// focused unit delivers); independent of the evaluation's `--compensate`.
+    #[arg(long, value_name = "focus", value_parser = ["focus"])]
+    pub train_compensate: Option<String>,
     /// Skip the decoder-only control.
     #[arg(long)]
     pub no_decoder_only: bool,
+    /// Iterations between validation-PSNR measurements on a held-out batch of fabricated units
+    /// (0: none; otherwise the end of every phase is measured too).
+    #[arg(long, default_value_t = 10)]
+    pub validate_every: usize,
     /// Training seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -150,10 +163,14 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
     d.noise_sigma = a.noise;
     d.lambda_spot = a.lambda_spot;
     d.lambda_psf = a.lambda_psf;
+    d.compensate_focus = a.train_compensate.is_some();
     if let Some(p) = &a.eval.spec {
         d.optics.spec = ToleranceSpec::read(p)?;
     }
     d.validate()?;
+    if let Some(dir) = &a.images {
+        d.train_images = TrainImages::from_dir(dir, d.crop_px + d.optics.psf_ks - 1)?;
+    }
     let (eval, images) = a
         .eval
         .config(&lens, a.noise, d.optics.psf_grid, d.optics.psf_ks)?;
@@ -163,6 +180,7 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
         stage1_iters: a.stage1_iters,
         stage2_iters: a.stage2_iters,
         decoder_only: !a.no_decoder_only,
+        validate_every: a.validate_every,
         eval,
     };
     std::fs::create_dir_all(&a.out)
@@ -174,7 +192,7 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let mut last = std::time::Instant::now();
     let mut progress = |branch: &str, l: &DeepLog| {
-        if last.elapsed().as_secs_f64() > 5.0 || l.iter % 50 == 0 {
+        if last.elapsed().as_secs_f64() > 5.0 || l.iter % 50 == 0 || l.val_psnr_db.is_some() {
             last = std::time::Instant::now();
             eprintln!(
                 "[{:6.0} s] {branch:16} iter {:4}: image loss {:.3e}, batch PSNR {:.2} dB, spot {:.1} µm{}",
@@ -185,6 +203,8 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
                 l.spot_um,
                 l.psf_similarity
                     .map_or(String::new(), |s| format!(", PSF similarity {s:.3}"))
+                    + &l.val_psnr_db
+                        .map_or(String::new(), |v| format!(", validation PSNR {v:.2} dB"))
             );
         }
     };

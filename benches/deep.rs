@@ -1,0 +1,87 @@
+//! `deep`: the cost of the image half on the CPU.
+//! - spatially variant convolution of a 2048x2048 RGB image by an 8x8 map of 51x51 kernels;
+//! - one joint training iteration on lens1 at the demo's batch (32 crops of 32²) and at the
+//!   paper's (64 crops of 256²), tolerance phase, Wiener + U-Net decoder;
+//! - a decoder training step alone (64 crops of 64², Wiener + U-Net width 8);
+//! - the evaluation of one fabricated unit (RGB PSF map of 8192 rays per PSF, 3 images of 384²).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use tolray::decoder::{Crop, DecoderKind, ImageLossWeights};
+use tolray::deep::eval::{evaluate, EvalConfig, EvalImages};
+use tolray::deep::{draw_batch, eval_batch, DeepConfig, DeepState, Phase};
+use tolray::image::deadleaves::DeadLeaves;
+use tolray::image::render::{render_map, PsfMap};
+use tolray::Lens;
+
+fn focused_lens1() -> Lens {
+    let mut l = Lens::load("lens1").unwrap();
+    let p = l.paraxial(l.primary_wavelength_nm).unwrap();
+    let last = l.surfaces.len() - 1;
+    l.surfaces[last].d_next_mm = p.image_distance_mm;
+    l
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("deep");
+    g.sample_size(10);
+    let img = DeadLeaves::default().generate(2048, 2048, 1, 1).unwrap();
+    let ks = 51;
+    let mut psf = vec![0f32; 3 * ks * ks];
+    for ch in 0..3 {
+        for k in 0..ks * ks {
+            let (j, i) = ((k / ks) as f32 - 25.0, (k % ks) as f32 - 25.0);
+            psf[ch * ks * ks + k] = (-(i * i + j * j) / 50.0).exp();
+        }
+    }
+    let map = PsfMap::new(8, ks, psf.repeat(64)).unwrap();
+    g.bench_function("render_map/2048x2048/8x8x51", |b| {
+        b.iter(|| render_map(&img, &map).unwrap())
+    });
+
+    let lens = focused_lens1();
+    for (name, samples, crop) in [("demo-32x32px", 32, 32), ("paper-64x256px", 64, 256)] {
+        let mut cfg = DeepConfig::for_lens(&lens);
+        cfg.optics.samples = samples;
+        cfg.crop_px = crop;
+        let st = DeepState::new(cfg.clone(), lens.clone(), None, Phase::Tolerance, 1, 0).unwrap();
+        let batch = draw_batch(&cfg, &lens, Phase::Tolerance, 0).unwrap();
+        let vars = st.vars.clone();
+        g.bench_function(format!("stage2_iteration/lens1/{name}"), |b| {
+            b.iter(|| eval_batch(&cfg, &batch, &lens, &st.design.decoder, Some(&vars)).unwrap())
+        });
+    }
+
+    let cfg = DeepConfig::for_lens(&lens);
+    let st = DeepState::new(cfg, lens.clone(), None, Phase::Nominal, 1, 0).unwrap();
+    assert_eq!(st.design.decoder.kind, DecoderKind::WienerUnet);
+    let crops: Vec<Crop> = (0..64)
+        .map(|j| {
+            let x = DeadLeaves::default().generate(64, 64, 2, j).unwrap().data;
+            Crop {
+                tile: j as usize,
+                y: x.clone(),
+                x,
+                w: 64,
+                h: 64,
+            }
+        })
+        .collect();
+    g.bench_function("decoder_step/64x64px/wiener+unet8", |b| {
+        b.iter(|| {
+            st.design
+                .decoder
+                .train_batch(&crops, &ImageLossWeights::default())
+                .unwrap()
+        })
+    });
+
+    let ec = EvalConfig::default();
+    let images = EvalImages::builtin(8 * ec.patch_px, 2, ec.seed).unwrap();
+    g.bench_function("evaluate_one_unit/lens1/3x384px", |b| {
+        b.iter(|| evaluate("d", &st.design, &images, &ec, 0..1).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
