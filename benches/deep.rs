@@ -5,10 +5,10 @@
 //! - a decoder training step alone (64 crops of 64², Wiener + U-Net width 8);
 //! - the evaluation of one fabricated unit (RGB PSF map of 8192 rays per PSF, 3 images of 384²).
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use tolray::decoder::{Crop, DecoderKind, ImageLossWeights};
 use tolray::deep::eval::{evaluate, EvalConfig, EvalImages};
-use tolray::deep::{draw_batch, eval_batch, DeepConfig, DeepState, Phase};
+use tolray::deep::{step, DeepConfig, DeepState, Phase};
 use tolray::image::deadleaves::DeadLeaves;
 use tolray::image::render::{render_map, PsfMap};
 use tolray::Lens;
@@ -44,10 +44,14 @@ fn bench(c: &mut Criterion) {
         cfg.optics.samples = samples;
         cfg.crop_px = crop;
         let st = DeepState::new(cfg.clone(), lens.clone(), None, Phase::Tolerance, 1, 0).unwrap();
-        let batch = draw_batch(&cfg, &lens, Phase::Tolerance, 0).unwrap();
-        let vars = st.vars.clone();
+        // A whole iteration: drawing the crops, patterns and rays, rendering, decoding, both
+        // backward passes and the Adam steps.
         g.bench_function(format!("stage2_iteration/lens1/{name}"), |b| {
-            b.iter(|| eval_batch(&cfg, &batch, &lens, &st.design.decoder, Some(&vars)).unwrap())
+            b.iter_batched(
+                || st.clone(),
+                |mut s| step(&mut s).unwrap(),
+                BatchSize::LargeInput,
+            )
         });
     }
 

@@ -364,20 +364,10 @@ fn write_exr(
     height: usize,
     rgb: impl Fn(usize) -> (f32, f32, f32) + Sync,
 ) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.tmp.exr", std::process::id()));
-    let r = exr::prelude::write_rgb_file(&tmp, width, height, |x, y| rgb(y * width + x));
-    let r = r
-        .map_err(|e| std::io::Error::other(e.to_string()))
-        .and_then(|_| std::fs::rename(&tmp, path));
-    if let Err(e) = r {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
-    }
-    Ok(())
+    crate::error::write_via_temp(path, |tmp| {
+        exr::prelude::write_rgb_file(tmp, width, height, |x, y| rgb(y * width + x))
+            .map_err(|e| std::io::Error::other(e.to_string()))
+    })
 }
 
 /// Lays `tiles` (`ks x ks` each) out in a `cols`-wide mosaic: (width, height, values).
@@ -448,23 +438,44 @@ pub fn training_figure(logs: &[crate::optim::train::IterLog], title: &str) -> Ca
     cv
 }
 
-/// Training curves of a deep-optics study: per branch, the batch PSNR (thin) and the validation
-/// PSNR (dots joined by a line) against the iteration (top), and the batch image loss on a log10
-/// scale (bottom); a grey line marks the end of stage 1 (where the branches start).
+/// Training curves of a deep-optics study: the batch PSNR (light) and the validation PSNR
+/// (dots) against the iteration (top), and the batch image loss on a log10 scale (bottom). Stage
+/// 1, which the branches share, is drawn once in grey; a grey line marks where the branches
+/// start.
 pub fn deep_training_figure(
     branches: &[(String, Vec<crate::deep::DeepLog>)],
     title: &str,
 ) -> Canvas {
+    use crate::deep::DeepLog;
     let mut cv = Canvas::new(900, 680);
     cv.set_view((0, 0, 900, 40), (0.0, 1.0), (0.0, 1.0), false);
     cv.title(title);
     let all = || branches.iter().flat_map(|b| b.1.iter());
     let n = all().map(|l| l.iter + 1).max().unwrap_or(2).max(2) as f64;
-    let split = branches
-        .iter()
-        .filter_map(|b| b.1.iter().find(|l| l.phase != crate::deep::Phase::Nominal))
-        .map(|l| l.iter)
-        .min();
+    // Where the branches part: the first iteration at which two branches differ in phase, or
+    // the end of the common prefix.
+    let split = branches.first().map_or(0, |b0| {
+        b0.1.iter()
+            .position(|l| {
+                branches.iter().any(|b| {
+                    b.1.iter()
+                        .find(|m| m.iter == l.iter)
+                        .is_none_or(|m| m.phase != l.phase || m.psnr_db != l.psnr_db)
+                })
+            })
+            .map_or(b0.1.last().map_or(0, |l| l.iter + 1), |k| b0.1[k].iter)
+    });
+    const GREY: crate::plot::Rgb = [90, 90, 90];
+    let mut series: Vec<(crate::plot::Rgb, Vec<&DeepLog>)> = Vec::new();
+    if let Some(b0) = branches.first() {
+        series.push((GREY, b0.1.iter().filter(|l| l.iter < split).collect()));
+    }
+    for (k, (_, logs)) in branches.iter().enumerate() {
+        let c = PALETTE[k % PALETTE.len()];
+        // Joined to the last shared point so that the curves continue.
+        let from = split.saturating_sub(1);
+        series.push((c, logs.iter().filter(|l| l.iter >= from).collect()));
+    }
     let range = |v: &mut dyn Iterator<Item = f64>| {
         let (lo, hi) = v
             .filter(|x| x.is_finite())
@@ -478,50 +489,50 @@ pub fn deep_training_figure(
         }
     };
     // Top panel: PSNR.
-    let yr = range(
-        &mut all()
-            .flat_map(|l| [Some(l.psnr_db), l.val_psnr_db])
-            .flatten(),
-    );
-    cv.set_view((80, 70, 660, 260), (0.0, n), yr, false);
-    if let Some(s) = split {
-        cv.line((s as f64, yr.0), (s as f64, yr.1), [170, 170, 170]);
+    let yr = range(&mut all().flat_map(|l| [Some(l.psnr_db), l.val_psnr_db]).flatten());
+    cv.set_view((80, 70, 640, 260), (0.0, n), yr, false);
+    if split > 0 {
+        cv.line((split as f64, yr.0), (split as f64, yr.1), [170, 170, 170]);
     }
-    for (k, (_, logs)) in branches.iter().enumerate() {
-        let c = PALETTE[k % PALETTE.len()];
+    for (c, logs) in &series {
         let faint = c.map(|v| ((u16::from(v) + 2 * 255) / 3) as u8);
         let pts: Vec<_> = logs.iter().map(|l| (l.iter as f64, l.psnr_db)).collect();
         cv.polyline(&pts, faint);
+    }
+    for (c, logs) in &series {
         let val: Vec<_> = logs
             .iter()
             .filter_map(|l| l.val_psnr_db.map(|v| (l.iter as f64, v)))
             .collect();
-        cv.polyline(&val, c);
+        cv.polyline(&val, *c);
         for &p in &val {
-            cv.dot(p, 2.5, c);
+            cv.dot(p, 2.5, *c);
         }
     }
-    cv.axes("iteration", "PSNR (dB): batch (light), validation (dots)");
+    cv.axes(
+        "iteration",
+        "PSNR (dB): training batch (light), held-out fabricated units (dots)",
+    );
     // Legend.
-    for (k, (name, _)) in branches.iter().enumerate() {
-        let c = PALETTE[k % PALETTE.len()];
+    let names = std::iter::once("stage 1 (shared)").chain(branches.iter().map(|b| b.0.as_str()));
+    for (k, (name, (c, _))) in names.zip(&series).enumerate() {
         let y = 80 + 16 * k as i32;
-        cv.rect_px(752, y, 14, 8, c, true);
-        cv.text_px(772, y, name, 1, [0, 0, 0]);
+        cv.rect_px(732, y, 14, 8, *c, true);
+        cv.text_px(752, y, name, 1, [0, 0, 0]);
     }
     // Bottom panel: log10 image loss.
     let yr = range(&mut all().map(|l| l.image_loss.max(1e-300).log10()));
-    cv.set_view((80, 410, 660, 220), (0.0, n), yr, false);
-    if let Some(s) = split {
-        cv.line((s as f64, yr.0), (s as f64, yr.1), [170, 170, 170]);
+    cv.set_view((80, 410, 640, 220), (0.0, n), yr, false);
+    if split > 0 {
+        cv.line((split as f64, yr.0), (split as f64, yr.1), [170, 170, 170]);
     }
-    for (k, (_, logs)) in branches.iter().enumerate() {
+    for (c, logs) in &series {
         let pts: Vec<_> = logs
             .iter()
             .map(|l| (l.iter as f64, l.image_loss.max(1e-300).log10()))
             .collect();
-        cv.polyline(&pts, PALETTE[k % PALETTE.len()]);
+        cv.polyline(&pts, *c);
     }
-    cv.axes("iteration", "log10 of the batch image loss");
+    cv.axes("iteration", "log10 of the training batch's image loss");
     cv
 }

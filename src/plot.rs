@@ -5,11 +5,8 @@
 //! widened and all geometry is clipped in `f64` before it is converted to integers.
 
 use image::{ImageFormat, RgbImage};
-use std::ffi::OsString;
-use std::fs::{self, OpenOptions};
-use std::io::{self, Cursor, Write};
+use std::io::{self, Cursor};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// An RGB colour, `[r, g, b]`.
 pub type Rgb = [u8; 3];
@@ -370,27 +367,14 @@ impl Canvas {
     /// Any I/O error from creating, writing or renaming the file (e.g. a missing directory), or
     /// `InvalidInput` if `path` has no file name.
     pub fn save_png(&self, path: &Path) -> io::Result<()> {
-        static COUNTER: AtomicU64 = AtomicU64::new(0);
-        let name = path.file_name().ok_or_else(|| {
-            io::Error::new(io::ErrorKind::InvalidInput, "PNG path has no file name")
-        })?;
         let mut bytes = Vec::new();
         self.img
             .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
             .map_err(io::Error::other)?;
-        let mut tmp_name = OsString::from(".");
-        tmp_name.push(name);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        tmp_name.push(format!(".{}.{n}.tmp", std::process::id()));
-        let tmp = path.with_file_name(tmp_name);
-        let mut file = OpenOptions::new().write(true).create_new(true).open(&tmp)?;
-        let written = file.write_all(&bytes).and_then(|()| file.sync_all());
-        drop(file);
-        let result = written.and_then(|()| fs::rename(&tmp, path));
-        if result.is_err() {
-            let _ = fs::remove_file(&tmp);
-        }
-        result
+        crate::error::write_atomic(path, &bytes).map_err(|e| match e.kind {
+            crate::ErrorKind::Argument => io::Error::new(io::ErrorKind::InvalidInput, e.message),
+            _ => io::Error::other(e.message),
+        })
     }
 
     /// Access to the raw image (for tests).
@@ -667,6 +651,7 @@ fn inferno(t: f64) -> Rgb {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs;
 
     const RED: Rgb = [255, 0, 0];
 

@@ -695,3 +695,72 @@ fn no_silent_non_finite_or_empty_results() {
     assert_eq!(code, 1);
     assert!(err.contains("no ray landed"), "{err}");
 }
+
+/// Output paths are checked before any work (a missing directory used to fail only after the
+/// whole computation), and Ctrl-C outside `train` exits 130 leaving no hidden temporary file.
+#[test]
+fn outputs_are_checked_first_and_ctrl_c_leaves_no_partial_file() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let dir = tmp("outputs");
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("no-such-dir").join("r.json");
+    let t = Instant::now();
+    let (code, _, err) = tolray(&[
+        "tolerance",
+        "lens1",
+        "--trials",
+        "1000000",
+        "--json",
+        missing.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("--json") && err.contains("does not exist"),
+        "{err}"
+    );
+    assert!(
+        t.elapsed() < Duration::from_secs(20),
+        "checked only after the work"
+    );
+    let (code, _, err) = tolray(&["psf", "lens1", "--png", dir.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("is a directory"), "{err}");
+
+    let out = dir.join("deep");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .args([
+            "deep",
+            "lens1",
+            "--out",
+            out.to_str().unwrap(),
+            "--spot-iters",
+            "100000",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !out.join("study.json").exists() {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(start.elapsed() < Duration::from_secs(60), "no progress");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let pid = child.id().to_string();
+    let kill = Command::new("sh")
+        .args(["-c", "kill -INT \"$1\"", "sh", &pid])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    assert_eq!(child.wait().unwrap().code(), Some(130));
+    let left: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}

@@ -234,7 +234,7 @@ fn the_vjp_seam_is_exact_in_f64() {
     let g: Vec<Vec<f64>> = (0..3)
         .map(|c| {
             (0..n)
-                .map(|k| (((k * 7919 + c * 104_729) % 1000) as f64 / 1000.0 - 0.5))
+                .map(|k| ((k * 7919 + c * 104_729) % 1000) as f64 / 1000.0 - 0.5)
                 .collect()
         })
         .collect();

@@ -193,8 +193,17 @@ fn bad_specs_and_patterns_are_clear_errors() {
         .unwrap_err()
         .message
         .contains("element 5 is out of range"));
-    let spec: ToleranceSpec =
-        serde_json::from_str(r#"{"operands": [{"type": "tilt", "max": -0.1}]}"#).unwrap();
+    // A negative range is refused where the spec is read (it used to pass until sampling).
+    let e =
+        serde_json::from_str::<ToleranceSpec>(r#"{"operands": [{"type": "tilt", "max": -0.1}]}"#)
+            .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("range max -0.1 must be a finite number >= 0"),
+        "{e}"
+    );
+    let mut spec = ToleranceSpec::default();
+    spec.operands[0].max = f64::NAN;
     assert!(spec
         .validate(&l)
         .unwrap_err()

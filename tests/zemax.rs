@@ -1149,3 +1149,58 @@ fn a_stop_between_two_media_refracts() {
         "JSON {efl} vs .zmx {efl_z}"
     );
 }
+
+/// Both readers accept the same wavelengths (0.1 to 20 µm, exclusive), so `convert` never writes
+/// a file that tolray then refuses (the JSON reader used to stop at 10 µm, the .zmx one at 20).
+#[test]
+fn json_and_zmx_readers_accept_the_same_wavelengths() {
+    let base = Lens::load("lens1").unwrap();
+    for (um, ok) in [
+        (0.1, false),
+        (0.1001, true),
+        (12.0, true),
+        (19.9, true),
+        (20.0, false),
+    ] {
+        let mut v: serde_json::Value = serde_json::from_str(&json::to_string(&base)).unwrap();
+        v["primary_wvln"] = serde_json::json!(um);
+        let from_json = json::from_str(&v.to_string());
+        assert_eq!(from_json.is_ok(), ok, "JSON at {um} µm: {from_json:?}");
+        let zmx = zemax::to_string(&base, None);
+        let text = replace_line(&zmx, "WAVM 1 ", &format!("WAVM 1 {um} 1"));
+        let from_zmx = parse(&text);
+        assert_eq!(from_zmx.is_ok(), ok, "zmx at {um} µm: {:?}", from_zmx.err());
+        if let (Ok(a), Ok(b)) = (from_json, from_zmx) {
+            // And what one reads, the other writes and reads back.
+            assert_eq!(
+                json::from_str(&json::to_string(&b.lens))
+                    .unwrap()
+                    .primary_wavelength_nm,
+                b.lens.primary_wavelength_nm
+            );
+            assert!(parse(&zemax::to_string(&a, None)).is_ok(), "{um} µm");
+        }
+    }
+}
+
+/// A lens with no marked stop is written with STOP on the surface tolray's paraxial model takes
+/// as the stop (the one limiting the axial beam), so the read-back keeps its pupils (it used to
+/// be written without STOP and read back with the first surface as the stop).
+#[test]
+fn a_lens_without_a_marked_stop_keeps_its_stop_through_zmx() {
+    let mut l = Lens::load("lens2").unwrap();
+    for s in &mut l.surfaces {
+        s.is_stop = false;
+    }
+    let p = l.paraxial(l.primary_wavelength_nm).unwrap();
+    assert_ne!(
+        p.stop_surface, 0,
+        "the test needs a stop other than the first surface"
+    );
+    let z = parse(&zemax::to_string(&l, None)).unwrap();
+    assert_eq!(z.lens.stop_index(), Some(p.stop_surface));
+    let q = z.lens.paraxial(l.primary_wavelength_nm).unwrap();
+    assert_eq!(q.stop_surface, p.stop_surface);
+    assert!(rel(q.entrance_pupil_diameter_mm, p.entrance_pupil_diameter_mm) < 1e-12);
+    assert!(rel(q.entrance_pupil_z_mm, p.entrance_pupil_z_mm) < 1e-12);
+}

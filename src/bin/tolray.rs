@@ -4,6 +4,7 @@ use anyhow::{bail, Context};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 use tolray::analysis::{spot_diagram, SpotOptions, SpotResult};
 use tolray::lens::material::{self, LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
 use tolray::lens::{json, zemax, GlassCatalogs, Paraxial};
@@ -1380,8 +1381,6 @@ fn train(
     eval_trials: usize,
 ) -> anyhow::Result<()> {
     use std::io::Write;
-    use std::sync::atomic::{AtomicBool, Ordering};
-    use std::sync::Arc;
     std::fs::create_dir_all(out)
         .with_context(|| format!("{}: cannot create directory", out.display()))?;
     let log_path = out.join("log.jsonl");
@@ -1405,9 +1404,10 @@ fn train(
         .append(true)
         .open(&log_path)
         .with_context(|| format!("{}: cannot open", log_path.display()))?;
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    // Ctrl-C now asks for a stop at the end of the iteration (an exact checkpoint), instead of
+    // main's default of removing partial files and exiting at once.
+    GRACEFUL_STOP.store(true, Ordering::SeqCst);
+    let stop = &STOP_REQUESTED;
     let total = state.total_iters();
     let bar = indicatif::ProgressBar::new(total as u64);
     bar.set_style(
@@ -1757,9 +1757,72 @@ fn exit_code(e: &anyhow::Error) -> u8 {
     }
 }
 
+/// Set by Ctrl-C when a command stops gracefully (`train`).
+static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
+/// Whether the running command stops gracefully on Ctrl-C.
+static GRACEFUL_STOP: AtomicBool = AtomicBool::new(false);
+
+/// Ctrl-C: a graceful command (`train`) is asked to stop; any other exits at once with code 130,
+/// after deleting the temporary files of writes in progress (outputs are written through a
+/// temporary file and a rename, so no half-written output exists, and now no hidden partial file
+/// either).
+fn install_interrupt_handler() {
+    let _ = ctrlc::set_handler(|| {
+        if GRACEFUL_STOP.load(Ordering::SeqCst) {
+            STOP_REQUESTED.store(true, Ordering::SeqCst);
+        } else {
+            tolray::error::remove_partial_files();
+            std::process::exit(130);
+        }
+    });
+}
+
+/// Checks the output paths of the command line before any work: a file's directory must exist
+/// and the file must not be a directory; an output directory (`--out` of `train`, `deep`,
+/// `demo`) must not be a file. Names the flag and the path.
+fn check_outputs(m: &clap::ArgMatches) -> anyhow::Result<()> {
+    let Some((name, sub)) = m.subcommand() else {
+        return Ok(());
+    };
+    for id in ["png", "exr", "json", "html", "output", "out"] {
+        let Ok(Some(p)) = sub.try_get_one::<PathBuf>(id) else {
+            continue;
+        };
+        let flag = if id == "output" {
+            "OUTPUT".to_string()
+        } else {
+            format!("--{id}")
+        };
+        if id == "out" && name != "trace" {
+            if p.exists() && !p.is_dir() {
+                bail!("{flag} {}: exists and is not a directory", p.display());
+            }
+            continue;
+        }
+        let dir = p
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if !dir.is_dir() {
+            bail!(
+                "{flag} {}: the directory {} does not exist",
+                p.display(),
+                dir.display()
+            );
+        }
+        if p.is_dir() {
+            bail!("{flag} {}: is a directory, not a file", p.display());
+        }
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match run(cli) {
+    use clap::{CommandFactory, FromArgMatches};
+    let m = Cli::command().get_matches();
+    let checked = check_outputs(&m).and_then(|()| Ok(Cli::from_arg_matches(&m)?));
+    install_interrupt_handler();
+    match checked.and_then(run) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

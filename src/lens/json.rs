@@ -186,15 +186,16 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         }
     };
     let primary_um = num(top, "primary_wvln", "")?.unwrap_or(0.5875618);
-    if !(0.1..=10.0).contains(&primary_um) {
+    let ok = crate::lens::material::wavelength_um_ok;
+    if !ok(primary_um) {
         return Err(Error::invalid(format!(
-            "\"primary_wvln\" {primary_um} must be in micrometres (0.1 to 10)"
+            "\"primary_wvln\" {primary_um} must be in micrometres (between 0.1 and 20)"
         )));
     }
     let rgb_um = num_array::<3>(top, "wvln_rgb", "")?.unwrap_or([0.656, 0.587, 0.486]);
-    if rgb_um.iter().any(|w| !(0.1..=10.0).contains(w)) {
+    if rgb_um.iter().any(|&w| !ok(w)) {
         return Err(Error::invalid(format!(
-            "\"wvln_rgb\" {rgb_um:?} must be in micrometres (0.1 to 10)"
+            "\"wvln_rgb\" {rgb_um:?} must be in micrometres (between 0.1 and 20)"
         )));
     }
     let lens = Lens {

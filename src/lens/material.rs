@@ -32,6 +32,12 @@ pub fn check_wavelength_nm(wavelength_nm: f64) -> Result<f64> {
     }
 }
 
+/// Whether a wavelength read from a lens file (µm, as DeepLens JSON and .zmx store them) lies in
+/// [`WAVELENGTH_RANGE_NM`]: both readers use this, so that a file one writes the other opens.
+pub fn wavelength_um_ok(um: f64) -> bool {
+    check_wavelength_nm(um * 1e3).is_ok()
+}
+
 /// The wavelength in µm that reads back (times 1000) to exactly `nm` when such an `f64` exists
 /// (`nm * 1e-3` is sometimes one unit in the last place off), else `nm / 1000`. Files store µm.
 pub(crate) fn um_from_nm(nm: f64) -> f64 {

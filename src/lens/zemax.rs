@@ -1201,7 +1201,7 @@ fn wavelengths(h: &Header, warnings: &mut Vec<String>) -> Result<(Vec<ZmxWavelen
         Vec::new()
     };
     for (w, line) in &list {
-        if !(w.um > 0.1 && w.um < 20.0) {
+        if !crate::lens::material::wavelength_um_ok(w.um) {
             return Err(invalid(
                 *line,
                 format!(
@@ -1497,7 +1497,14 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             },
         ],
     );
-    for s in &lens.surfaces {
+    // With no marked stop, tolray's paraxial model takes the surface that limits the axial
+    // beam; mark that one, or OpticStudio (and the reader) would take the first surface.
+    let stop = lens.stop_index().or_else(|| {
+        lens.paraxial(lens.primary_wavelength_nm)
+            .ok()
+            .map(|p| p.stop_surface)
+    });
+    for (i, s) in lens.surfaces.iter().enumerate() {
         let v = s.vec_local;
         let moved = s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0;
         let (a, b) = if moved { tilt_angles(v) } else { (0.0, 0.0) };
@@ -1518,7 +1525,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             surf(&mut w, cb(1.0, 0, 0.0));
         }
         let mut l: Vec<String> = Vec::new();
-        if s.is_stop {
+        if s.is_stop || stop == Some(i) {
             l.push("STOP".into());
         }
         let asph = s.is_aspheric();

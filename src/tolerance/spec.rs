@@ -127,7 +127,9 @@ pub struct Operand {
     /// What is perturbed.
     #[serde(rename = "type")]
     pub kind: OperandKind,
-    /// Range: values lie in ±max (in the operand's unit).
+    /// Range: values lie in ±max (in the operand's unit); a finite number ≥ 0, checked when the
+    /// spec is read.
+    #[serde(deserialize_with = "non_negative_max")]
     pub max: f64,
     /// Distribution (default: the spec's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -139,6 +141,19 @@ pub struct Operand {
     /// for `gap`, every surface but the last).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub surfaces: Option<Vec<usize>>,
+}
+
+/// Reads an operand's `max`, refusing what sampling would refuse later (a negative, NaN or
+/// infinite range), so that every reader (files, the C ABI's JSON text) fails where the spec is.
+fn non_negative_max<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    let v = f64::deserialize(d)?;
+    if v >= 0.0 && v.is_finite() {
+        Ok(v)
+    } else {
+        Err(serde::de::Error::custom(format!(
+            "range max {v} must be a finite number >= 0"
+        )))
+    }
 }
 
 /// A tolerance spec: operands with ranges and distributions.
