@@ -489,7 +489,11 @@ pub fn deep_training_figure(
         }
     };
     // Top panel: PSNR.
-    let yr = range(&mut all().flat_map(|l| [Some(l.psnr_db), l.val_psnr_db]).flatten());
+    let yr = range(
+        &mut all()
+            .flat_map(|l| [Some(l.psnr_db), l.val_psnr_db])
+            .flatten(),
+    );
     cv.set_view((80, 70, 640, 260), (0.0, n), yr, false);
     if split > 0 {
         cv.line((split as f64, yr.0), (split as f64, yr.1), [170, 170, 170]);

@@ -295,7 +295,7 @@ fn the_vjp_seam_is_exact_in_f64() {
 }
 
 /// The study on reduced sizes (CI runs it once, `.ci/run`; `cargo test -- --ignored` here):
-/// the directions that held in every full-size run (README, "Deep optics") must hold here too,
+/// the directions that held in every full-size lens1 run (README, "Deep optics") must hold here too,
 /// on held-out fabricated units: the tolerance-aware lens keeps its PSFs closer to the nominal
 /// design's than the conventional lens, and the decoder trained on tolerances (decoder-only
 /// control) decodes fabricated units better than the conventional decoder, with the paired
