@@ -460,7 +460,7 @@ pub fn deep_training_figure(
                 branches.iter().any(|b| {
                     b.1.iter()
                         .find(|m| m.iter == l.iter)
-                        .is_none_or(|m| m.phase != l.phase || m.psnr_db != l.psnr_db)
+                        .map_or(true, |m| m.phase != l.phase || m.psnr_db != l.psnr_db)
                 })
             })
             .map_or(b0.1.last().map_or(0, |l| l.iter + 1), |k| b0.1[k].iter)

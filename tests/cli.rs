@@ -739,7 +739,7 @@ fn outputs_are_checked_first_and_ctrl_c_leaves_no_partial_file() {
         ])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let start = Instant::now();
@@ -755,7 +755,20 @@ fn outputs_are_checked_first_and_ctrl_c_leaves_no_partial_file() {
         .status()
         .unwrap();
     assert!(kill.success());
-    assert_eq!(child.wait().unwrap().code(), Some(130));
+    let done = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    assert_eq!(done.status.code(), Some(130), "{err}");
+    // `deep` stops at the end of the iteration with a checkpoint to resume from.
+    assert!(err.contains("tolray deep --resume"), "{err}");
+    let ck: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("checkpoint.json")).unwrap())
+            .unwrap();
+    assert!(ck["spot"]["next_iter"].as_u64().unwrap() > 0, "{ck}");
+    let (code, _, err) = tolray(&["deep", "lens1", "--resume", out.to_str().unwrap()]);
+    assert_eq!(code, 2, "a lens with --resume is a usage error: {err}");
+    let (code, _, err) = tolray(&["deep", "--resume", dir.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("checkpoint.json"), "{err}");
     let left: Vec<_> = std::fs::read_dir(&out)
         .unwrap()
         .filter_map(|e| e.ok())

@@ -212,6 +212,96 @@ fn evaluation_shards_merge_into_the_single_run_report() {
     assert!(merge(&[part(0..2)]).is_err(), "a missing slice is refused");
 }
 
+/// A study stopped at any iteration (focus fit, stage 1, a branch) and resumed from the
+/// checkpoint it wrote gives the designs, logs and report of the uninterrupted run, byte for byte.
+#[test]
+fn a_stopped_study_resumes_to_the_uninterrupted_result() {
+    use std::cell::Cell;
+    use tolray::deep::study::{read_checkpoint, run, run_resumable, Control, Start, StudyConfig};
+    let lens = focused_lens1();
+    let cfg = StudyConfig {
+        deep: small(&lens, DecoderKind::Wiener),
+        spot_iters: 3,
+        stage1_iters: 3,
+        stage2_iters: 2,
+        decoder_only: true,
+        validate_every: 2,
+        eval: EvalConfig {
+            trials: 2,
+            spp: 256,
+            ks: 51,
+            patch_px: 16,
+            bootstrap: 50,
+            ..EvalConfig::default()
+        },
+        eval_photos: 0,
+        eval_images_dir: None,
+    };
+    let images = cfg.eval_images().unwrap();
+    let base = std::env::temp_dir().join(format!("tolray-resume-{}", std::process::id()));
+    let whole = base.join("whole");
+    let r = run(&lens, &cfg, &images, &whole, &mut |_, _| {}).unwrap();
+    let expect = serde_json::to_string(&r).unwrap();
+    let files = |dir: &std::path::Path| -> Vec<Vec<u8>> {
+        ["conventional", "tolerance-aware", "decoder-only"]
+            .iter()
+            .flat_map(|b| ["lens.json", "decoder.bin", "log.jsonl"].map(|f| dir.join(b).join(f)))
+            .map(|p| std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+            .collect()
+    };
+    // Iterations: 3 focus fit, 3 stage 1, 2 per branch. Stop after 2 (focus fit), 4 (stage 1),
+    // 6 (the end of stage 1), 9 (inside the tolerance-aware branch), then again after 2 more.
+    for stops in [vec![2], vec![4], vec![6], vec![9], vec![5, 2]] {
+        let dir = base.join(format!("{stops:?}").replace([' ', ',', '[', ']'], "_"));
+        let mut start = Start::Lens(&lens);
+        let mut rounds = 0;
+        let report = loop {
+            let n = Cell::new(0usize);
+            let at = stops.get(rounds).copied();
+            let stop = || {
+                n.set(n.get() + 1);
+                Some(n.get()) == at
+            };
+            let mut ctl = Control {
+                progress: &mut |_, _| {},
+                stop: &stop,
+                checkpoint_every: 0,
+            };
+            match run_resumable(start, &cfg, &images, &dir, &mut ctl).unwrap() {
+                Some(r) => break r,
+                None => {
+                    rounds += 1;
+                    start = Start::Checkpoint(Box::new(read_checkpoint(&dir).unwrap()));
+                }
+            }
+        };
+        assert_eq!(rounds, stops.len(), "{stops:?}: every stop was taken");
+        assert_eq!(serde_json::to_string(&report).unwrap(), expect, "{stops:?}");
+        assert!(
+            files(&dir) == files(&whole),
+            "{stops:?}: designs or logs differ"
+        );
+    }
+    // A checkpoint of other settings is refused.
+    let mut other = cfg.clone();
+    other.stage2_iters = 3;
+    let ck = read_checkpoint(&base.join("_4_")).unwrap();
+    let mut ctl = Control {
+        progress: &mut |_, _| {},
+        stop: &|| false,
+        checkpoint_every: 0,
+    };
+    let e = run_resumable(
+        Start::Checkpoint(Box::new(ck)),
+        &other,
+        &images,
+        &base,
+        &mut ctl,
+    );
+    assert!(e.is_err());
+    let _ = std::fs::remove_dir_all(&base);
+}
+
 /// The seam between reverse and forward mode, exactly: the lens gradient of `<G, PSF(θ)>` for a
 /// fixed dL/dPSF `G` (what [`PatternObjective`] adds to the optics loss), in f64, against central
 /// differences with steps small enough that no ray changes pixel.
@@ -324,6 +414,8 @@ fn reduced_study_keeps_the_paper_s_directions() {
             bootstrap: 1000,
             ..EvalConfig::default()
         },
+        eval_photos: 1,
+        eval_images_dir: None,
     };
     let images = EvalImages::builtin(8 * 32, 1, cfg.eval.seed).unwrap();
     let out = std::env::temp_dir().join(format!("tolray-study-{}", std::process::id()));

@@ -283,6 +283,81 @@ impl DeepState {
     pub fn done(&self) -> bool {
         self.phase_iter >= self.phase_iters
     }
+
+    /// The state in serializable form (for checkpoints).
+    pub fn to_saved(&self) -> SavedState {
+        SavedState {
+            config: self.config.clone(),
+            lens_json: crate::lens::json::to_string(&self.design.lens),
+            decoder: self.design.decoder.clone(),
+            vars: self.vars.clone(),
+            adam_lens: self.adam_lens.clone(),
+            adam_decoder: self.adam_decoder.clone(),
+            phase: self.phase,
+            phase_iters: self.phase_iters,
+            phase_iter: self.phase_iter,
+            iter_offset: self.iter_offset,
+        }
+    }
+
+    /// The state saved by [`DeepState::to_saved`], exactly (a folder of training images is read
+    /// again).
+    ///
+    /// # Errors
+    /// An unreadable lens, invalid settings, a folder of training images that cannot be read.
+    pub fn from_saved(s: SavedState) -> Result<DeepState> {
+        let mut config = s.config;
+        config.validate()?;
+        let min_side = config.crop_px + config.optics.psf_ks - 1;
+        config.train_images.reload(min_side)?;
+        let lens = crate::lens::json::from_str(&s.lens_json)?;
+        if s.adam_decoder.m.len() != s.decoder.params().len() || s.vars.len() != s.adam_lens.m.len()
+        {
+            return Err(Error::invalid(
+                "checkpoint: optimizer state does not match the parameters",
+            ));
+        }
+        Ok(DeepState {
+            config,
+            design: Design {
+                lens,
+                decoder: s.decoder,
+            },
+            vars: s.vars,
+            adam_lens: s.adam_lens,
+            adam_decoder: s.adam_decoder,
+            phase: s.phase,
+            phase_iters: s.phase_iters,
+            phase_iter: s.phase_iter,
+            iter_offset: s.iter_offset,
+        })
+    }
+}
+
+/// A [`DeepState`] as a checkpoint stores it: the lens as DeepLens JSON text (exact), every
+/// other field as it is.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SavedState {
+    /// Settings.
+    pub config: DeepConfig,
+    /// The lens, DeepLens JSON.
+    pub lens_json: String,
+    /// The decoder.
+    pub decoder: Decoder,
+    /// Design variables.
+    pub vars: Vec<Param>,
+    /// Adam over the lens variables.
+    pub adam_lens: Adam,
+    /// Adam over the decoder parameters.
+    pub adam_decoder: Adam,
+    /// Phase.
+    pub phase: Phase,
+    /// Iterations of the phase.
+    pub phase_iters: usize,
+    /// Next iteration of the phase.
+    pub phase_iter: usize,
+    /// Iterations before the phase.
+    pub iter_offset: usize,
 }
 
 fn lens_learning_rates(lens: &Lens, vars: &[Param], cfg: &DeepConfig) -> Vec<f64> {

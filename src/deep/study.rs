@@ -40,6 +40,39 @@ pub struct StudyConfig {
     pub validate_every: usize,
     /// Evaluation settings.
     pub eval: EvalConfig,
+    /// Built-in photographs in the evaluation set besides the dead-leaves image (0 to 4).
+    #[serde(default = "default_photos")]
+    pub eval_photos: usize,
+    /// Evaluate on the PNG/JPEG images of this folder instead of the built-in set.
+    #[serde(default)]
+    pub eval_images_dir: Option<std::path::PathBuf>,
+}
+
+fn default_photos() -> usize {
+    2
+}
+
+impl StudyConfig {
+    /// The evaluation images these settings name: `grid x patch` pixels square, the built-in set
+    /// or centre crops of the folder's images.
+    ///
+    /// # Errors
+    /// As [`EvalImages::builtin`] and [`EvalImages::from_dir`].
+    pub fn eval_images(&self) -> Result<EvalImages> {
+        let side = self.eval.grid * self.eval.patch_px;
+        match &self.eval_images_dir {
+            Some(d) => EvalImages::from_dir(d, side),
+            None => EvalImages::builtin(side, self.eval_photos, self.eval.seed),
+        }
+    }
+}
+
+/// Where [`run_resumable`] starts.
+pub enum Start<'a> {
+    /// A fresh study of this lens.
+    Lens(&'a Lens),
+    /// Where a checkpoint of the same study stopped.
+    Checkpoint(Box<Checkpoint>),
 }
 
 /// Writes a decoder as `decoder.bin`: the magic `TOLRDEC1`, a little-endian `u32` header length,
@@ -143,6 +176,35 @@ pub fn load_design(dir: &Path) -> Result<Design> {
     Ok(Design { lens, decoder })
 }
 
+/// A study's checkpoint (`checkpoint.json` in its folder): everything needed to continue exactly
+/// where it stopped. Finished branches are in their folders.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Checkpoint {
+    /// The study's settings.
+    pub config: StudyConfig,
+    /// The spot-loss focus fit while it runs.
+    pub spot: Option<TrainState>,
+    /// Stage 1 (running, or finished: the branches' common start).
+    pub stage1: Option<super::SavedState>,
+    /// Stage 1's log.
+    pub stage1_logs: Vec<DeepLog>,
+    /// The branch being trained: name, state, log (stage 1's included).
+    pub branch: Option<(String, super::SavedState, Vec<DeepLog>)>,
+    /// Finished branches with their logs, in order.
+    pub finished: Vec<(String, Vec<DeepLog>)>,
+}
+
+/// How [`run_resumable`] is driven.
+pub struct Control<'a> {
+    /// Receives each iteration's log and the name of the phase or branch.
+    pub progress: &'a mut dyn FnMut(&str, &DeepLog),
+    /// Polled after every iteration; when it returns true the study writes its checkpoint and
+    /// returns `Ok(None)`.
+    pub stop: &'a dyn Fn() -> bool,
+    /// Iterations between checkpoints (0: only when stopped).
+    pub checkpoint_every: usize,
+}
+
 /// Runs the study on `lens`, writing the designs and their training logs under `out`; returns
 /// the evaluation report. `progress` receives each iteration's log and the name of the branch.
 ///
@@ -155,26 +217,95 @@ pub fn run(
     out: &Path,
     progress: &mut dyn FnMut(&str, &DeepLog),
 ) -> Result<Report> {
+    let mut ctl = Control {
+        progress,
+        stop: &|| false,
+        checkpoint_every: 0,
+    };
+    run_resumable(Start::Lens(lens), cfg, images, out, &mut ctl)?
+        .ok_or_else(|| Error::new(ErrorKind::Invalid, "the study stopped without a request"))
+}
+
+/// Reads `checkpoint.json` of a study folder.
+///
+/// # Errors
+/// I/O and parse errors naming the file.
+pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
+    crate::error::read_json(&dir.join("checkpoint.json"))
+}
+
+/// [`run`] with checkpoints every `ctl.checkpoint_every` iterations, a stop request, and an
+/// exact resume from a checkpoint of the same study: the designs, logs and report are those of
+/// an uninterrupted run. Returns `None` when stopped (the checkpoint is written).
+///
+/// # Errors
+/// As [`run`]; a checkpoint whose settings differ from `cfg`.
+pub fn run_resumable(
+    start: Start<'_>,
+    cfg: &StudyConfig,
+    images: &EvalImages,
+    out: &Path,
+    ctl: &mut Control<'_>,
+) -> Result<Option<Report>> {
     cfg.deep.validate()?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    // Stage 0: the spot loss brings the prescription into focus.
-    let mut optics = cfg.deep.optics.clone();
-    optics.pretrain_iters = cfg.spot_iters;
-    optics.tolerance_iters = 0;
-    let mut st = TrainState::new(lens, optics);
-    for _ in 0..cfg.spot_iters {
-        crate::optim::train::step(&mut st)?;
+    let ck_path = out.join("checkpoint.json");
+    let save = |ck: &Checkpoint| -> Result<()> {
+        let text = serde_json::to_string(ck)
+            .map_err(|e| Error::new(ErrorKind::Invalid, format!("checkpoint: {e}")))?;
+        write_atomic(&ck_path, text.as_bytes())
+    };
+    let mut ck = match start {
+        Start::Checkpoint(ck) => {
+            let ck = *ck;
+            if ck.config != *cfg {
+                return Err(Error::argument(format!(
+                    "{}: the checkpoint's study settings differ from these",
+                    ck_path.display()
+                )));
+            }
+            ck
+        }
+        Start::Lens(lens) => {
+            // Stage 0: the spot loss brings the prescription into focus.
+            let mut optics = cfg.deep.optics.clone();
+            optics.pretrain_iters = cfg.spot_iters;
+            optics.tolerance_iters = 0;
+            Checkpoint {
+                config: cfg.clone(),
+                spot: Some(TrainState::new(lens, optics)),
+                stage1: None,
+                stage1_logs: Vec::new(),
+                branch: None,
+                finished: Vec::new(),
+            }
+        }
+    };
+    let every = ctl.checkpoint_every;
+    let due = |k: usize| every > 0 && k % every == 0;
+    if let Some(mut st) = ck.spot.take() {
+        while st.next_iter < cfg.spot_iters {
+            crate::optim::train::step(&mut st)?;
+            let stop = (ctl.stop)();
+            if stop || due(st.next_iter) {
+                ck.spot = Some(st.clone());
+                save(&ck)?;
+                ck.spot = None;
+                if stop {
+                    return Ok(None);
+                }
+            }
+        }
+        let s1 = DeepState::new(
+            cfg.deep.clone(),
+            st.lens()?,
+            None,
+            Phase::Nominal,
+            cfg.stage1_iters,
+            0,
+        )?;
+        ck.stage1 = Some(s1.to_saved());
     }
-    let focused = st.lens()?;
-    let mut log = String::new();
-    let mut s1 = DeepState::new(
-        cfg.deep.clone(),
-        focused,
-        None,
-        Phase::Nominal,
-        cfg.stage1_iters,
-        0,
-    )?;
     let validate = |s: &DeepState, l: &mut DeepLog| -> Result<()> {
         let k = s.phase_iter;
         if cfg.validate_every > 0 && (k % cfg.validate_every == 0 || s.done()) {
@@ -182,14 +313,26 @@ pub fn run(
         }
         Ok(())
     };
-    let mut logs1 = Vec::new();
+    let saved1 = ck
+        .stage1
+        .clone()
+        .ok_or_else(|| Error::invalid("checkpoint: no stage-1 state"))?;
+    let mut s1 = DeepState::from_saved(saved1)?;
     while !s1.done() {
         let mut l = step(&mut s1)?;
         validate(&s1, &mut l)?;
-        logs1.push(l.clone());
-        log.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
-        progress("stage 1", &l);
+        (ctl.progress)("stage 1", &l);
+        ck.stage1_logs.push(l);
+        let stop = (ctl.stop)();
+        if stop || due(s1.phase_iter) {
+            ck.stage1 = Some(s1.to_saved());
+            save(&ck)?;
+            if stop {
+                return Ok(None);
+            }
+        }
     }
+    ck.stage1 = Some(s1.to_saved());
     save_design(&s1.design, &out.join("stage1"))?;
     let mut branches = vec![
         (CONVENTIONAL, Phase::Nominal),
@@ -198,33 +341,53 @@ pub fn run(
     if cfg.decoder_only {
         branches.push((DECODER_ONLY, Phase::DecoderOnly));
     }
-    let mut designs = Vec::new();
-    let mut curves = Vec::new();
-    for (name, phase) in branches {
-        let mut s = s1.clone();
-        s.start_phase(phase, cfg.stage2_iters);
-        let mut blog = log.clone();
-        let mut logs = logs1.clone();
+    for (name, phase) in branches.iter().copied() {
+        if ck.finished.iter().any(|f| f.0 == name) {
+            continue;
+        }
+        let (mut s, mut logs) = match ck.branch.take() {
+            Some((n, saved, logs)) if n == name => (DeepState::from_saved(saved)?, logs),
+            _ => {
+                let mut s = s1.clone();
+                s.start_phase(phase, cfg.stage2_iters);
+                (s, ck.stage1_logs.clone())
+            }
+        };
         while !s.done() {
             let mut l = step(&mut s)?;
             validate(&s, &mut l)?;
-            logs.push(l.clone());
-            blog.push_str(&(serde_json::to_string(&l).unwrap_or_default() + "\n"));
-            progress(name, &l);
+            (ctl.progress)(name, &l);
+            logs.push(l);
+            let stop = (ctl.stop)();
+            if stop || due(s.phase_iter) {
+                ck.branch = Some((name.to_string(), s.to_saved(), logs.clone()));
+                save(&ck)?;
+                ck.branch = None;
+                if stop {
+                    return Ok(None);
+                }
+            }
         }
         let dir = out.join(name);
         save_design(&s.design, &dir)?;
-        write_atomic(&dir.join("log.jsonl"), blog.as_bytes())?;
-        designs.push((name, s.design));
-        curves.push((name.to_string(), logs));
+        let text: String = logs
+            .iter()
+            .map(|l| serde_json::to_string(l).unwrap_or_default() + "\n")
+            .collect();
+        write_atomic(&dir.join("log.jsonl"), text.as_bytes())?;
+        ck.finished.push((name.to_string(), logs));
+        if every > 0 {
+            save(&ck)?;
+        }
     }
     crate::figures::save(
-        &crate::figures::deep_training_figure(&curves, "deep-optics training"),
+        &crate::figures::deep_training_figure(&ck.finished, "deep-optics training"),
         &out.join("training.png"),
     )?;
     let mut scores = Vec::new();
-    for (name, d) in &designs {
-        scores.push(evaluate(name, d, images, &cfg.eval, 0..cfg.eval.trials)?);
+    for (name, _) in &ck.finished {
+        let d = load_design(&out.join(name))?;
+        scores.push(evaluate(name, &d, images, &cfg.eval, 0..cfg.eval.trials)?);
     }
     let mut pairs = vec![(TOLERANCE_AWARE.to_string(), CONVENTIONAL.to_string())];
     if cfg.decoder_only {
@@ -232,5 +395,5 @@ pub fn run(
         pairs.push((TOLERANCE_AWARE.to_string(), DECODER_ONLY.to_string()));
     }
     let names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
-    report(&cfg.eval, &names, scores, &pairs)
+    report(&cfg.eval, &names, scores, &pairs).map(Some)
 }

@@ -90,8 +90,16 @@ impl EvalArgs {
 /// `tolray deep`: the study.
 #[derive(Args)]
 pub struct DeepArgs {
-    /// Lens JSON file or built-in name.
-    pub lens: String,
+    /// Lens JSON file or built-in name (not with --resume).
+    #[arg(required_unless_present = "resume", conflicts_with = "resume")]
+    pub lens: Option<String>,
+    /// Continue the study in DIR exactly where its checkpoint stopped (every setting comes from
+    /// the checkpoint; the output directory is DIR).
+    #[arg(long, value_name = "DIR")]
+    pub resume: Option<PathBuf>,
+    /// Iterations between checkpoints (`checkpoint.json`; 0: only on Ctrl-C).
+    #[arg(long, default_value_t = 25)]
+    pub checkpoint_every: usize,
     /// Output directory: designs, logs, report.json, report.html.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
@@ -152,8 +160,32 @@ pub struct DeepArgs {
 }
 
 pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
-    let lens = Lens::load(&a.lens)?;
-    let mut d = DeepConfig::for_lens(&lens);
+    let lens;
+    let (cfg, start, out) = match &a.resume {
+        Some(dir) => {
+            let ck = study::read_checkpoint(dir)?;
+            (
+                ck.config.clone(),
+                study::Start::Checkpoint(Box::new(ck)),
+                dir.clone(),
+            )
+        }
+        None => {
+            lens = Lens::load(a.lens.as_deref().unwrap_or_default())?;
+            (
+                study_config(a, &lens)?,
+                study::Start::Lens(&lens),
+                a.out.clone(),
+            )
+        }
+    };
+    let images = cfg.eval_images()?;
+    run_study(cfg, start, &images, &out, a.checkpoint_every)
+}
+
+/// The study settings of the flags.
+fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
+    let mut d = DeepConfig::for_lens(lens);
     d.optics.samples = a.samples;
     d.optics.seed = a.seed;
     d.optics.psf_spp = a.psf_spp;
@@ -171,10 +203,10 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
     if let Some(dir) = &a.images {
         d.train_images = TrainImages::from_dir(dir, d.crop_px + d.optics.psf_ks - 1)?;
     }
-    let (eval, images) = a
+    let (eval, _) = a
         .eval
-        .config(&lens, a.noise, d.optics.psf_grid, d.optics.psf_ks)?;
-    let cfg = StudyConfig {
+        .config(lens, a.noise, d.optics.psf_grid, d.optics.psf_ks)?;
+    Ok(StudyConfig {
         deep: d,
         spot_iters: a.spot_iters,
         stage1_iters: a.stage1_iters,
@@ -182,11 +214,24 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
         decoder_only: !a.no_decoder_only,
         validate_every: a.validate_every,
         eval,
-    };
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("{}: cannot create directory", a.out.display()))?;
+        eval_photos: a.eval.photos,
+        eval_images_dir: a.eval.eval_images.clone(),
+    })
+}
+
+/// Runs (or continues) the study with progress lines, checkpoints and Ctrl-C (a checkpoint, then
+/// exit code 130), and writes the report.
+fn run_study(
+    cfg: StudyConfig,
+    start: study::Start<'_>,
+    images: &EvalImages,
+    out: &Path,
+    checkpoint_every: usize,
+) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("{}: cannot create directory", out.display()))?;
     write_text(
-        &a.out.join("study.json"),
+        &out.join("study.json"),
         &(serde_json::to_string_pretty(&cfg)? + "\n"),
     )?;
     let t0 = std::time::Instant::now();
@@ -208,14 +253,28 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
             );
         }
     };
-    let report = study::run(&lens, &cfg, &images, &a.out, &mut progress)?;
+    crate::GRACEFUL_STOP.store(true, std::sync::atomic::Ordering::SeqCst);
+    let stop = || crate::STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst);
+    let mut ctl = study::Control {
+        progress: &mut progress,
+        stop: &stop,
+        checkpoint_every,
+    };
+    let Some(report) = study::run_resumable(start, &cfg, images, out, &mut ctl)? else {
+        eprintln!(
+            "interrupted: checkpoint written to {}; continue with `tolray deep --resume {}`",
+            out.join("checkpoint.json").display(),
+            out.display()
+        );
+        std::process::exit(130);
+    };
     eprintln!("[{:6.0} s] evaluated", t0.elapsed().as_secs_f64());
     finish(
         &report,
-        &a.out,
-        &images,
-        &a.out.join("report.json"),
-        &a.out.join("report.html"),
+        out,
+        images,
+        &out.join("report.json"),
+        &out.join("report.html"),
     )?;
     Ok(())
 }
