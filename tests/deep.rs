@@ -213,7 +213,8 @@ fn evaluation_shards_merge_into_the_single_run_report() {
 }
 
 /// A study stopped at any iteration (focus fit, stage 1, a branch) and resumed from the
-/// checkpoint it wrote gives the designs, logs and report of the uninterrupted run, byte for byte.
+/// checkpoint it wrote gives the designs, logs and report of the uninterrupted run, byte for byte;
+/// the ablation controls train only what they say.
 #[test]
 fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     use std::cell::Cell;
@@ -225,6 +226,7 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
         stage1_iters: 3,
         stage2_iters: 2,
         decoder_only: true,
+        optics_only: true,
         validate_every: 2,
         eval: EvalConfig {
             trials: 2,
@@ -243,12 +245,36 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     let r = run(&lens, &cfg, &images, &whole, &mut |_, _| {}).unwrap();
     let expect = serde_json::to_string(&r).unwrap();
     let files = |dir: &std::path::Path| -> Vec<Vec<u8>> {
-        ["conventional", "tolerance-aware", "decoder-only"]
-            .iter()
-            .flat_map(|b| ["lens.json", "decoder.bin", "log.jsonl"].map(|f| dir.join(b).join(f)))
-            .map(|p| std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
-            .collect()
+        [
+            "conventional",
+            "tolerance-aware",
+            "decoder-only",
+            "optics-only",
+        ]
+        .iter()
+        .flat_map(|b| ["lens.json", "decoder.bin", "log.jsonl"].map(|f| dir.join(b).join(f)))
+        .map(|p| std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+        .collect()
     };
+    // The controls train what they say: optics-only keeps stage 1's decoder, decoder-only its lens.
+    let read = |b: &str, f: &str| std::fs::read(whole.join(b).join(f)).unwrap();
+    assert_eq!(
+        read("optics-only", "decoder.bin"),
+        read("stage1", "decoder.bin")
+    );
+    assert_ne!(
+        read("optics-only", "lens.json"),
+        read("stage1", "lens.json")
+    );
+    assert_eq!(
+        read("decoder-only", "lens.json"),
+        read("stage1", "lens.json")
+    );
+    assert_ne!(
+        read("decoder-only", "decoder.bin"),
+        read("stage1", "decoder.bin")
+    );
+    assert_eq!(r.designs.len(), 4);
     // Iterations: 3 focus fit, 3 stage 1, 2 per branch. Stop after 2 (focus fit), 4 (stage 1),
     // 6 (the end of stage 1), 9 (inside the tolerance-aware branch), then again after 2 more.
     for stops in [vec![2], vec![4], vec![6], vec![9], vec![5, 2]] {
@@ -406,6 +432,7 @@ fn reduced_study_keeps_the_paper_s_directions() {
         stage1_iters: 60,
         stage2_iters: 40,
         decoder_only: true,
+        optics_only: false,
         validate_every: 0,
         eval: EvalConfig {
             trials: 16,

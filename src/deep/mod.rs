@@ -45,11 +45,17 @@ pub enum Phase {
     /// The paper's decoder-only ablation: the lens is frozen, the decoder trains with random
     /// tolerance patterns.
     DecoderOnly,
+    /// The paper's optics-only ablation: the decoder is frozen, the lens trains with random
+    /// tolerance patterns.
+    OpticsOnly,
 }
 
 impl Phase {
     fn trains_lens(self) -> bool {
         self != Phase::DecoderOnly
+    }
+    fn trains_decoder(self) -> bool {
+        self != Phase::OpticsOnly
     }
     fn samples_tolerances(self) -> bool {
         self != Phase::Nominal
@@ -846,9 +852,11 @@ pub fn step(state: &mut DeepState) -> Result<DeepLog> {
         crate::optim::train::project(&mut lens, &state.config.optics.constraints);
         state.design.lens = lens;
     }
-    let mut params = state.design.decoder.params().to_vec();
-    state.adam_decoder.step(&mut params, &e.ddecoder, scale);
-    state.design.decoder.set_params(&params)?;
+    if phase.trains_decoder() {
+        let mut params = state.design.decoder.params().to_vec();
+        state.adam_decoder.step(&mut params, &e.ddecoder, scale);
+        state.design.decoder.set_params(&params)?;
+    }
     state.phase_iter += 1;
     Ok(DeepLog {
         iter: it,

@@ -20,6 +20,9 @@ pub const CONVENTIONAL: &str = "conventional";
 pub const TOLERANCE_AWARE: &str = "tolerance-aware";
 /// The decoder-only control.
 pub const DECODER_ONLY: &str = "decoder-only";
+/// Name of the optics-only control (the paper's Table 3: the stage-1 decoder frozen, the lens
+/// trained with tolerances).
+pub const OPTICS_ONLY: &str = "optics-only";
 
 /// Study settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -34,6 +37,9 @@ pub struct StudyConfig {
     pub stage2_iters: usize,
     /// Also train and evaluate the decoder-only control.
     pub decoder_only: bool,
+    /// Also train and evaluate the optics-only control.
+    #[serde(default)]
+    pub optics_only: bool,
     /// Iterations between validation-PSNR measurements (0: none); the last iteration of every
     /// phase is always measured.
     #[serde(default)]
@@ -341,6 +347,9 @@ pub fn run_resumable(
     if cfg.decoder_only {
         branches.push((DECODER_ONLY, Phase::DecoderOnly));
     }
+    if cfg.optics_only {
+        branches.push((OPTICS_ONLY, Phase::OpticsOnly));
+    }
     for (name, phase) in branches.iter().copied() {
         if ck.finished.iter().any(|f| f.0 == name) {
             continue;
@@ -393,6 +402,10 @@ pub fn run_resumable(
     if cfg.decoder_only {
         pairs.push((DECODER_ONLY.to_string(), CONVENTIONAL.to_string()));
         pairs.push((TOLERANCE_AWARE.to_string(), DECODER_ONLY.to_string()));
+    }
+    if cfg.optics_only {
+        pairs.push((OPTICS_ONLY.to_string(), CONVENTIONAL.to_string()));
+        pairs.push((TOLERANCE_AWARE.to_string(), OPTICS_ONLY.to_string()));
     }
     let names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
     report(&cfg.eval, &names, scores, &pairs).map(Some)

@@ -148,6 +148,10 @@ pub struct DeepArgs {
     /// Skip the decoder-only control.
     #[arg(long)]
     pub no_decoder_only: bool,
+    /// Also train the optics-only control (the paper's Table 3: decoder frozen after stage 1,
+    /// lens trained with tolerances).
+    #[arg(long)]
+    pub optics_only: bool,
     /// Iterations between validation-PSNR measurements on a held-out batch of fabricated units
     /// (0: none; otherwise the end of every phase is measured too).
     #[arg(long, default_value_t = 10)]
@@ -212,6 +216,7 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
         stage1_iters: a.stage1_iters,
         stage2_iters: a.stage2_iters,
         decoder_only: !a.no_decoder_only,
+        optics_only: a.optics_only,
         validate_every: a.validate_every,
         eval,
         eval_photos: a.eval.photos,
