@@ -259,3 +259,69 @@ fn fuzz_the_reader() {
         "the fuzzer should also exercise accepted lenses ({accepted})"
     );
 }
+
+/// Issue 15, item 9: the C ABI's parameter setter could make a model glass the JSON reader
+/// refuses (n_d 0.9, a negative Abbe number); both are now refused where they are set, and a
+/// valid value still round-trips through the lens' own JSON.
+#[test]
+fn a_model_glass_set_through_the_c_abi_stays_readable() {
+    use std::ffi::CString;
+    use tolray::ffi::*;
+    let mut v = lens1_value();
+    v["surfaces"][0]["mat2"] = json!("1.6/40");
+    let text = CString::new(v.to_string()).unwrap();
+    let mut lens = std::ptr::null_mut();
+    unsafe {
+        assert_eq!(
+            tolray_lens_from_json(text.as_ptr(), &mut lens),
+            tolray_status::TOLRAY_OK
+        );
+        for (kind, value, ok) in [
+            (TOLRAY_PARAM_GLASS_ND, 0.9, false),
+            (TOLRAY_PARAM_GLASS_VD, -5.0, false),
+            (TOLRAY_PARAM_GLASS_VD, 0.0, false),
+            (TOLRAY_PARAM_GLASS_ND, 1.7, true),
+            (TOLRAY_PARAM_GLASS_VD, 55.0, true),
+        ] {
+            let p = tolray_param {
+                kind,
+                surface: 0,
+                term: 0,
+            };
+            let mut out = std::ptr::null_mut();
+            let status = tolray_lens_with_param(lens, &p, value, &mut out);
+            assert_eq!(
+                status == tolray_status::TOLRAY_OK,
+                ok,
+                "kind {kind} value {value}"
+            );
+            if ok {
+                let mut n = 0usize;
+                assert_eq!(
+                    tolray_lens_to_json(out, std::ptr::null_mut(), 0, &mut n),
+                    tolray_status::TOLRAY_OK
+                );
+                let mut buf = vec![0u8; n + 1];
+                assert_eq!(
+                    tolray_lens_to_json(out, buf.as_mut_ptr().cast(), n + 1, &mut n),
+                    tolray_status::TOLRAY_OK
+                );
+                let back = from_str(std::str::from_utf8(&buf[..n]).unwrap()).unwrap();
+                let want = if kind == TOLRAY_PARAM_GLASS_ND {
+                    "1.7/40"
+                } else {
+                    "1.6/55"
+                };
+                assert_eq!(back.surfaces[0].material.json_name(), want);
+                tolray_lens_free(out);
+            } else {
+                assert!(out.is_null());
+                let mut msg = vec![0u8; 512];
+                let len = tolray_last_error(msg.as_mut_ptr().cast(), msg.len());
+                let msg = String::from_utf8_lossy(&msg[..len.min(511)]).into_owned();
+                assert!(msg.contains("surface 0"), "{msg}");
+            }
+        }
+        tolray_lens_free(lens);
+    }
+}

@@ -329,6 +329,11 @@ impl Lens {
             if s.role == SurfaceRole::Aperture && (s.c != 0.0 || s.is_aspheric()) {
                 return Err(at("an aperture surface must be flat".into()));
             }
+            // What the readers refuse, validation refuses (a lens edited through the library or
+            // the C ABI must still be a lens its own JSON can hold).
+            if let Material::Model { nd, vd } = s.material {
+                Material::model(nd, vd).map_err(|e| at(format!("the medium after it: {e}")))?;
+            }
         }
         if !(self.primary_wavelength_nm > 0.0) {
             return Err(Error::invalid("primary wavelength must be positive"));
