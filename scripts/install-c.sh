@@ -29,8 +29,10 @@ install -m 644 "$libdir/libtolray.a" "$prefix/lib/"
 # The system libraries a Rust staticlib needs (rustc --print native-static-libs on Linux).
 static_libs="-lgcc_s -lutil -lrt -lpthread -lm -ldl -lc"
 
+# pkg-config splits flags at whitespace: spaces in the prefix are escaped with a backslash.
+pc_prefix="${prefix// /\\ }"
 cat > "$prefix/lib/pkgconfig/tolray.pc" <<PC
-prefix=$prefix
+prefix=$pc_prefix
 libdir=\${prefix}/lib
 includedir=\${prefix}/include
 
@@ -41,7 +43,7 @@ Cflags: -I\${includedir}
 Libs: -L\${libdir} -ltolray -Wl,-rpath,\${libdir} -lm
 PC
 cat > "$prefix/lib/pkgconfig/tolray-static.pc" <<PC
-prefix=$prefix
+prefix=$pc_prefix
 libdir=\${prefix}/lib
 includedir=\${prefix}/include
 

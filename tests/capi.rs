@@ -408,12 +408,13 @@ fn c_program_runs_clean_under_valgrind() {
 
 /// scripts/install-c.sh installs the header, both libraries, the pkg-config files and the CMake
 /// package; examples/c builds with pkg-config (shared and static) and examples/cpp with CMake's
-/// find_package. CMake is optional unless TOLRAY_REQUIRE_CMAKE is set (as CI does).
+/// find_package. CMake is optional unless TOLRAY_REQUIRE_CMAKE is set (as CI does). The prefix
+/// has a space in its name (issue 15: the pkg-config output broke there).
 #[test]
 fn install_script_serves_pkg_config_and_cmake_users() {
     let tmp = Path::new(env!("CARGO_TARGET_TMPDIR")).join("c-install");
     let _ = std::fs::remove_dir_all(&tmp);
-    let prefix = tmp.join("prefix");
+    let prefix = tmp.join("my prefix");
     let ok = |cmd: &mut Command, what: &str| {
         let out = cmd.env_remove("LD_LIBRARY_PATH").output().unwrap();
         assert!(
