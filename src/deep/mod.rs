@@ -32,6 +32,7 @@ use crate::psf::{grid_fields, psf_of, psf_similarity, PsfCentre, PsfOptions, Psf
 use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// What a training phase optimizes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -96,8 +97,10 @@ pub struct DeepConfig {
     pub train_images: TrainImages,
     /// Refocus each sampled unit of the tolerance phases to its best RMS focus before imaging
     /// it (the assembly's focus compensator, as evaluation's `compensate_focus`). The refocus is
-    /// found once per crop when the batch is drawn and held fixed: the lens gradient is that of
-    /// the objective with the sensor at the drawn refocus.
+    /// a function of the design (each unit's best RMS focus for the lens being evaluated), and
+    /// the lens gradient includes its derivative: `dL/dθ = ∂L/∂θ + ∂L/∂δ · dδ/dθ`, both by dual
+    /// numbers ([`FocusObjective`]; holding the refocus fixed instead misses that term, which
+    /// for the sensor distance is exactly −∂L/∂δ, and training then drifts out of focus).
     #[serde(default)]
     pub compensate_focus: bool,
 }
@@ -499,8 +502,9 @@ pub struct BatchCrop {
     pub tile: usize,
     /// The crop's tolerance pattern (none in the nominal phase).
     pub pattern: Option<crate::tolerance::Perturbation>,
-    /// Sensor refocus along the image-plane normal, mm (with `compensate_focus`).
-    pub refocus_mm: Option<f64>,
+    /// Refocus bundles when the crop's unit is refocused (`compensate_focus` in a tolerance
+    /// phase), launched from the design at the start of the iteration.
+    pub refocus: Option<Arc<FocusObjective>>,
     /// Rays of its RGB PSF, launched from the design at the start of the iteration.
     pub rays: PsfRays,
     /// Spot bundles at its field (likewise).
@@ -557,11 +561,10 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
             } else {
                 None
             };
-            let refocus_mm = match (&pattern, cfg.compensate_focus) {
-                (Some(p), true) => {
-                    crate::tolerance::analysis::perturbed_rms(lens, &refocus_options(lens), p)?.1
-                }
-                _ => None,
+            let refocus = if pattern.is_some() && cfg.compensate_focus {
+                Some(Arc::new(FocusObjective::new(lens, cfg.optics.apertures)?))
+            } else {
+                None
             };
             let pairs: Vec<(Field, f64)> = o
                 .wavelengths_nm
@@ -594,7 +597,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
             Ok(BatchCrop {
                 tile,
                 pattern,
-                refocus_mm,
+                refocus,
                 rays,
                 spot,
                 ideal,
@@ -644,12 +647,81 @@ pub fn unit_lens(
     Ok((plens, adj))
 }
 
-/// A crop's lens: its pattern (and refocus) applied to `lens`, with the adjustments.
-fn crop_lens(lens: &Lens, bc: &BatchCrop) -> Result<(Lens, Adjustments)> {
-    match &bc.pattern {
-        Some(p) => unit_lens(lens, p, bc.refocus_mm),
-        None => Ok((lens.clone(), Adjustments::none(lens.surfaces.len()))),
+/// The best-RMS refocus of a unit as a differentiable function of the design: over bundles
+/// launched from the design (fields 0, 0.7 and 1 at the RGB wavelengths, apertures on, as
+/// [`refocus_options`]), the sensor shift `δ = −Σ_f B_f / Σ_f C_f` minimizing the summed
+/// mean-square spot radius `A_f + 2 B_f δ + C_f δ²` of the fields (the formula of the Monte
+/// Carlo's focus compensator). Evaluated in dual numbers it gives dδ/dθ exactly.
+#[derive(Clone, Debug)]
+pub struct FocusObjective {
+    /// The refocus bundles.
+    pub bundles: Bundles,
+    /// Number of fields.
+    pub fields: usize,
+}
+
+impl FocusObjective {
+    /// Bundles of `lens` for its refocus (a 16 x 16 pupil grid). With `apertures` (as training
+    /// traces by default and the Monte Carlo's compensator always does) the focus is that of the
+    /// light a unit passes; a ray crossing an aperture's edge is then a jump in the refocus.
+    ///
+    /// # Errors
+    /// Paraxial and ray-generation errors.
+    pub fn new(lens: &Lens, apertures: bool) -> Result<FocusObjective> {
+        let o = refocus_options(lens);
+        let trace = TraceOptions { apertures };
+        Ok(FocusObjective {
+            bundles: Bundles::new(lens, &o.fields, &o.wavelengths_nm, &o.pupil, trace)?,
+            fields: o.fields.len(),
+        })
     }
+}
+
+impl Objective for FocusObjective {
+    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+        let mut rays: Vec<Vec<[S; 4]>> = vec![Vec::new(); self.fields];
+        for k in 0..self.bundles.sets.len() {
+            let f = self.bundles.sets[k].0;
+            rays[f].extend(self.bundles.sensor_rays(sys, k));
+        }
+        let (mut sb, mut sc) = (S::cst(0.0), S::cst(0.0));
+        for r in rays.iter().filter(|r| !r.is_empty()) {
+            let inv = S::cst(1.0 / r.len() as f64);
+            let mut m = [S::cst(0.0); 4];
+            for q in r {
+                for k in 0..4 {
+                    m[k] += q[k] * inv;
+                }
+            }
+            for q in r {
+                let (px, py, sx, sy) = (q[0] - m[0], q[1] - m[1], q[2] - m[2], q[3] - m[3]);
+                sb += (px * sx + py * sy) * inv;
+                sc += (sx * sx + sy * sy) * inv;
+            }
+        }
+        if sc.value() > 0.0 {
+            -(sb / sc)
+        } else {
+            S::cst(0.0)
+        }
+    }
+}
+
+/// A crop's lens: its pattern (and, when the crop is refocused, its refocus for this `lens`)
+/// applied to `lens`, with the adjustments.
+fn crop_lens(lens: &Lens, bc: &BatchCrop) -> Result<(Lens, Adjustments)> {
+    let Some(p) = &bc.pattern else {
+        return Ok((lens.clone(), Adjustments::none(lens.surfaces.len())));
+    };
+    let (l, a) = unit_lens(lens, p, None)?;
+    let Some(f) = &bc.refocus else {
+        return Ok((l, a));
+    };
+    let d = crate::optim::value(f.as_ref(), &l, &a);
+    if !d.is_finite() {
+        return Err(Error::numerical("a unit's refocus is not finite"));
+    }
+    unit_lens(lens, p, Some(d))
 }
 
 /// What a batch evaluation gives.
@@ -779,7 +851,24 @@ pub fn eval_batch(
                         trace,
                     };
                     let (plens, adj) = crop_lens(lens, bc)?;
-                    Ok(gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, vars)?.1)
+                    let (Some(pattern), Some(focus)) = (&bc.pattern, &bc.refocus) else {
+                        return Ok(gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, vars)?.1);
+                    };
+                    // The refocus moves the sensor along z (patterns do not tilt the image
+                    // plane), as the last gap does: ∂L/∂δ is the derivative in that gap.
+                    let last = Param::Gap(plens.surfaces.len() - 1);
+                    let mut ext = vars.to_vec();
+                    let at = match ext.iter().position(|&p| p == last) {
+                        Some(k) => k,
+                        None => {
+                            ext.push(last);
+                            ext.len() - 1
+                        }
+                    };
+                    let g = gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, &ext)?.1;
+                    let (ul, ua) = unit_lens(lens, pattern, None)?;
+                    let dd = gradient::<_, GRAD_WIDTH>(focus.as_ref(), &ul, &ua, vars)?.1;
+                    Ok((0..vars.len()).map(|k| g[k] + g[at] * dd[k]).collect())
                 })
                 .collect::<Result<_>>()?;
             let mut g = vec![0.0; vars.len()];

@@ -428,7 +428,10 @@ impl Lens {
     /// ends up behind the previous one.
     pub fn with_adjustments(&self, adj: &Adjustments) -> Result<Lens> {
         let n = self.surfaces.len();
-        if adj.surface_motion.len() != n || adj.curvature_offset.len() != n {
+        if adj.surface_motion.len() != n
+            || adj.curvature_offset.len() != n
+            || adj.curvature_error.len() != n
+        {
             return Err(Error::argument(format!(
                 "the adjustments are for {} surfaces; the lens has {n}",
                 adj.surface_motion.len()
@@ -461,7 +464,7 @@ impl Lens {
                 s.vec_local = [a.x, a.y, a.z];
             }
             s.pos_xy_mm = [p.x + d.x, p.y + d.y];
-            s.c += adj.curvature_offset[i];
+            s.c = s.c * (1.0 + adj.curvature_error[i]) + adj.curvature_offset[i];
             disp.push(d.z);
         }
         disp.push(im.translation.z);

@@ -42,6 +42,10 @@ pub struct Adjustments {
     pub surface_motion: Vec<Rigid<f64>>,
     /// Curvature offset per surface, 1/mm.
     pub curvature_offset: Vec<f64>,
+    /// Relative curvature error per surface (a fraction: the curvature becomes
+    /// `c · (1 + curvature_error) + curvature_offset`). Tolerance patterns use it, so that a
+    /// pattern's curvature error scales with the design's curvature in gradients too.
+    pub curvature_error: Vec<f64>,
     /// Rigid motion of the image plane.
     pub image_motion: Rigid<f64>,
 }
@@ -52,6 +56,7 @@ impl Adjustments {
         Adjustments {
             surface_motion: vec![Rigid::identity(); n],
             curvature_offset: vec![0.0; n],
+            curvature_error: vec![0.0; n],
             image_motion: Rigid::identity(),
         }
     }
@@ -145,7 +150,8 @@ impl<S: Real> System<S> {
             };
             let nominal = Vec3::new(S::cst(s.pos_xy_mm[0]), S::cst(s.pos_xy_mm[1]), z);
             let pos = motion.translation.map_value::<S>() + lift_c(motion.rotation).apply(nominal);
-            let c = lift(Param::Curvature(i), S::cst(s.c)) + S::cst(adj.curvature_offset[i]);
+            let c = lift(Param::Curvature(i), S::cst(s.c)) * S::cst(1.0 + adj.curvature_error[i])
+                + S::cst(adj.curvature_offset[i]);
             let k = lift(Param::Conic(i), S::cst(s.k));
             let mut asph = [S::cst(0.0); N_ASPH];
             for (j, a) in asph.iter_mut().enumerate() {

@@ -169,6 +169,22 @@ impl Bundles {
         Ok(Bundles { sets, trace })
     }
 
+    /// Traces bundle `k` in `S` and returns, for each ray that arrives, its sensor-plane position
+    /// and slopes `[x, y, dx/dz, dy/dz]` in the sensor frame (what a refocus moves).
+    pub fn sensor_rays<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 4]> {
+        let (_, wl, set) = &self.sets[k];
+        let mut b: RayBatch<S> = set.batch();
+        trace_serial(sys, *wl, &mut b, self.trace);
+        b.iter()
+            .filter(|r| r.status.is_alive())
+            .map(|r| {
+                let p = sys.image.point_to_local(r.o);
+                let d = sys.image.rotation.apply_t(r.d);
+                [p.x, p.y, d.x / d.z, d.y / d.z]
+            })
+            .collect()
+    }
+
     /// Traces bundle `k` in `S` and returns the sensor-plane positions of the rays that arrive.
     pub fn sensor_points<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 2]> {
         let (_, wl, set) = &self.sets[k];

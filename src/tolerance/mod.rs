@@ -228,7 +228,7 @@ impl Perturbation {
         // 2. Surface errors: curvature, and decenter/tilt about the surface's own vertex.
         for s in &self.surfaces {
             let i = s.surface;
-            adj.curvature_offset[i] += lens.surfaces[i].c * s.curvature_pct * 0.01;
+            adj.curvature_error[i] += s.curvature_pct * 0.01;
             if s.decenter_mm != [0.0; 2] || s.tilt_deg != [0.0; 2] {
                 let r = Mat3::from_tilt_deg(s.tilt_deg[0], s.tilt_deg[1], 0.0);
                 let m = Rigid::about_pivot(

@@ -142,9 +142,9 @@ pub struct DeepArgs {
     #[arg(long, value_name = "DIR")]
     pub images: Option<PathBuf>,
     /// Refocus each sampled unit in the tolerance phases before imaging it (what a fabricated,
-    /// focused unit delivers); independent of the evaluation's `--compensate`. Experimental: the
-    /// refocus is held fixed in the lens gradient, which misses its dependence on the design,
-    /// and on lens1 training drifts out of focus (README, "Deep optics").
+    /// focused unit delivers); independent of the evaluation's `--compensate`. Each unit's
+    /// refocus is its best RMS focus for the current design, and the lens gradient includes its
+    /// derivative (README, "Deep optics").
     #[arg(long, value_name = "focus", value_parser = ["focus"])]
     pub train_compensate: Option<String>,
     /// Skip the decoder-only control.
