@@ -15,6 +15,12 @@
 //! travels toward +z, the first vertex is at z = 0, y is the meridional axis.
 
 #![warn(missing_docs)]
+// `!(x > 0.0)` is written on purpose throughout: unlike `x <= 0.0` it is true for NaN, so one
+// comparison refuses both (clippy would have `partial_cmp`, which reads worse for floats).
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Numerical loops index several arrays in step (dual-number lanes, channels, levels); the index
+// form is the one the kernels are written and vectorized in.
+#![allow(clippy::needless_range_loop)]
 
 pub mod analysis;
 pub mod decoder;

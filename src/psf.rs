@@ -308,7 +308,7 @@ pub fn grid_fields(lens: &Lens, grid: usize) -> Vec<Field> {
 }
 
 /// Shift `(dx, dy)` in pixels, |dx|, |dy| <= ks/2, that maximizes the cross-correlation
-/// Σ a[p] b[p + shift] (zero padding), found by FFT.
+/// Σ a\[p\] b\[p + shift\] (zero padding), found by FFT.
 pub fn best_shift(a: &[f64], b: &[f64], ks: usize) -> (isize, isize) {
     let n = 2 * ks;
     let mut planner = rustfft::FftPlanner::<f64>::new();
@@ -445,8 +445,8 @@ mod tests {
         );
         assert!((q.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!(
-            (q[1 * 5 + 3] - 1.0 / 3.0).abs() < 1e-12,
-            "+y is up: one pixel up and right"
+            (q[5 + 3] - 1.0 / 3.0).abs() < 1e-12,
+            "+y is up: one pixel up and right (row 1, column 3)"
         );
     }
 

@@ -18,6 +18,7 @@
 //!   slightly); the report prints both.
 //! - the 90 % yield of the RMS spot gets worse, as in the paper (its tolerance-aware lens1 has
 //!   a larger spot, 16.2 against 7.3 um): it is not asserted.
+//!
 //! Deterministic (seeded, thread-count independent), so the numbers are the same on every run.
 
 use tolray::optim::train::{held_out, step, HeldOut, TrainConfig, TrainState};

@@ -1,4 +1,6 @@
 //! The `tolray` command-line tool. Exit codes: 0 success, 1 runtime error, 2 usage error.
+// `!(x >= 0.0)` refuses NaN too, on purpose (as in the library).
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use anyhow::{bail, Context};
 use clap::{Args, Parser, Subcommand};
@@ -716,9 +718,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let p = l.paraxial(wavelength.unwrap_or(l.primary_wavelength_nm))?;
             if json {
                 let v = serde_json::json!({ "paraxial": p, "lens": json::to_value(&l), "warnings": l.warnings() });
-                emit_line(&format!("{}", serde_json::to_string_pretty(&v)?));
+                emit_line(&serde_json::to_string_pretty(&v)?.to_string());
             } else {
-                emit(&format!("{}", paraxial_text(&l, &p)));
+                emit(&paraxial_text(&l, &p).to_string());
             }
         }
         Command::Spot {
@@ -733,9 +735,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let sys = perturbed_system(&l, perturb.as_deref())?;
             let results = spot_diagram(&l, &sys, &opts)?;
             if json {
-                emit_line(&format!("{}", serde_json::to_string_pretty(&results)?));
+                emit_line(&serde_json::to_string_pretty(&results)?.to_string());
             } else {
-                emit(&format!("{}", spot_table(&results)));
+                emit(&spot_table(&results).to_string());
             }
             if let Some(p) = png {
                 figures::save(
@@ -1644,7 +1646,7 @@ fn demo(out: &Path) -> anyhow::Result<()> {
         let l = Lens::load(name)?;
         let p = l.paraxial(l.primary_wavelength_nm)?;
         emit_line(&format!("==================== {name} ===================="));
-        emit(&format!("{}", paraxial_text(&l, &p)));
+        emit(&paraxial_text(&l, &p).to_string());
         let opts = SpotOptions {
             fields: [0.0, 0.5, 0.7, 1.0].map(Field::fraction).to_vec(),
             wavelengths_nm: l.rgb_wavelengths_nm.to_vec(),
@@ -1652,10 +1654,8 @@ fn demo(out: &Path) -> anyhow::Result<()> {
             trace: TraceOptions::default(),
         };
         let spots = spot_diagram(&l, &l.compile(), &opts)?;
-        emit_line(&format!(
-            "\nSpots (64x64 grid over the entrance pupil, apertures on, RGB)"
-        ));
-        emit(&format!("{}", spot_table(&spots)));
+        emit_line("\nSpots (64x64 grid over the entrance pupil, apertures on, RGB)");
+        emit(&spot_table(&spots).to_string());
         let spot_png = out.join(format!("{name}-spots.png"));
         figures::save(
             &figures::spot_figure(&spots, &format!("Spot diagram: {name}")),

@@ -4,7 +4,7 @@
 //! the DFT of a learned PSF estimate (initialised from the design's PSF), `λ = exp(log λ)` a
 //! learned noise-to-signal ratio, `μ = exp(log μ)` a learned weight of a smoothness prior and
 //! `|D|² = 4 sin²(π f_x) + 4 sin²(π f_y)` the symbol of the discrete Laplacian. Its MSE-optimal
-//! form under a random OTF depends on the lens only through E[H] and Var H, which is why a
+//! form under a random OTF depends on the lens only through E\[H\] and Var H, which is why a
 //! jointly trained Wiener decoder carries the paper's mechanism.
 //!
 //! A crop is reflect-padded by `ks` pixels (mirror extension, repeated as needed), embedded in a

@@ -591,7 +591,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
             add_gaussian_noise(
                 &mut noise,
                 cfg.noise_sigma as f32,
-                o.seed ^ 0x6e6f_6973_65,
+                o.seed ^ 0x6e_6f69_7365,
                 stream,
             );
             Ok(BatchCrop {

@@ -1176,7 +1176,7 @@ fn wavelengths(h: &Header, warnings: &mut Vec<String>) -> Result<(Vec<ZmxWavelen
         .ftyp
         .as_ref()
         .and_then(|f| f.v.get(3))
-        .map(|&n| n.max(0.0).min(1e6) as usize);
+        .map(|&n| n.clamp(0.0, 1e6) as usize);
     let mut list: Vec<(ZmxWavelength, usize)> = if !h.wavm.is_empty() {
         let mut w = h.wavm.clone();
         w.sort_by_key(|x| x.0);

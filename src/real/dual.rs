@@ -35,7 +35,7 @@ impl<T: Real, const N: usize> Dual<T, N> {
     fn chain(self, f: T, df: T) -> Self {
         let mut eps = self.eps;
         for e in eps.iter_mut() {
-            *e = *e * df;
+            *e *= df;
         }
         Dual { re: f, eps }
     }

@@ -123,7 +123,7 @@ impl Perturbation {
     /// Checks element and surface indices and values against `lens`.
     ///
     /// # Errors
-    /// [`ErrorKind::Invalid`] naming the out-of-range index or non-finite value.
+    /// [`ErrorKind::Invalid`](crate::error::ErrorKind::Invalid) naming the out-of-range index or non-finite value.
     pub fn validate(&self, lens: &Lens) -> Result<()> {
         let ne = find_elements(lens).len();
         for e in &self.elements {

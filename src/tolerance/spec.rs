@@ -307,7 +307,7 @@ impl ToleranceSpec {
     /// Checks the spec against a lens.
     ///
     /// # Errors
-    /// [`ErrorKind::Invalid`] naming the operand and what is wrong.
+    /// [`ErrorKind::Invalid`](crate::error::ErrorKind::Invalid) naming the operand and what is wrong.
     pub fn validate(&self, lens: &Lens) -> Result<()> {
         self.slots(lens).map(|_| ())
     }

@@ -292,6 +292,12 @@ pub fn trace_serial<S: Traceable>(
     S::trace_blocks(sys, &n, opts.apertures, &mut batch.blocks);
 }
 
+/// Sag (mm) of a compiled surface at squared radius `u` (mm²): conic plus even-asphere terms,
+/// in any number type (used for edge-thickness constraints).
+pub fn kernel_sag<S: Real>(row: &crate::lens::SurfaceRow<S>, u: S) -> S {
+    kernel::asphere_sag(row, u).0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -322,10 +328,4 @@ mod tests {
         assert_eq!(b.get(1).status, RayStatus::Invalid);
         assert_eq!(b.get(2).status, RayStatus::Invalid);
     }
-}
-
-/// Sag (mm) of a compiled surface at squared radius `u` (mm²): conic plus even-asphere terms,
-/// in any number type (used for edge-thickness constraints).
-pub fn kernel_sag<S: Real>(row: &crate::lens::SurfaceRow<S>, u: S) -> S {
-    kernel::asphere_sag(row, u).0
 }

@@ -356,10 +356,7 @@ pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
         .collect();
     let img_names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
     let r = report(&cfg, &img_names, scores, &pairs)?;
-    let html = match &a.html {
-        Some(h) => Some((h.clone(), designs)),
-        None => None,
-    };
+    let html = a.html.as_ref().map(|h| (h.clone(), designs));
     print_report(&r);
     write_text(&a.json, &(serde_json::to_string_pretty(&r)? + "\n"))?;
     eprintln!("wrote {}", a.json.display());
