@@ -297,8 +297,11 @@ pub unsafe extern "C" fn tolray_trace(
     out: *const tolray_rays_out,
 ) -> tolray_status {
     boundary("tolray_trace", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
+        // SAFETY: `rays` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let rin = unsafe { nonnull(rays, "rays") }?;
+        // SAFETY: `out` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let rout = unsafe { nonnull(out, "out") }?;
         check_wavelength(wavelength_nm)?;
         if flags & !(TOLRAY_TRACE_APERTURES | TOLRAY_TRACE_SENSOR_FRAME) != 0 {
@@ -321,6 +324,7 @@ pub unsafe extern "C" fn tolray_trace(
         // Read every input before writing any output: the arrays may alias.
         let mut batch: RayBatch<f64> = RayBatch::with_capacity(n);
         {
+            // SAFETY: each column is NULL or has `n` readable elements, as # Safety says.
             let col = |p, name| unsafe { c_slice(p, n, name) };
             let (x, y, z) = (
                 col(rin.x, "rays->x")?,
@@ -385,8 +389,11 @@ pub unsafe extern "C" fn tolray_spot(
     out: *mut tolray_spot_stats,
 ) -> tolray_status {
     boundary("tolray_spot", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
+        // SAFETY: `field` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
+        // SAFETY: `pupil` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
         let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
         if out.is_null() {
@@ -433,6 +440,7 @@ pub unsafe extern "C" fn tolray_psf_options_default(
     out: *mut tolray_psf_options,
 ) -> tolray_status {
     boundary("tolray_psf_options_default", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
         if out.is_null() {
             return Err(FfiError::null("out"));
@@ -476,8 +484,11 @@ pub unsafe extern "C" fn tolray_psf(
     out_len: usize,
 ) -> tolray_status {
     boundary("tolray_psf", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
+        // SAFETY: `field` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
+        // SAFETY: `opts` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
         check_wavelength(wavelength_nm)?;
         if out.is_null() {
@@ -549,9 +560,11 @@ pub unsafe extern "C" fn tolray_spot_loss_gradient(
     grad_out: *mut f64,
 ) -> tolray_status {
     boundary("tolray_spot_loss_gradient", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
         let f = self::fields(fields, n_fields)?;
         let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        // SAFETY: `pupil` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
         let measure = match measure {
             TOLRAY_SPOT_MEAN => SpotMeasure::Mean,
@@ -594,9 +607,11 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
     grad_out: *mut f64,
 ) -> tolray_status {
     boundary("tolray_psf_loss_gradient", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
         let f = self::fields(fields, n_fields)?;
         let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        // SAFETY: `opts` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
         let vars = params(vars, n_vars, s)?;
         let pairs: Vec<(Field, f64)> = f
@@ -635,7 +650,9 @@ pub unsafe extern "C" fn tolray_render(
     out_len: usize,
 ) -> tolray_status {
     boundary("tolray_render", || {
+        // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
+        // SAFETY: `opts` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
         let (w, h) = (width as usize, height as usize);
         let n = 3usize.saturating_mul(w).saturating_mul(h);
@@ -658,6 +675,7 @@ pub unsafe extern "C" fn tolray_render(
         if out.is_null() {
             return Err(FfiError::null("out"));
         }
+        // SAFETY: `input` is NULL or has `n` readable elements, as # Safety says; NULL is refused.
         let data = unsafe { c_slice(input, n, "in") }?.to_vec();
         let img = crate::image::Image {
             width: w,

@@ -114,7 +114,11 @@ pub struct tolray_paraxial {
     pub num_surfaces: u32,
 }
 
-fn give<T>(out: *mut *mut T, value: T) -> FfiResult<()> {
+/// Boxes `value` and writes the new handle to `*out`.
+///
+/// # Safety
+/// `out` is NULL (refused) or points to writable storage for a pointer.
+unsafe fn give<T>(out: *mut *mut T, value: T) -> FfiResult<()> {
     if out.is_null() {
         return Err(FfiError::null("out"));
     }
@@ -150,9 +154,11 @@ pub unsafe extern "C" fn tolray_lens_load(
     out: *mut *mut tolray_lens,
 ) -> tolray_status {
     boundary("tolray_lens_load", || {
+        // SAFETY: `name_or_path` is NULL or a C string, as # Safety says; NULL is refused.
         let name = unsafe { c_str(name_or_path, "name_or_path") }?;
         let lens = Lens::load(name)?;
-        give(out, tolray_lens { lens })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_lens { lens }) }
     })
 }
 
@@ -166,9 +172,11 @@ pub unsafe extern "C" fn tolray_lens_from_json(
     out: *mut *mut tolray_lens,
 ) -> tolray_status {
     boundary("tolray_lens_from_json", || {
+        // SAFETY: `json` is NULL or a C string, as # Safety says; NULL is refused.
         let text = unsafe { c_str(json, "json") }?;
         let lens = lens::json::from_str(text)?;
-        give(out, tolray_lens { lens })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_lens { lens }) }
     })
 }
 
@@ -187,7 +195,9 @@ pub unsafe extern "C" fn tolray_lens_to_json(
     len_out: *mut usize,
 ) -> tolray_status {
     boundary("tolray_lens_to_json", || {
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
+        // SAFETY: `buf` and `cap`, `len_out` are as # Safety says (copy_text checks NULL).
         unsafe { copy_text(&lens::json::to_string(&lens.lens), buf, cap, len_out) }
     })
 }
@@ -198,6 +208,7 @@ pub unsafe extern "C" fn tolray_lens_to_json(
 /// `lens` is NULL or a handle not yet freed.
 #[no_mangle]
 pub unsafe extern "C" fn tolray_lens_free(lens: *mut tolray_lens) {
+    // SAFETY: `lens` is NULL or a handle of this library not yet freed, as # Safety says.
     unsafe { free(lens) }
 }
 
@@ -212,6 +223,7 @@ pub unsafe extern "C" fn tolray_lens_paraxial(
     out: *mut tolray_paraxial,
 ) -> tolray_status {
     boundary("tolray_lens_paraxial", || {
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
         check_wavelength(wavelength_nm)?;
         if out.is_null() {
@@ -252,7 +264,9 @@ pub unsafe extern "C" fn tolray_lens_param_get(
     value_out: *mut f64,
 ) -> tolray_status {
     boundary("tolray_lens_param_get", || {
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
+        // SAFETY: `param` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let p = unsafe { nonnull(param, "param") }?.to_param()?;
         if value_out.is_null() {
             return Err(FfiError::null("value_out"));
@@ -277,7 +291,9 @@ pub unsafe extern "C" fn tolray_lens_with_param(
     out: *mut *mut tolray_lens,
 ) -> tolray_status {
     boundary("tolray_lens_with_param", || {
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
+        // SAFETY: `param` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let p = unsafe { nonnull(param, "param") }?.to_param()?;
         if !value.is_finite() {
             return Err(FfiError::argument(format!(
@@ -287,7 +303,8 @@ pub unsafe extern "C" fn tolray_lens_with_param(
         let mut new = lens.lens.clone();
         crate::optim::set_param(&mut new, p, value)?;
         new.validate()?;
-        give(out, tolray_lens { lens: new })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_lens { lens: new }) }
     })
 }
 
@@ -299,12 +316,15 @@ pub unsafe extern "C" fn tolray_lens_with_param(
 #[no_mangle]
 pub unsafe extern "C" fn tolray_spec_default(out: *mut *mut tolray_spec) -> tolray_status {
     boundary("tolray_spec_default", || {
-        give(
-            out,
-            tolray_spec {
-                spec: ToleranceSpec::default(),
-            },
-        )
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe {
+            give(
+                out,
+                tolray_spec {
+                    spec: ToleranceSpec::default(),
+                },
+            )
+        }
     })
 }
 
@@ -318,9 +338,11 @@ pub unsafe extern "C" fn tolray_spec_load(
     out: *mut *mut tolray_spec,
 ) -> tolray_status {
     boundary("tolray_spec_load", || {
+        // SAFETY: `path` is NULL or a C string, as # Safety says; NULL is refused.
         let path = unsafe { c_str(path, "path") }?;
         let spec = ToleranceSpec::read(std::path::Path::new(path))?;
-        give(out, tolray_spec { spec })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_spec { spec }) }
     })
 }
 
@@ -334,9 +356,11 @@ pub unsafe extern "C" fn tolray_spec_from_json(
     out: *mut *mut tolray_spec,
 ) -> tolray_status {
     boundary("tolray_spec_from_json", || {
+        // SAFETY: `json` is NULL or a C string, as # Safety says; NULL is refused.
         let text = unsafe { c_str(json, "json") }?;
         let spec = parse_json(text, "tolerance spec")?;
-        give(out, tolray_spec { spec })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_spec { spec }) }
     })
 }
 
@@ -346,6 +370,7 @@ pub unsafe extern "C" fn tolray_spec_from_json(
 /// `spec` is NULL or a handle not yet freed.
 #[no_mangle]
 pub unsafe extern "C" fn tolray_spec_free(spec: *mut tolray_spec) {
+    // SAFETY: `spec` is NULL or a handle of this library not yet freed, as # Safety says.
     unsafe { free(spec) }
 }
 
@@ -363,10 +388,13 @@ pub unsafe extern "C" fn tolray_pattern_sample(
     out: *mut *mut tolray_pattern,
 ) -> tolray_status {
     boundary("tolray_pattern_sample", || {
+        // SAFETY: `spec` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let spec = unsafe { nonnull(spec, "spec") }?;
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
         let pattern = spec.spec.sample(&lens.lens, seed, index)?;
-        give(out, tolray_pattern { pattern })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_pattern { pattern }) }
     })
 }
 
@@ -380,9 +408,11 @@ pub unsafe extern "C" fn tolray_pattern_load(
     out: *mut *mut tolray_pattern,
 ) -> tolray_status {
     boundary("tolray_pattern_load", || {
+        // SAFETY: `path` is NULL or a C string, as # Safety says; NULL is refused.
         let path = unsafe { c_str(path, "path") }?;
         let pattern = Perturbation::read(std::path::Path::new(path))?;
-        give(out, tolray_pattern { pattern })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_pattern { pattern }) }
     })
 }
 
@@ -396,9 +426,11 @@ pub unsafe extern "C" fn tolray_pattern_from_json(
     out: *mut *mut tolray_pattern,
 ) -> tolray_status {
     boundary("tolray_pattern_from_json", || {
+        // SAFETY: `json` is NULL or a C string, as # Safety says; NULL is refused.
         let text = unsafe { c_str(json, "json") }?;
         let pattern = parse_json(text, "tolerance pattern")?;
-        give(out, tolray_pattern { pattern })
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe { give(out, tolray_pattern { pattern }) }
     })
 }
 
@@ -414,7 +446,9 @@ pub unsafe extern "C" fn tolray_pattern_to_json(
     len_out: *mut usize,
 ) -> tolray_status {
     boundary("tolray_pattern_to_json", || {
+        // SAFETY: `pattern` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let p = unsafe { nonnull(pattern, "pattern") }?;
+        // SAFETY: `buf` and `cap`, `len_out` are as # Safety says (copy_text checks NULL).
         unsafe { copy_text(&p.pattern.to_json(), buf, cap, len_out) }
     })
 }
@@ -425,6 +459,7 @@ pub unsafe extern "C" fn tolray_pattern_to_json(
 /// `pattern` is NULL or a handle not yet freed.
 #[no_mangle]
 pub unsafe extern "C" fn tolray_pattern_free(pattern: *mut tolray_pattern) {
+    // SAFETY: `pattern` is NULL or a handle of this library not yet freed, as # Safety says.
     unsafe { free(pattern) }
 }
 
@@ -441,6 +476,7 @@ pub unsafe extern "C" fn tolray_system_new(
     out: *mut *mut tolray_system,
 ) -> tolray_status {
     boundary("tolray_system_new", || {
+        // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let nominal = unsafe { nonnull(lens, "lens") }?.lens.clone();
         // SAFETY: NULL is allowed (nominal); otherwise a live handle (caller's promise).
         let pattern = unsafe { pattern.as_ref() };
@@ -449,15 +485,18 @@ pub unsafe extern "C" fn tolray_system_new(
             None => (nominal.clone(), Adjustments::none(nominal.surfaces.len())),
         };
         let sys = System::compile(&lens, &adj, &|_, v| v);
-        give(
-            out,
-            tolray_system {
-                nominal,
-                lens,
-                adj,
-                sys,
-            },
-        )
+        // SAFETY: `out` is NULL or writable, as # Safety says; `give` refuses NULL.
+        unsafe {
+            give(
+                out,
+                tolray_system {
+                    nominal,
+                    lens,
+                    adj,
+                    sys,
+                },
+            )
+        }
     })
 }
 
@@ -467,6 +506,7 @@ pub unsafe extern "C" fn tolray_system_new(
 /// `system` is NULL or a handle not yet freed.
 #[no_mangle]
 pub unsafe extern "C" fn tolray_system_free(system: *mut tolray_system) {
+    // SAFETY: `system` is NULL or a handle of this library not yet freed, as # Safety says.
     unsafe { free(system) }
 }
 
