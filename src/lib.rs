@@ -1,14 +1,51 @@
 //! # tolray
 //!
 //! Tolerance-aware lens design: a fast, exact, differentiable CPU ray tracer for refractive
-//! lenses that models manufacturing and assembly tolerances.
+//! lenses that models manufacturing and assembly tolerances, and the deep-optics half of the
+//! paper "Tolerance-Aware Deep Optics" (a lens designed together with its image decoder and
+//! judged over randomly fabricated units).
 //!
-//! - [`lens`]: prescriptions ([`lens::Lens`]), DeepLens JSON, materials, paraxial analysis, and
-//!   the compiled flat table ([`lens::System`]) the tracer runs on.
+//! Modules:
+//! - [`lens`]: prescriptions ([`lens::Lens`]), DeepLens JSON and Zemax .zmx, materials, paraxial
+//!   analysis, and the compiled flat table ([`lens::System`]) the tracer runs on.
 //! - [`trace`]: ray batches, the generic kernel (f32, f64, dual numbers), ray generation, and a
 //!   scalar reference tracer.
+//! - [`real`]: the number types the kernel is generic over (dual numbers for exact gradients).
 //! - [`analysis`]: spot diagrams and statistics.
+//! - [`tolerance`]: tolerance specs, sampled patterns (fabricated units), Monte Carlo,
+//!   sensitivity.
+//! - [`psf`]: point spread functions and PSF maps, the PSF-similarity loss.
+//! - [`optim`]: objectives and their gradients, Adam, the paper's two-stage optics training.
+//! - [`image`]: images in linear light, the dead-leaves generator, spatially variant rendering.
+//! - [`decoder`]: the jointly trained decoder (per-tile Wiener + U-Net) with exact backward
+//!   passes.
+//! - [`deep`]: deep-optics training (lens and decoder), the study and its yield evaluation.
+//! - [`figures`] and [`plot`]: the pictures the CLI writes.
+//! - [`ffi`]: the C ABI (`include/tolray.h`).
+//! - [`error`], [`math`]: errors with their kind and cause, small vector algebra.
 //! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
+//!
+//! ```
+//! use tolray::analysis::{spot_diagram, SpotOptions};
+//! use tolray::trace::{Field, Pupil, TraceOptions};
+//! use tolray::Lens;
+//!
+//! # fn main() -> tolray::Result<()> {
+//! let lens = Lens::load("cooke-triplet")?; // a built-in lens, a .json or a .zmx file
+//! let p = lens.paraxial(587.5618)?;
+//! assert!(p.efl_mm.is_finite());
+//! let opts = SpotOptions {
+//!     fields: vec![Field::fraction(0.0), Field::fraction(1.0)],
+//!     wavelengths_nm: vec![587.5618],
+//!     pupil: Pupil::grid(32),
+//!     trace: TraceOptions { apertures: true },
+//! };
+//! for r in spot_diagram(&lens, &lens.compile(), &opts)? {
+//!     println!("field {:?}: RMS spot {:.2} µm", r.field, r.stats.rms_um);
+//! }
+//! # Ok(())
+//! # }
+//! ```
 //!
 //! Units: millimetres for lengths, micrometres for spot sizes, nanometres for wavelengths,
 //! degrees for angles in files. Surfaces are counted from 0. Frame: z is the optical axis, light

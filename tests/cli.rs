@@ -550,12 +550,7 @@ fn training_interrupted_by_ctrl_c_leaves_an_exact_checkpoint() {
         assert!(start.elapsed() < Duration::from_secs(120), "no progress");
         std::thread::sleep(Duration::from_millis(5));
     }
-    let pid = child.id().to_string();
-    let kill = Command::new("sh")
-        .args(["-c", "kill -INT \"$1\"", "sh", &pid])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    interrupt(&child);
     let status = child.wait().unwrap();
     let err = std::fs::read_to_string(s("stderr.txt")).unwrap();
     assert_eq!(status.code(), Some(130), "{err}");
@@ -749,12 +744,7 @@ fn outputs_are_checked_first_and_ctrl_c_leaves_no_partial_file() {
         std::thread::sleep(Duration::from_millis(5));
     }
     std::thread::sleep(Duration::from_millis(300));
-    let pid = child.id().to_string();
-    let kill = Command::new("sh")
-        .args(["-c", "kill -INT \"$1\"", "sh", &pid])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    interrupt(&child);
     let done = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&done.stderr);
     assert_eq!(done.status.code(), Some(130), "{err}");
@@ -776,4 +766,14 @@ fn outputs_are_checked_first_and_ctrl_c_leaves_no_partial_file() {
         .filter(|n| n.ends_with(".tmp"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
+}
+
+/// Sends SIGINT (what Ctrl-C sends) to a running `tolray`.
+fn interrupt(child: &std::process::Child) {
+    let pid = child.id().to_string();
+    let kill = std::process::Command::new("sh")
+        .args(["-c", "kill -INT \"$1\"", "sh", &pid])
+        .status()
+        .unwrap();
+    assert!(kill.success());
 }

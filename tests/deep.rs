@@ -279,7 +279,7 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     let images = cfg.eval_images().unwrap();
     let base = std::env::temp_dir().join(format!("tolray-resume-{}", std::process::id()));
     let whole = base.join("whole");
-    let r = run(&lens, &cfg, &images, &whole, &mut |_, _| {}).unwrap();
+    let r = run(&lens, &cfg, &images, &whole, &mut |_| {}).unwrap();
     let expect = serde_json::to_string(&r).unwrap();
     let files = |dir: &std::path::Path| -> Vec<Vec<u8>> {
         [
@@ -326,7 +326,7 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
                 Some(n.get()) == at
             };
             let mut ctl = Control {
-                progress: &mut |_, _| {},
+                progress: &mut |_| {},
                 stop: &stop,
                 checkpoint_every: 0,
             };
@@ -350,7 +350,7 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     other.stage2_iters = 3;
     let ck = read_checkpoint(&base.join("_4_")).unwrap();
     let mut ctl = Control {
-        progress: &mut |_, _| {},
+        progress: &mut |_| {},
         stop: &|| false,
         checkpoint_every: 0,
     };
@@ -519,7 +519,7 @@ fn reduced_study_keeps_the_paper_s_directions() {
     let images = EvalImages::builtin(8 * 32, 1, cfg.eval.seed).unwrap();
     let out = std::env::temp_dir().join(format!("tolray-study-{}", std::process::id()));
     let t0 = std::time::Instant::now();
-    let r = run(&lens, &cfg, &images, &out, &mut |_, _| {}).unwrap();
+    let r = run(&lens, &cfg, &images, &out, &mut |_| {}).unwrap();
     let row = |n: &str| r.designs.iter().find(|d| d.name == n).unwrap();
     let pair = |a: &str, b: &str| r.pairs.iter().find(|p| p.a == a && p.b == b).unwrap();
     let (conv, ta, dec) = (row(CONVENTIONAL), row(TOLERANCE_AWARE), row(DECODER_ONLY));
@@ -561,4 +561,41 @@ fn reduced_study_keeps_the_paper_s_directions() {
         d.psnr_mean_diff_ci95
     );
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Training on refocused units leaves the design's sensor free; each step puts it back at the
+/// design's own best focus, which must not change the loss (each unit's refocus cancels a move
+/// of the sensor exactly) and must leave the design focused.
+#[test]
+fn refocused_training_keeps_the_design_at_its_best_focus() {
+    use tolray::deep::{refocus_design, step};
+    let lens = focused_lens1();
+    let mut cfg = small(&lens, DecoderKind::Wiener);
+    cfg.compensate_focus = true;
+    let st = DeepState::new(cfg.clone(), lens.clone(), None, Phase::Tolerance, 2, 0).unwrap();
+    let batch = draw_batch(&cfg, &lens, Phase::Tolerance, 5).unwrap();
+    let loss = |l: &Lens| {
+        eval_batch(&cfg, &batch, l, &st.design.decoder, None)
+            .unwrap()
+            .loss
+    };
+    let mut moved = lens.clone();
+    refocus_design(&mut moved, false).unwrap();
+    let last = lens.surfaces.len() - 1;
+    let shift = moved.surfaces[last].d_next_mm - lens.surfaces[last].d_next_mm;
+    // The paraxial focus of this lens is ~0.7 mm from its best RMS focus: a real move.
+    assert!(shift.abs() > 0.1, "shift {shift} mm");
+    let (a, b) = (loss(&lens), loss(&moved));
+    assert!(
+        (a - b).abs() < 1e-5 * a,
+        "loss {a} before, {b} after the refocus"
+    );
+    let mut st = st;
+    step(&mut st).unwrap();
+    let f = FocusObjective::new(&st.design.lens, false).unwrap();
+    let d = tolray::optim::value(&f, &st.design.lens, &Adjustments::none(last + 1));
+    assert!(
+        d.abs() < 1e-9,
+        "after a step the design is {d} mm from its best focus"
+    );
 }

@@ -47,7 +47,7 @@ macro_rules! usage {
 #[command(
     name = "tolray",
     version,
-    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in um, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
+    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in µm, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -378,7 +378,7 @@ struct PsfArgs {
     /// Rays per PSF (uniform random over the entrance pupil).
     #[arg(long, default_value_t = 8192)]
     spp: usize,
-    /// Pixel pitch in um (default: the sensor's).
+    /// Pixel pitch in µm (default: the sensor's).
     #[arg(long, value_name = "UM")]
     pitch_um: Option<f64>,
     /// Centre the PSF on the chief ray or on the centroid.
@@ -486,7 +486,7 @@ struct ValidateArgs {
     /// itself (values below 1 assert more than the theorem guarantees).
     #[arg(long, default_value_t = 1.0)]
     bound_scale: f64,
-    /// Largest allowed RMS spot difference between the traces, um.
+    /// Largest allowed RMS spot difference between the traces, µm.
     #[arg(long, default_value_t = 0.1, value_name = "UM")]
     spot_bound_um: f64,
 }
@@ -628,7 +628,7 @@ fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         "aperture stop surface", p.stop_surface
     ));
     s.push_str(&format!(
-        "  {:<46} {:>14.4} mm ({} x {} px, pitch {:.3} um)\n\nPrescription (surfaces from 0; radius and gaps in mm)\n",
+        "  {:<46} {:>14.4} mm ({} x {} px, pitch {:.3} µm)\n\nPrescription (surfaces from 0; radius and gaps in mm)\n",
         "sensor half-diagonal",
         lens.sensor.half_diagonal_mm(),
         lens.sensor.resolution[0],
@@ -671,9 +671,9 @@ fn spot_table(results: &[SpotResult]) -> String {
         "field",
         "wavelength",
         "rays",
-        "RMS (um)",
+        "RMS (µm)",
         "RMS/chief",
-        "geo (um)",
+        "geo (µm)",
         "vignetted",
         "centroid x",
         "centroid y"
@@ -863,7 +863,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let opts = tol.options(&l, 0, 0)?;
             let (nominal, rows) = sensitivity(&l, &opts)?;
             let fields: Vec<String> = opts.fields.iter().map(|f| f.label()).collect();
-            emit(&format!("Sensitivity of RMS spot (um) to each operand alone at -max / +max; nominal per field {}: {}\n", fields.join(", "), fmt_list(&nominal)));
+            emit(&format!("Sensitivity of RMS spot (µm) to each operand alone at -max / +max; nominal per field {}: {}\n", fields.join(", "), fmt_list(&nominal)));
             emit(&format!(
                 "{:>16} {:>6} {:>4} {:>10}   {:<30} {:<30} {:>10}\n",
                 "operand", "target", "axis", "max", "RMS at -max", "RMS at +max", "worst |d|"
@@ -944,7 +944,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     })
                     .map(|k| p[k])
                     .sum();
-                emit_line(&format!("PSF at field {}, {w:.2} nm: {}x{} px of {:.3} um, sum {:.6}, centre pixel {:.4}, central 3x3 {:.4}", field.label(), opts.ks, opts.ks, opts.pitch_mm * 1e3, p.iter().sum::<f64>(), c, ee));
+                emit_line(&format!("PSF at field {}, {w:.2} nm: {}x{} px of {:.3} µm, sum {:.6}, centre pixel {:.4}, central 3x3 {:.4}", field.label(), opts.ks, opts.ks, opts.pitch_mm * 1e3, p.iter().sum::<f64>(), c, ee));
             }
             if json {
                 emit_line(&serde_json::to_string(
@@ -1305,7 +1305,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
     }
     let _ = writeln!(
         t,
-        "\nRMS spots, nominal lens (um), and the worst difference over all cases:"
+        "\nRMS spots, nominal lens (µm), and the worst difference over all cases:"
     );
     let _ = writeln!(
         t,
@@ -1354,7 +1354,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
     );
     let _ = writeln!(
         t,
-        "\nresult: {} ({} of {} cases exceed a bound; spot bound {} um, bound scale {})",
+        "\nresult: {} ({} of {} cases exceed a bound; spot bound {} µm, bound scale {})",
         if r.pass { "PASS" } else { "FAIL" },
         s.failed_cases,
         s.cases,
@@ -1422,7 +1422,7 @@ fn train(
         writeln!(log, "{}", serde_json::to_string(&l)?)
             .with_context(|| format!("{}: cannot write", log_path.display()))?;
         bar.set_message(format!(
-            "{:?} loss {:.5} spot {:.2} um{}",
+            "{:?} loss {:.5} spot {:.2} µm{}",
             l.stage,
             l.loss,
             l.spot_um,
@@ -1472,7 +1472,7 @@ fn train(
     designs.push(("final", &final_lens));
     let mut text = format!("Training report ({} iterations: {} pretrain + {} tolerance-aware, {} patterns per iteration, seed {})\n\n", total, cfg.pretrain_iters, cfg.tolerance_iters, cfg.samples, cfg.seed);
     let mut evals = Vec::new();
-    text.push_str(&format!("Held-out evaluation: {eval_trials} tolerance patterns of seed {eval_seed} (training used seed {}); RMS spot in um, mean over the fields, with the sensor where the design puts it and with each lens refocused to its best focus (the assembly's focus compensator)\n", cfg.seed));
+    text.push_str(&format!("Held-out evaluation: {eval_trials} tolerance patterns of seed {eval_seed} (training used seed {}); RMS spot in µm, mean over the fields, with the sensor where the design puts it and with each lens refocused to its best focus (the assembly's focus compensator)\n", cfg.seed));
     text.push_str(&format!(
         "{:>10} {:>28} {:>10} {:>10} {:>11} {:>10} {:>10} {:>11} {:>10}\n",
         "design",
@@ -1609,7 +1609,7 @@ fn tolerance_text(r: &McReport) -> String {
     );
     let fields: Vec<String> = o.fields.iter().map(|f| f.label()).collect();
     s.push_str(&format!(
-        "nominal RMS spot per field ({}): {} um\n",
+        "nominal RMS spot per field ({}): {} µm\n",
         fields.join(", "),
         fmt_list(&r.nominal_rms_um)
     ));
@@ -1620,7 +1620,7 @@ fn tolerance_text(r: &McReport) -> String {
         ));
         return s;
     };
-    s.push_str(&format!("\nRMS spot (um)    {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n", "mean", "std", "min", "max"));
+    s.push_str(&format!("\nRMS spot (µm)    {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n", "mean", "std", "min", "max"));
     for (f, st) in o.fields.iter().zip(&sm.per_field) {
         s.push_str(&stats_row(&format!("field {}", f.label()), st));
     }
@@ -1694,7 +1694,7 @@ fn demo(out: &Path) -> anyhow::Result<()> {
             &(serde_json::to_string_pretty(&report)? + "\n"),
         )?;
         let (_, rows) = sensitivity(&l, &mc)?;
-        emit_line("most sensitive operands (worst change of RMS spot, um):");
+        emit_line("most sensitive operands (worst change of RMS spot, µm):");
         for r in rows.iter().take(5) {
             let axis = if r.operand.axes() == 1 {
                 String::new()

@@ -10,7 +10,7 @@ use super::{step, DeepConfig, DeepLog, DeepState, Design, Phase};
 use crate::decoder::Decoder;
 use crate::error::{write_atomic, Error, ErrorKind, Result};
 use crate::lens::Lens;
-use crate::optim::train::TrainState;
+use crate::optim::train::{IterLog, TrainState};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -200,10 +200,19 @@ pub struct Checkpoint {
     pub finished: Vec<(String, Vec<DeepLog>)>,
 }
 
+/// One iteration's log, as [`Control::progress`] receives it.
+#[derive(Clone, Copy, Debug)]
+pub enum Progress<'a> {
+    /// An iteration of the spot-loss focus fit (stage 0) and its number of iterations.
+    Focus(&'a IterLog, usize),
+    /// An iteration of stage 1 (named "stage 1") or of a branch (named after it).
+    Image(&'a str, &'a DeepLog),
+}
+
 /// How [`run_resumable`] is driven.
 pub struct Control<'a> {
-    /// Receives each iteration's log and the name of the phase or branch.
-    pub progress: &'a mut dyn FnMut(&str, &DeepLog),
+    /// Receives each iteration's log.
+    pub progress: &'a mut dyn FnMut(Progress<'_>),
     /// Polled after every iteration; when it returns true the study writes its checkpoint and
     /// returns `Ok(None)`.
     pub stop: &'a dyn Fn() -> bool,
@@ -212,7 +221,7 @@ pub struct Control<'a> {
 }
 
 /// Runs the study on `lens`, writing the designs and their training logs under `out`; returns
-/// the evaluation report. `progress` receives each iteration's log and the name of the branch.
+/// the evaluation report. `progress` receives each iteration's log.
 ///
 /// # Errors
 /// Training, evaluation and I/O errors.
@@ -221,7 +230,7 @@ pub fn run(
     cfg: &StudyConfig,
     images: &EvalImages,
     out: &Path,
-    progress: &mut dyn FnMut(&str, &DeepLog),
+    progress: &mut dyn FnMut(Progress<'_>),
 ) -> Result<Report> {
     let mut ctl = Control {
         progress,
@@ -288,18 +297,24 @@ pub fn run_resumable(
         }
     };
     let every = ctl.checkpoint_every;
-    let due = |k: usize| every > 0 && k % every == 0;
+    let stop_requested = ctl.stop;
+    // After iteration `k` of a phase: when a stop is requested or a checkpoint is due, writes
+    // `ck` with the running state put in by `fill`; true when the study is to stop.
+    let pause = |ck: &Checkpoint, k: usize, fill: &dyn Fn(&mut Checkpoint)| -> Result<bool> {
+        let stop = stop_requested();
+        if stop || (every > 0 && k % every == 0) {
+            let mut c = ck.clone();
+            fill(&mut c);
+            save(&c)?;
+        }
+        Ok(stop)
+    };
     if let Some(mut st) = ck.spot.take() {
         while st.next_iter < cfg.spot_iters {
-            crate::optim::train::step(&mut st)?;
-            let stop = (ctl.stop)();
-            if stop || due(st.next_iter) {
-                ck.spot = Some(st.clone());
-                save(&ck)?;
-                ck.spot = None;
-                if stop {
-                    return Ok(None);
-                }
+            let l = crate::optim::train::step(&mut st)?;
+            (ctl.progress)(Progress::Focus(&l, cfg.spot_iters));
+            if pause(&ck, st.next_iter, &|c| c.spot = Some(st.clone()))? {
+                return Ok(None);
             }
         }
         let s1 = DeepState::new(
@@ -327,15 +342,10 @@ pub fn run_resumable(
     while !s1.done() {
         let mut l = step(&mut s1)?;
         validate(&s1, &mut l)?;
-        (ctl.progress)("stage 1", &l);
+        (ctl.progress)(Progress::Image("stage 1", &l));
         ck.stage1_logs.push(l);
-        let stop = (ctl.stop)();
-        if stop || due(s1.phase_iter) {
-            ck.stage1 = Some(s1.to_saved());
-            save(&ck)?;
-            if stop {
-                return Ok(None);
-            }
+        if pause(&ck, s1.phase_iter, &|c| c.stage1 = Some(s1.to_saved()))? {
+            return Ok(None);
         }
     }
     ck.stage1 = Some(s1.to_saved());
@@ -365,16 +375,13 @@ pub fn run_resumable(
         while !s.done() {
             let mut l = step(&mut s)?;
             validate(&s, &mut l)?;
-            (ctl.progress)(name, &l);
+            (ctl.progress)(Progress::Image(name, &l));
             logs.push(l);
-            let stop = (ctl.stop)();
-            if stop || due(s.phase_iter) {
-                ck.branch = Some((name.to_string(), s.to_saved(), logs.clone()));
-                save(&ck)?;
-                ck.branch = None;
-                if stop {
-                    return Ok(None);
-                }
+            let fill = |c: &mut Checkpoint| {
+                c.branch = Some((name.to_string(), s.to_saved(), logs.clone()));
+            };
+            if pause(&ck, s.phase_iter, &fill)? {
+                return Ok(None);
             }
         }
         let dir = out.join(name);

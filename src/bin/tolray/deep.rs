@@ -8,7 +8,7 @@ use tolray::decoder::DecoderKind;
 use tolray::deep::eval::{evaluate, example_images, report, EvalConfig, EvalImages, Report};
 use tolray::deep::html::{render as render_html, Examples};
 use tolray::deep::study::{self, StudyConfig};
-use tolray::deep::{psf_options, rgb_psf_map, DeepConfig, DeepLog};
+use tolray::deep::{psf_options, rgb_psf_map, DeepConfig};
 use tolray::image::render::{add_gaussian_noise, render, Blend, PsfMap};
 use tolray::image::source::TrainImages;
 use tolray::image::Image;
@@ -243,7 +243,24 @@ fn run_study(
     )?;
     let t0 = std::time::Instant::now();
     let mut last = std::time::Instant::now();
-    let mut progress = |branch: &str, l: &DeepLog| {
+    let mut progress = |p: study::Progress<'_>| {
+        let (branch, l) = match p {
+            study::Progress::Focus(l, n) => {
+                if last.elapsed().as_secs_f64() > 5.0 || l.iter % 50 == 0 || l.iter + 1 == n {
+                    last = std::time::Instant::now();
+                    eprintln!(
+                        "[{:6.0} s] {:16} iter {:4} of {n}: spot loss {:.3e}, RMS spot {:.1} µm",
+                        t0.elapsed().as_secs_f64(),
+                        "focus fit",
+                        l.iter,
+                        l.loss,
+                        l.spot_um
+                    );
+                }
+                return;
+            }
+            study::Progress::Image(branch, l) => (branch, l),
+        };
         if last.elapsed().as_secs_f64() > 5.0 || l.iter % 50 == 0 || l.val_psnr_db.is_some() {
             last = std::time::Instant::now();
             eprintln!(
