@@ -6,6 +6,7 @@ pub mod train;
 
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, System};
+use crate::math::Vec3;
 use crate::real::{Dual, Real};
 use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable};
 
@@ -172,30 +173,35 @@ impl Bundles {
     /// Traces bundle `k` in `S` and returns, for each ray that arrives, its sensor-plane position
     /// and slopes `[x, y, dx/dz, dy/dz]` in the sensor frame (what a refocus moves).
     pub fn sensor_rays<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 4]> {
-        let (_, wl, set) = &self.sets[k];
-        let mut b: RayBatch<S> = set.batch();
-        trace_serial(sys, *wl, &mut b, self.trace);
-        b.iter()
-            .filter(|r| r.status.is_alive())
-            .map(|r| {
-                let p = sys.image.point_to_local(r.o);
-                let d = sys.image.rotation.apply_t(r.d);
-                [p.x, p.y, d.x / d.z, d.y / d.z]
-            })
-            .collect()
+        self.arrived(sys, k, |o, d| {
+            let p = sys.image.point_to_local(o);
+            let d = sys.image.rotation.apply_t(d);
+            [p.x, p.y, d.x / d.z, d.y / d.z]
+        })
     }
 
     /// Traces bundle `k` in `S` and returns the sensor-plane positions of the rays that arrive.
     pub fn sensor_points<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 2]> {
+        self.arrived(sys, k, |o, _| {
+            let p = sys.image.point_to_local(o);
+            [p.x, p.y]
+        })
+    }
+
+    /// Traces bundle `k` and maps `f(position, direction)` (global frame) over the rays that
+    /// arrive.
+    fn arrived<S: Traceable, T>(
+        &self,
+        sys: &System<S>,
+        k: usize,
+        f: impl Fn(Vec3<S>, Vec3<S>) -> T,
+    ) -> Vec<T> {
         let (_, wl, set) = &self.sets[k];
         let mut b: RayBatch<S> = set.batch();
         trace_serial(sys, *wl, &mut b, self.trace);
         b.iter()
             .filter(|r| r.status.is_alive())
-            .map(|r| {
-                let p = sys.image.point_to_local(r.o);
-                [p.x, p.y]
-            })
+            .map(|r| f(r.o, r.d))
             .collect()
     }
 }
