@@ -777,3 +777,26 @@ fn interrupt(child: &std::process::Child) {
         .unwrap();
     assert!(kill.success());
 }
+
+/// `tolray glass`: a lookup in the built-in vendor catalogs.
+#[test]
+fn glass_lookup() {
+    let (code, out, err) = tolray(&["glass", "n-bk7"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("N-BK7  (Schott)"), "{out}");
+    assert!(out.contains("n_d 1.516800, V_d 64.17"), "{out}");
+    // n at the d line from the formula, to the catalog's six digits.
+    assert!(out.contains("n(587.5618 nm)d    1.516800"), "{out}");
+    let (code, out, err) = tolray(&["glass", "S-LAH64", "--wavelengths", "450,650"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("(Ohara)") && out.contains("n(450.0000 nm)"),
+        "{out}"
+    );
+    let (code, _, err) = tolray(&["glass", "S-LAH99"]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("in no catalog") && err.contains("S-LAH"),
+        "{err}"
+    );
+}

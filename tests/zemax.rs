@@ -726,16 +726,6 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
     warn(&t, "PARM 1 0.001", "a STANDARD surface has no parameters");
     let t = replace_line(&base, "TYPE STANDARD", "  TYPE TILTSURF");
     warn(&t, "TYPE TILTSURF", "object surface type TILTSURF ignored");
-    let t = replace_line(&base, "GLAS N-BK7", "  GLAS NOT-A-GLASS 0 0 1.52 64 0 0 0");
-    let z = warn(
-        &t,
-        "GLAS NOT-A-GLASS",
-        "using a model glass with the file's n_d = 1.52, V_d = 64",
-    );
-    assert_eq!(
-        z.lens.surfaces[1].material,
-        Material::Model { nd: 1.52, vd: 64.0 }
-    );
     let t = replace_line(&base, "GLAS N-BK7", "  GLAS BK7");
     let z = warn(&t, "GLAS BK7", "using N-BK7");
     assert_eq!(
@@ -1203,4 +1193,85 @@ fn a_lens_without_a_marked_stop_keeps_its_stop_through_zmx() {
     assert_eq!(q.stop_surface, p.stop_surface);
     assert!(rel(q.entrance_pupil_diameter_mm, p.entrance_pupil_diameter_mm) < 1e-12);
     assert!(rel(q.entrance_pupil_z_mm, p.entrance_pupil_z_mm) < 1e-12);
+}
+
+/// Glass names resolve in the built-in vendor catalogs in the file's GCAT order; a glass in no
+/// catalog is an error naming the line, the glass and the fallback, unless the user opts into
+/// the line's n_d / V_d; OpticStudio's 1.5 / 40 placeholder is never data.
+#[test]
+fn glasses_resolve_by_gcat_and_never_silently_fall_back() {
+    let base = text("asphere.zmx");
+    let material = |z: &ZmxLens| z.lens.surfaces[1].material.clone();
+    let vendor = |m: &Material| match m {
+        Material::Catalog(g) => g.vendor,
+        other => panic!("not a catalog glass: {other:?}"),
+    };
+    // Ohara's S-LAH64 (not in the catalog before this release): the catalog glass, no warning
+    // about it, and its catalog n_d.
+    let t = replace_line(
+        &base,
+        "GLAS N-BK7",
+        "  GLAS S-LAH64 0 0 1.788 47.37 0 0 0 0 0 0",
+    );
+    let z = parse(&t).unwrap();
+    let m = material(&z);
+    assert_eq!(vendor(&m), "Ohara");
+    assert!((m.index(LAMBDA_D_NM) - 1.788001).abs() < 2e-6);
+    assert!(
+        !z.warnings.iter().any(|w| w.contains("S-LAH64")),
+        "{:?}",
+        z.warnings
+    );
+    // BAF10 is both Hoya's and Hikari's: GCAT decides; without GCAT, the default vendor order.
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS BAF10");
+    assert_eq!(vendor(&material(&parse(&t).unwrap())), "Hoya");
+    let hikari = t.replace("GCAT SCHOTT\n", "GCAT NIKON-HIKARI SCHOTT\n");
+    let (a, b) = (
+        material(&parse(&t).unwrap()),
+        material(&parse(&hikari).unwrap()),
+    );
+    assert_eq!(vendor(&b), "Hikari");
+    assert!(
+        (a.index(LAMBDA_D_NM) - b.index(LAMBDA_D_NM)).abs() > 1e-7
+            || (a.index(LAMBDA_F_NM) - b.index(LAMBDA_F_NM)).abs() > 1e-7,
+        "two vendors' BAF10 differ"
+    );
+    // A glass in no catalog: refused, naming the line and the way out.
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS NOT-A-GLASS 0 0 1.52 64 0 0 0");
+    let n = line_of(&t, "GLAS NOT-A-GLASS");
+    let e = err(&t);
+    for want in [
+        format!("line {n}"),
+        "unknown glass \"NOT-A-GLASS\"".to_string(),
+        "--glass-catalog".to_string(),
+        "--glass-fallback file-values".to_string(),
+        "n_d = 1.52, V_d = 64".to_string(),
+    ] {
+        assert!(e.contains(&want), "missing {want:?} in: {e}");
+    }
+    // Suggestions come from the vendor the name belongs to.
+    let t2 = replace_line(&base, "GLAS N-BK7", "  GLAS S-LAH99");
+    let e = err(&t2);
+    assert!(e.contains("(Ohara)") && !e.contains("(Schott)"), "{e}");
+    // Opted in: the line's values as a model glass, with a warning on that line.
+    let fallback = GlassCatalogs {
+        file_values_fallback: true,
+        ..GlassCatalogs::builtin()
+    };
+    let z = zemax::from_str(&t, &fallback).unwrap();
+    assert_eq!(material(&z), Material::Model { nd: 1.52, vd: 64.0 });
+    assert!(
+        z.warnings
+            .iter()
+            .any(|w| w.starts_with(&format!("line {n}: ")) && w.contains("--glass-fallback")),
+        "{:?}",
+        z.warnings
+    );
+    // The placeholder is refused even then.
+    let t = replace_line(&base, "GLAS N-BK7", "  GLAS NOT-A-GLASS 0 0 1.5 40 0 0 0");
+    let e = zemax::from_str(&t, &fallback).unwrap_err().message;
+    assert!(
+        e.contains("placeholder") && e.contains(&format!("line {n}")),
+        "{e}"
+    );
 }

@@ -265,6 +265,18 @@ enum Command {
         #[arg(long, default_value_t = 7)]
         rays: usize,
     },
+    /// Look a glass up in the built-in vendor catalogs (and --glass-catalog files): its vendor,
+    /// dispersion formula and coefficients, valid range, catalog n_d / V_d and indices.
+    Glass {
+        /// Glass name as the vendor writes it (e.g. N-BK7, S-LAH64, H-ZF52); case-insensitive.
+        name: String,
+        /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
+        #[arg(long = "glass-catalog", value_name = "FILE.agf")]
+        glass_catalog: Vec<PathBuf>,
+        /// Wavelengths in nm at which to print the index (default: F, d, C lines).
+        #[arg(long, value_delimiter = ',', value_name = "NM,...")]
+        wavelengths: Vec<f64>,
+    },
     /// Convert a lens between Zemax .zmx and DeepLens JSON (the formats follow the extensions).
     Convert {
         /// Input lens: a .zmx or .json file, or a built-in name.
@@ -275,6 +287,11 @@ enum Command {
         /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
         #[arg(long = "glass-catalog", value_name = "FILE.agf")]
         glass_catalog: Vec<PathBuf>,
+        /// When a .zmx GLAS names a glass in no catalog: "refuse" (default: an error naming the
+        /// line) or "file-values" (use the n_d and V_d on the GLAS line as a model glass;
+        /// OpticStudio's 1.5 / 40 placeholder is still refused).
+        #[arg(long = "glass-fallback", value_name = "refuse|file-values", default_value = "refuse", value_parser = ["refuse", "file-values"])]
+        glass_fallback: String,
         /// Write the lens perturbed by this tolerance pattern (surface decenters and tilts become
         /// coordinate breaks in a .zmx file).
         #[arg(long, value_name = "PATTERN.json")]
@@ -326,6 +343,11 @@ struct LensArgs {
     /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
     #[arg(long = "glass-catalog", value_name = "FILE.agf")]
     glass_catalog: Vec<PathBuf>,
+    /// When a .zmx GLAS names a glass in no catalog: "refuse" (default: an error naming the
+    /// line) or "file-values" (use the n_d and V_d on the GLAS line as a model glass;
+    /// OpticStudio's 1.5 / 40 placeholder is still refused).
+    #[arg(long = "glass-fallback", value_name = "refuse|file-values", default_value = "refuse", value_parser = ["refuse", "file-values"])]
+    glass_fallback: String,
 }
 
 /// Accepts an output lens path ending in .zmx or .json.
@@ -339,9 +361,80 @@ fn lens_output_path(s: &str) -> Result<PathBuf, String> {
     }
 }
 
+/// `tolray glass`: what the catalogs say of one glass.
+fn glass_text(name: &str, agf: &[PathBuf], wavelengths_nm: &[f64]) -> anyhow::Result<String> {
+    let catalogs = load_catalogs(agf, "refuse")?;
+    let Some(m) = catalogs.find(name) else {
+        let close = catalogs.suggest(name, 5);
+        bail!(
+            "glass \"{name}\" is in no catalog (built in: {}){}",
+            catalogs.vendor_order().join(", "),
+            if close.is_empty() {
+                String::new()
+            } else {
+                format!("; closest: {}", close.join(", "))
+            }
+        );
+    };
+    let (vendor, formula, nd, vd, range) = match &m {
+        material::Material::Catalog(g) => (
+            g.vendor.to_string(),
+            format!("{:?}", g.dispersion),
+            g.nd,
+            g.vd,
+            g.range_um,
+        ),
+        material::Material::Agf(g) => (
+            format!("{} (AGF file)", g.catalog),
+            format!("AGF formula {}: {:?}", g.formula, g.dispersion),
+            g.nd,
+            g.vd,
+            g.range_um,
+        ),
+        _ => bail!("\"{name}\" is not a catalog glass"),
+    };
+    let label = m.catalog_name().unwrap_or(name).to_string();
+    let mut s = format!("{label}  ({vendor})\n");
+    s += &format!("  formula       {formula}\n");
+    s += &format!("  valid range   {:.3} – {:.3} µm\n", range.0, range.1);
+    s += &format!("  catalog       n_d {nd:.6}, V_d {vd:.4}\n");
+    let others: Vec<&str> = material::catalog()
+        .iter()
+        .filter(|g| g.name.eq_ignore_ascii_case(&label) && g.vendor != vendor)
+        .map(|g| g.vendor)
+        .collect();
+    if !others.is_empty() {
+        s += &format!(
+            "  also named so in {} (a .zmx file's GCAT decides which is used)\n",
+            others.join(", ")
+        );
+    }
+    let wl: Vec<(String, f64)> = if wavelengths_nm.is_empty() {
+        vec![
+            ("F".into(), LAMBDA_F_NM),
+            ("d".into(), LAMBDA_D_NM),
+            ("C".into(), LAMBDA_C_NM),
+        ]
+    } else {
+        wavelengths_nm.iter().map(|&w| (String::new(), w)).collect()
+    };
+    for (line, w) in wl {
+        material::check_wavelength_nm(w)?;
+        let n = m.index(w);
+        let note = if (range.0..=range.1).contains(&(w * 1e-3)) {
+            ""
+        } else {
+            "  (outside the formula's range)"
+        };
+        s += &format!("  n({w:.4} nm){:3}  {n:.6}{note}\n", line);
+    }
+    Ok(s)
+}
+
 /// Reads the user's AGF catalogs; their warnings go to stderr.
-fn load_catalogs(paths: &[PathBuf]) -> anyhow::Result<GlassCatalogs> {
-    let (catalogs, warnings) = GlassCatalogs::from_files(paths)?;
+fn load_catalogs(paths: &[PathBuf], fallback: &str) -> anyhow::Result<GlassCatalogs> {
+    let (mut catalogs, warnings) = GlassCatalogs::from_files(paths)?;
+    catalogs.file_values_fallback = fallback == "file-values";
     for w in warnings {
         eprintln!("warning: {w}");
     }
@@ -536,7 +629,7 @@ impl TolArgs {
 
 impl LensArgs {
     fn load(&self) -> anyhow::Result<Lens> {
-        let catalogs = load_catalogs(&self.glass_catalog)?;
+        let catalogs = load_catalogs(&self.glass_catalog, &self.glass_fallback)?;
         let (mut lens, warnings) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
         for w in warnings {
             eprintln!("warning: {w}");
@@ -1115,13 +1208,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Evaluate(a) => deep::evaluate_cmd(&a)?,
         Command::MergeEval(a) => deep::merge_eval(&a)?,
         Command::Render(a) => deep::render_cmd(&a)?,
+        Command::Glass {
+            name,
+            glass_catalog,
+            wavelengths,
+        } => emit(&glass_text(&name, &glass_catalog, &wavelengths)?),
         Command::Convert {
             input,
             output,
             glass_catalog,
+            glass_fallback,
             perturb,
         } => {
-            let catalogs = load_catalogs(&glass_catalog)?;
+            let catalogs = load_catalogs(&glass_catalog, &glass_fallback)?;
             let in_path = Path::new(&input);
             let (mut lens, extras) = if zemax::is_zmx_path(in_path) && in_path.exists() {
                 let z = zemax::read_file(in_path, &catalogs)?;

@@ -374,17 +374,84 @@ impl Material {
 }
 
 /// Where glass names are looked up: the user's Zemax AGF catalogs, searched first and in the
-/// order given, then the built-in catalog (with DeepLens' short aliases such as `bk7`).
+/// order given, then the built-in vendor catalogs, the `prefer`red vendors first (a .zmx file's
+/// `GCAT` order), then in [`VENDOR_ORDER`] (with DeepLens' short aliases such as `bk7`).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct GlassCatalogs {
     /// User catalogs, searched in order before the built-in one.
     pub user: Vec<AgfCatalog>,
+    /// Built-in vendors searched first, in order, by name as Zemax's `GCAT` writes them
+    /// (`SCHOTT`, `OHARA`, `NIKON-HIKARI`, ...; case-insensitive); set from a .zmx file's `GCAT`.
+    pub prefer: Vec<String>,
+    /// When a .zmx `GLAS` names a glass no catalog has, use the n_d and V_d the line carries as a
+    /// model glass (`--glass-fallback file-values`) instead of refusing the file.
+    pub file_values_fallback: bool,
+}
+
+/// The built-in vendors in the order a glass name is resolved when a file does not say
+/// (names shared by two vendors, such as Schott's and Hikari's `BAF10`, resolve to the first).
+pub const VENDOR_ORDER: [&str; 7] = [
+    "Schott", "Ohara", "Hoya", "CDGM", "Hikari", "Sumita", "Misc",
+];
+
+/// The built-in vendor a Zemax `GCAT` catalog name stands for (`SCHOTT`, `OHARA`,
+/// `NIKON-HIKARI`/`HIKARI`, `CDGM`, `HOYA`, `SUMITA`, `MISC`; case-insensitive).
+pub fn vendor_of_gcat(name: &str) -> Option<&'static str> {
+    let n = name.to_ascii_uppercase();
+    let n = n.trim_end_matches(".AGF");
+    match n {
+        "NIKON-HIKARI" | "HIKARI" | "NIKON" => Some("Hikari"),
+        "CDGM" | "CDGM-ZEMAX" => Some("CDGM"),
+        _ => VENDOR_ORDER
+            .iter()
+            .copied()
+            .find(|v| v.eq_ignore_ascii_case(n)),
+    }
+}
+
+/// The vendor whose naming a glass name follows, when its prefix says (`N-`/`P-` Schott, `S-`
+/// Ohara, `H-` CDGM, `J-` Hikari, `K-` Sumita, `E-`/`M-` Hoya).
+fn vendor_of_prefix(name: &str) -> Option<&'static str> {
+    let u = name.to_ascii_uppercase();
+    [
+        ("N-", "Schott"),
+        ("P-", "Schott"),
+        ("S-", "Ohara"),
+        ("L-", "Ohara"),
+        ("H-", "CDGM"),
+        ("D-", "CDGM"),
+        ("J-", "Hikari"),
+        ("Q-", "Hikari"),
+        ("K-", "Sumita"),
+        ("E-", "Hoya"),
+        ("M-", "Hoya"),
+    ]
+    .iter()
+    .find(|(p, _)| u.starts_with(p))
+    .map(|(_, v)| *v)
 }
 
 impl GlassCatalogs {
     /// Only the built-in catalog.
     pub fn builtin() -> GlassCatalogs {
         GlassCatalogs::default()
+    }
+
+    /// The built-in vendors in the order this lookup searches them.
+    pub fn vendor_order(&self) -> Vec<&'static str> {
+        let mut v: Vec<&'static str> = self
+            .prefer
+            .iter()
+            .filter_map(|p| vendor_of_gcat(p))
+            .collect();
+        v.extend(VENDOR_ORDER);
+        let mut seen = Vec::new();
+        v.retain(|x| {
+            let new = !seen.contains(x);
+            seen.push(*x);
+            new
+        });
+        v
     }
 
     /// Reads AGF catalog files (searched in the order given, before the built-in catalog).
@@ -416,24 +483,37 @@ impl GlassCatalogs {
             .iter()
             .find_map(|c| c.find(name))
             .map(|g| Material::Agf(g.clone()))
-            .or_else(|| {
-                catalog()
-                    .iter()
-                    .find(|g| g.name.eq_ignore_ascii_case(name))
-                    .map(Material::Catalog)
-            })
+            .or_else(|| find_in_vendors(name, &self.vendor_order()).map(Material::Catalog))
     }
 
-    /// Up to `max` glass names closest to `name` in all catalogs (edit distance, case-insensitive).
+    /// Up to `max` glass names closest to `name` (edit distance, case-insensitive): from the
+    /// user's catalogs and the built-in vendor `name` belongs to (its prefix, as `S-` for Ohara,
+    /// or else the `prefer`red vendors), or from every catalog when neither says.
     pub fn suggest(&self, name: &str, max: usize) -> Vec<String> {
         let q = name.to_ascii_uppercase();
+        let vendors: Vec<&str> = match vendor_of_prefix(name) {
+            Some(v) => vec![v],
+            None => self
+                .prefer
+                .iter()
+                .filter_map(|p| vendor_of_gcat(p))
+                .collect(),
+        };
         let names = self
             .user
             .iter()
             .flat_map(|c| c.glasses.iter().map(|g| g.name.clone()))
-            .chain(catalog().iter().map(|g| g.name.to_string()));
+            .chain(
+                catalog()
+                    .iter()
+                    .filter(|g| vendors.is_empty() || vendors.contains(&g.vendor))
+                    .map(|g| format!("{} ({})", g.name, g.vendor)),
+            );
         let mut scored: Vec<(usize, String)> = names
-            .map(|n| (edit_distance(&q, &n.to_ascii_uppercase()), n))
+            .map(|n| {
+                let bare = n.split(" (").next().unwrap_or(&n).to_ascii_uppercase();
+                (edit_distance(&q, &bare), n)
+            })
             .filter(|(d, _)| *d <= 3.max(q.len() / 3))
             .collect();
         scored.sort();
@@ -463,15 +543,23 @@ const ALIASES: [(&str, &str); 7] = [
     ("fused_silica", "F_SILICA"),
 ];
 
-/// Looks a glass up in the built-in catalog by name or DeepLens alias, ignoring case.
+/// Looks a glass up in the built-in catalog by name or DeepLens alias, ignoring case; a name
+/// two vendors share resolves in [`VENDOR_ORDER`].
 pub fn find_glass(name: &str) -> Option<&'static CatalogGlass> {
     let name = ALIASES
         .iter()
         .find(|(a, _)| a.eq_ignore_ascii_case(name))
         .map_or(name, |(_, g)| *g);
-    crate::lens::catalog_data::CATALOG
-        .iter()
-        .find(|g| g.name.eq_ignore_ascii_case(name))
+    find_in_vendors(name, &VENDOR_ORDER)
+}
+
+/// The built-in glass `name` (ignoring case) of the first of `vendors` that has it.
+pub fn find_in_vendors(name: &str, vendors: &[&str]) -> Option<&'static CatalogGlass> {
+    let all = crate::lens::catalog_data::CATALOG;
+    vendors.iter().find_map(|v| {
+        all.iter()
+            .find(|g| g.vendor == *v && g.name.eq_ignore_ascii_case(name))
+    })
 }
 
 /// The built-in catalog.

@@ -533,23 +533,49 @@ fn glass(
         ));
         return Ok(m);
     }
-    if let (Some(nd), Some(vd)) = (num(3), num(4)) {
-        if nd >= 1.0 && vd > 0.0 && nd.is_finite() && vd.is_finite() {
-            warnings.push(format!(
-                "line {line}: glass {name} is not in the catalogs; using a model glass with the file's n_d = {nd}, V_d = {vd} (load its catalog with --glass-catalog FILE.agf for the exact dispersion)"
-            ));
-            return Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")));
+    let file_values = match (num(3), num(4)) {
+        (Some(nd), Some(vd)) if nd >= 1.0 && vd > 0.0 && nd.is_finite() && vd.is_finite() => {
+            Some((nd, vd))
+        }
+        _ => None,
+    };
+    // OpticStudio writes 1.5 / 40 on a GLAS line whose glass it has no data for.
+    let placeholder = |nd: f64, vd: f64| nd == 1.5 && vd == 40.0;
+    if catalogs.file_values_fallback {
+        match file_values {
+            // OpticStudio writes 1.5 / 40 on a GLAS line whose glass it has no data for: a
+            // placeholder, never a glass.
+            Some((nd, vd)) if placeholder(nd, vd) => {
+                return Err(invalid(
+                    line,
+                    format!("glass \"{name}\" is in no catalog, and the line's n_d 1.5, V_d 40 is OpticStudio's placeholder, not data; give its catalog with --glass-catalog FILE.agf"),
+                ));
+            }
+            Some((nd, vd)) => {
+                warnings.push(format!(
+                    "line {line}: glass {name} is in no catalog; using a model glass with the file's n_d = {nd}, V_d = {vd} (--glass-fallback file-values)"
+                ));
+                return Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")));
+            }
+            None => {}
         }
     }
     let close = catalogs.suggest(name, 3);
     let hint = if close.is_empty() {
         String::new()
     } else {
-        format!(" (did you mean {}?)", close.join(", "))
+        format!(" (closest: {})", close.join(", "))
+    };
+    let searched = catalogs.vendor_order().join(", ");
+    let fallback = match file_values {
+        Some((nd, vd)) if !(catalogs.file_values_fallback || placeholder(nd, vd)) => format!(
+            ", or use the line's n_d = {nd}, V_d = {vd} as a model glass with --glass-fallback file-values"
+        ),
+        _ => String::new(),
     };
     Err(invalid(
         line,
-        format!("unknown glass \"{name}\"{hint}; give its catalog with --glass-catalog FILE.agf"),
+        format!("unknown glass \"{name}\"{hint}: not in the built-in catalogs ({searched}) or the given AGF files; give its catalog with --glass-catalog FILE.agf{fallback}"),
     ))
 }
 
@@ -965,6 +991,18 @@ fn build(
     }
     let scale = h.unit.as_ref().map_or(1.0, |u| u.v);
     let last = surfs.len() - 1;
+    // Glass names resolve in the file's GCAT order first (a name two vendors share is the one
+    // of the catalog the file names).
+    let with_gcat;
+    let catalogs = if catalogs.prefer.is_empty() && !h.gcat.is_empty() {
+        with_gcat = GlassCatalogs {
+            prefer: h.gcat.clone(),
+            ..catalogs.clone()
+        };
+        &with_gcat
+    } else {
+        catalogs
+    };
     let object = object_distance(&surfs[0], scale, catalogs, &mut warnings)?;
 
     let mut walk = Walker {
