@@ -432,7 +432,7 @@ fn convert_between_zmx_and_json() {
     let (code, _, err) = tolray(&["convert", &p("odd.zmx"), &p("odd.json")]);
     assert_eq!(code, 0, "{err}");
     assert!(
-        err.contains("warning: ") && err.contains("odd.zmx: line 7: unknown command FOOB"),
+        err.contains("warning: ") && err.contains("odd.zmx: line 7: 1 unknown command skipped (tolray does not read them): FOOB (line 7)"),
         "{err}"
     );
     // User glass catalogs.

@@ -715,7 +715,29 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
         z
     };
     let t = base.replace("GCAT SCHOTT\n", "GCAT SCHOTT\nFOOB 1 2 3\n");
-    warn(&t, "FOOB", "unknown command FOOB skipped");
+    warn(
+        &t,
+        "FOOB",
+        "1 unknown command skipped (tolray does not read them): FOOB (line",
+    );
+    // Unknown commands are one warning, however many there are.
+    let t = base.replace("GCAT SCHOTT\n", "GCAT SCHOTT\nFOOB 1\nBARB 2\nFOOB 3\n");
+    let z = warn(&t, "FOOB", "3 unknown commands skipped");
+    assert_eq!(
+        z.warnings
+            .iter()
+            .filter(|w| w.contains("unknown command"))
+            .count(),
+        1
+    );
+    let n = line_of(&t, "BARB");
+    assert!(
+        z.warnings
+            .iter()
+            .any(|w| w.contains(&format!("BARB (line {n})"))),
+        "{:?}",
+        z.warnings
+    );
     let t = base.replace("  DISZ 4\n", "  DISZ 4\n  CLAP 0 6 0\n");
     warn(&t, "CLAP", "CLAP (a surface aperture) ignored");
     let t = replace_line(
@@ -1284,12 +1306,24 @@ fn real_files_open_or_are_refused_by_line() {
     // (file, None when it opens, or Some((line, what the refusal says)))
     let cases: [(&str, Option<(usize, &str)>); 15] = [
         ("US00583336-2-scaled.zmx", None),
-        ("354710-C-Zemax(ZMX).zmx", Some((84, "unknown glass \"D-ZK3M\""))),
-        ("ACL3026U-Zemax(ZMX).zmx", Some((96, "unknown glass \"B270\""))),
+        (
+            "354710-C-Zemax(ZMX).zmx",
+            Some((84, "unknown glass \"D-ZK3M\"")),
+        ),
+        (
+            "ACL3026U-Zemax(ZMX).zmx",
+            Some((96, "unknown glass \"B270\"")),
+        ),
         ("US05831776-1.zmx", Some((97, "unknown glass \"SILICA\""))),
-        ("US08427765-1.ZMX", Some((93, "unknown glass \"L-TIM28_MOLD\""))),
+        (
+            "US08427765-1.ZMX",
+            Some((93, "unknown glass \"L-TIM28_MOLD\"")),
+        ),
         ("ASL5040-UV-Zemax(ZMX).zmx", Some((76, "QED_TYPE"))),
-        ("zmax_55278.zmx", Some((88, "image surface needs a positive semi-diameter"))),
+        (
+            "zmax_55278.zmx",
+            Some((88, "image surface needs a positive semi-diameter")),
+        ),
         ("US05331467-1.zmx", Some((112, "no mirrors"))),
         ("HoO-V2C18Ex03.zmx", Some((86, "no mirrors"))),
         ("HoO-V2C18Ex27.zmx", Some((134, "no mirrors"))),
@@ -1312,7 +1346,11 @@ fn real_files_open_or_are_refused_by_line() {
                 // `load_zemax_file(f).paraxial.f2()` and `.EPD()` at the primary wavelength,
                 // 587.5618 nm (generated once, 2026-11-25).
                 let p = z.lens.paraxial(LAMBDA_D_NM).unwrap();
-                assert!(rel(p.efl_mm, 49.38897584676335) < 1e-9, "{file}: EFL {}", p.efl_mm);
+                assert!(
+                    rel(p.efl_mm, 49.38897584676335) < 1e-9,
+                    "{file}: EFL {}",
+                    p.efl_mm
+                );
                 assert!(
                     rel(p.entrance_pupil_diameter_mm, 10.975327965947411) < 1e-9,
                     "{file}: EPD {}",
@@ -1338,5 +1376,9 @@ fn real_files_open_or_are_refused_by_line() {
         ..GlassCatalogs::builtin()
     };
     let z = zemax::read_file(&fixture("real/354710-C-Zemax(ZMX).zmx"), &opt_in).unwrap();
-    assert!(z.warnings.iter().any(|w| w.contains("D-ZK3M")), "{:?}", z.warnings);
+    assert!(
+        z.warnings.iter().any(|w| w.contains("D-ZK3M")),
+        "{:?}",
+        z.warnings
+    );
 }

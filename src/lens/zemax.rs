@@ -29,7 +29,8 @@
 //! not become tolray surfaces (OpticStudio does not clip there either).
 //!
 //! Commands that change nothing tolray models (display, optimization, tolerancing, coatings,
-//! ...) are skipped silently; any other command is skipped with a warning naming its line;
+//! ...) are skipped silently; unknown commands are skipped and listed in one warning (each with
+//! its line);
 //! surface types tolray cannot trace, mirrors, non-sequential files and malformed numbers are
 //! errors naming the line.
 //!
@@ -297,6 +298,9 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
     let mut h = Header::default();
     let mut surfs: Vec<RawSurf> = Vec::new();
     let mut warnings = Vec::new();
+    // Commands tolray does not know, reported together in one warning (they are many in files
+    // of newer OpticStudio versions, and would bury the warnings that change numbers).
+    let mut unknown: Vec<(usize, String)> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let trimmed = raw.trim();
@@ -456,8 +460,20 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
                 "line {line}: {c} (a surface aperture) ignored: tolray clips at the semi-diameter (DIAM)"
             )),
             c if SILENT.contains(&c) => {}
-            c => warnings.push(format!("line {line}: unknown command {c} skipped")),
+            c => unknown.push((line, c.to_string())),
         }
+    }
+    if let Some(&(first, _)) = unknown.first() {
+        let list: Vec<String> = unknown
+            .iter()
+            .map(|(l, c)| format!("{c} (line {l})"))
+            .collect();
+        warnings.push(format!(
+            "line {first}: {} unknown command{} skipped (tolray does not read them): {}",
+            unknown.len(),
+            if unknown.len() == 1 { "" } else { "s" },
+            list.join(", ")
+        ));
     }
     build(h, surfs, catalogs, warnings)
 }
