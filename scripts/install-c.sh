@@ -5,6 +5,8 @@
 #   PREFIX/lib/pkgconfig/tolray.pc (shared) and tolray-static.pc (static)
 #   PREFIX/lib/cmake/tolray/ (find_package(tolray) -> tolray::tolray, tolray::tolray_static)
 #
+# The installed libraries are stripped of debug information (TOLRAY_KEEP_DEBUG=1 keeps it).
+#
 # Usage: scripts/install-c.sh PREFIX [LIBDIR]
 #   LIBDIR: a directory that already holds libtolray.so and libtolray.a; by default the library
 #   is built with `cargo build --release --lib` and taken from target/release.
@@ -26,6 +28,15 @@ mkdir -p "$prefix/include" "$prefix/lib/pkgconfig" "$prefix/lib/cmake/tolray"
 install -m 644 "$root/include/tolray.h" "$prefix/include/"
 install -m 755 "$libdir/libtolray.so" "$prefix/lib/"
 install -m 644 "$libdir/libtolray.a" "$prefix/lib/"
+# The installed libraries carry no debug information (measured: libtolray.a 113 MB -> 37 MB,
+# libtolray.so 40 MB -> 4.8 MB); TOLRAY_KEEP_DEBUG=1 keeps it. Symbols stay: C users link by them.
+if [ -z "${TOLRAY_KEEP_DEBUG:-}" ]; then
+    if command -v strip >/dev/null 2>&1; then
+        strip --strip-debug "$prefix/lib/libtolray.so" "$prefix/lib/libtolray.a"
+    else
+        echo "install-c.sh: strip not found; the libraries keep their debug information" >&2
+    fi
+fi
 # The system libraries a Rust staticlib needs (rustc --print native-static-libs on Linux).
 static_libs="-lgcc_s -lutil -lrt -lpthread -lm -ldl -lc"
 

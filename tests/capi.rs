@@ -429,9 +429,22 @@ fn install_script_serves_pkg_config_and_cmake_users() {
         Command::new("bash")
             .arg(Path::new(ROOT).join("scripts/install-c.sh"))
             .arg(&prefix)
-            .arg(lib_dir()),
+            .arg(lib_dir())
+            .env_remove("TOLRAY_KEEP_DEBUG"),
         "install-c.sh",
     );
+    // The installed libraries are stripped of debug information (the build's carry it: the
+    // release profile keeps line tables), so they are much smaller than the build's.
+    if Command::new("strip").arg("--version").output().is_ok() {
+        for f in ["libtolray.so", "libtolray.a"] {
+            let built = std::fs::metadata(lib_dir().join(f)).unwrap().len();
+            let installed = std::fs::metadata(prefix.join("lib").join(f)).unwrap().len();
+            assert!(
+                installed < built / 2,
+                "{f}: installed {installed} bytes, built {built}"
+            );
+        }
+    }
     let pc = prefix.join("lib/pkgconfig");
     let ex = tmp.join("c");
     std::fs::create_dir_all(&ex).unwrap();
