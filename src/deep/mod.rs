@@ -654,8 +654,8 @@ pub fn unit_lens(
 }
 
 /// The best-RMS refocus of a unit as a differentiable function of the design: over bundles
-/// launched from the design (fields 0, 0.7 and 1 at the RGB wavelengths, apertures on, as
-/// [`refocus_options`]), the sensor shift `δ = −Σ_f B_f / Σ_f C_f` minimizing the summed
+/// launched from the design (fields 0, 0.7 and 1 at the RGB wavelengths and a 16 x 16 pupil
+/// grid, as [`refocus_options`]; apertures as the training config says), the sensor shift `δ = −Σ_f B_f / Σ_f C_f` minimizing the summed
 /// mean-square spot radius `A_f + 2 B_f δ + C_f δ²` of the fields (the formula of the Monte
 /// Carlo's focus compensator). Evaluated in dual numbers it gives dδ/dθ exactly.
 #[derive(Clone, Debug)]
