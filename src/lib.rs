@@ -20,7 +20,7 @@
 //! - [`decoder`]: the jointly trained decoder (per-tile Wiener + U-Net) with exact backward
 //!   passes.
 //! - [`deep`]: deep-optics training (lens and decoder), the study and its yield evaluation.
-//! - [`figures`] and [`plot`]: the pictures the CLI writes.
+//! - [`figures`]: the pictures the CLI writes (plotters, PNG or SVG).
 //! - [`ffi`]: the C ABI (`include/tolray.h`).
 //! - [`error`], [`math`]: errors with their kind and cause, small vector algebra.
 //! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
@@ -71,7 +71,6 @@ pub mod image;
 pub mod lens;
 pub mod math;
 pub mod optim;
-pub mod plot;
 pub mod psf;
 pub mod real;
 pub mod tolerance;

@@ -59,7 +59,8 @@ fn spot_json_reproduces_reference_rms() {
     ]);
     assert_eq!(code, 0);
     assert!(out.contains("poly"));
-    assert_eq!(image_size(&png), (1540, 450));
+    // 4 field panels of 380 x 390 points, drawn at 2 pixels per point.
+    assert_eq!(image_size(&png), (3080, 900));
 }
 
 fn image_size(p: &std::path::Path) -> (u32, u32) {
@@ -173,7 +174,7 @@ fn layout_and_demo_write_pictures() {
     let png = tmp("layout.png");
     let (code, _, err) = tolray(&["layout", "cooke-triplet", "--png", png.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
-    assert_eq!(image_size(&png), (1100, 560));
+    assert_eq!(image_size(&png), (2200, 1120));
     let dir = tmp("demo");
     let (code, out, err) = tolray(&["demo", "--optics", "--out", dir.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
