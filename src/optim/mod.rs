@@ -2,6 +2,7 @@
 //! the paper's losses, and (in [`adam`]) the optimizer.
 
 pub mod adam;
+mod run;
 pub mod train;
 
 use crate::error::{Error, Result};

@@ -2,8 +2,15 @@
 //! stage 2 samples N tolerance patterns per iteration, traces each at its own field of the PSF
 //! grid, and minimizes λ_spot L_spot + λ_psf L_psf. Both stages respect manufacturability
 //! constraints (bounds by projection, edge thickness / total track / EFL by penalties).
+//!
+//! [`step`] runs one iteration on a [`TrainState`]; [`run_training`] runs them all as
+//! `tolray train` does, with a log, checkpoints, a stop request and an exact resume, and
+//! [`final_report`] evaluates the designs of a finished run on held-out tolerance patterns.
 
 use super::adam::{cosine_schedule, Adam};
+pub use super::run::{
+    final_report, run_training, DesignReport, RunOptions, RunOutcome, TrainReport,
+};
 use super::{
     bundle_spot, gradient, param_value, set_param, spot_size, Bundles, Objective, SpotMeasure,
     GRAD_WIDTH,

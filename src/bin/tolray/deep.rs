@@ -1,6 +1,7 @@
 //! The deep-optics commands: `deep` (the study), `evaluate`, `render`.
 
-use crate::{emit_line, usage, write_text};
+use crate::report::{emit_line, write_text};
+use crate::usage;
 use anyhow::Context;
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -277,8 +278,8 @@ fn run_study(
             );
         }
     };
-    crate::GRACEFUL_STOP.store(true, std::sync::atomic::Ordering::SeqCst);
-    let stop = || crate::STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst);
+    crate::app::GRACEFUL_STOP.store(true, std::sync::atomic::Ordering::SeqCst);
+    let stop = || crate::app::STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst);
     let mut ctl = study::Control {
         progress: &mut progress,
         stop: &stop,

@@ -1,0 +1,270 @@
+//! Argument groups shared by several commands, and the parsing of their values.
+
+use crate::usage;
+use anyhow::Context;
+use clap::Args;
+use std::path::{Path, PathBuf};
+use tolray::analysis::SpotOptions;
+use tolray::lens::material::{self, LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
+use tolray::lens::GlassCatalogs;
+use tolray::psf::{PsfCentre, PsfOptions};
+use tolray::tolerance::{McOptions, Perturbation, ToleranceSpec};
+use tolray::trace::{Field, Pupil, TraceOptions};
+use tolray::{Lens, Object};
+
+#[derive(Args)]
+pub struct LensArgs {
+    /// Lens JSON or Zemax .zmx file, or a built-in name (lens1, lens2, cooke-triplet).
+    pub lens: String,
+    /// Object distance from the first vertex in mm, or "inf" (default: from the lens file).
+    #[arg(long, value_name = "MM|inf")]
+    pub object: Option<String>,
+    /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).
+    #[arg(long = "glass-catalog", value_name = "FILE.agf")]
+    pub glass_catalog: Vec<PathBuf>,
+    /// When a .zmx GLAS names a glass in no catalog: "refuse" (default: an error naming the
+    /// line) or "file-values" (use the n_d and V_d on the GLAS line as a model glass;
+    /// OpticStudio's 1.5 / 40 placeholder is still refused).
+    #[arg(long = "glass-fallback", value_name = "refuse|file-values", default_value = "refuse", value_parser = ["refuse", "file-values"])]
+    pub glass_fallback: String,
+}
+
+impl LensArgs {
+    pub fn load(&self) -> anyhow::Result<Lens> {
+        let catalogs = load_catalogs(&self.glass_catalog, &self.glass_fallback)?;
+        let (mut lens, warnings) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
+        if let Some(o) = &self.object {
+            lens.object = Object::parse(o)?;
+        }
+        Ok(lens)
+    }
+}
+
+/// Accepts an output lens path ending in .zmx or .json.
+pub fn lens_output_path(s: &str) -> Result<PathBuf, String> {
+    let p = PathBuf::from(s);
+    match p.extension().map(|e| e.to_ascii_lowercase()) {
+        Some(e) if e == "zmx" || e == "json" => Ok(p),
+        _ => Err(format!(
+            "\"{s}\": give an output file ending in .zmx or .json"
+        )),
+    }
+}
+
+/// Reads the user's AGF catalogs; their warnings go to stderr.
+pub fn load_catalogs(paths: &[PathBuf], fallback: &str) -> anyhow::Result<GlassCatalogs> {
+    let (mut catalogs, warnings) = GlassCatalogs::from_files(paths)?;
+    catalogs.file_values_fallback = fallback == "file-values";
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(catalogs)
+}
+
+#[derive(Args)]
+pub struct RayArgs {
+    /// Fields: fraction of the full field (0.7), angle (5deg) or object height (2.5mm); x:y pairs allowed.
+    #[arg(long, value_delimiter = ',', default_value = "0,0.5,0.7,1")]
+    pub fields: Vec<String>,
+    /// Wavelengths in nm, or d, F, C, rgb (the lens' RGB wavelengths).
+    #[arg(long, value_delimiter = ',', default_value = "d")]
+    pub wavelengths: Vec<String>,
+    /// Pupil sampling over the paraxial entrance pupil: grid:N, hex:N or random:N.
+    #[arg(long, default_value = "grid:64")]
+    pub pupil: String,
+    /// Seed for random pupil sampling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Aim rays at the real stop instead of the paraxial entrance pupil.
+    #[arg(long)]
+    pub aim: bool,
+    /// Ignore clear apertures and the stop.
+    #[arg(long)]
+    pub no_apertures: bool,
+}
+
+impl RayArgs {
+    pub fn options(&self, lens: &Lens) -> anyhow::Result<SpotOptions> {
+        let fields = parse_fields(&self.fields)?;
+        let mut pupil = Pupil::parse(&self.pupil, self.seed)?;
+        pupil.aim = self.aim;
+        Ok(SpotOptions {
+            fields,
+            wavelengths_nm: parse_wavelengths(&self.wavelengths, lens)?,
+            pupil,
+            trace: TraceOptions {
+                apertures: !self.no_apertures,
+            },
+        })
+    }
+}
+
+#[derive(Args)]
+pub struct PsfArgs {
+    /// Kernel size, pixels (odd).
+    #[arg(long, default_value_t = 51)]
+    pub ks: usize,
+    /// Rays per PSF (uniform random over the entrance pupil).
+    #[arg(long, default_value_t = 8192)]
+    pub spp: usize,
+    /// Pixel pitch in µm (default: the sensor's).
+    #[arg(long, value_name = "UM")]
+    pub pitch_um: Option<f64>,
+    /// Centre the PSF on the chief ray or on the centroid.
+    #[arg(long, default_value = "chief", value_parser = ["chief", "centroid"])]
+    pub centre: String,
+    /// Seed of the pupil samples.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+impl PsfArgs {
+    pub fn options(&self, lens: &Lens) -> anyhow::Result<PsfOptions> {
+        let mut o = PsfOptions::for_lens(lens);
+        o.ks = self.ks;
+        if let Some(p) = self.pitch_um {
+            o.pitch_mm = p * 1e-3;
+        }
+        o.centre = if self.centre == "centroid" {
+            PsfCentre::Centroid
+        } else {
+            PsfCentre::Chief
+        };
+        o.pupil = Pupil {
+            pattern: tolray::trace::PupilPattern::Random {
+                n: self.spp,
+                seed: self.seed,
+            },
+            scale: 1.0,
+            aim: false,
+        };
+        tolray::psf::check_options(&o)?;
+        Ok(o)
+    }
+}
+
+/// The compiled lens, perturbed by the tolerance pattern in the file `perturb` if given.
+pub fn perturbed_system(
+    lens: &Lens,
+    perturb: Option<&Path>,
+) -> anyhow::Result<tolray::lens::System<f64>> {
+    Ok(match perturb {
+        None => lens.compile(),
+        Some(p) => {
+            let pattern = Perturbation::read(p)?;
+            let (pl, adj) = pattern.apply(lens).map_err(|e| e.context(p.display()))?;
+            tolray::lens::System::compile(&pl, &adj, &|_, v| v)
+        }
+    })
+}
+
+/// The rays of the Monte Carlo commands (`tolerance`, `sensitivity`, `validate`).
+#[derive(Args)]
+pub struct RaySampleArgs {
+    /// Fields (fractions, 5deg angles or 2.5mm heights).
+    #[arg(long, value_delimiter = ',', default_value = "0,0.7,1")]
+    pub fields: Vec<String>,
+    /// Wavelengths in nm, or d, F, C, rgb.
+    #[arg(long, value_delimiter = ',', default_value = "d")]
+    pub wavelengths: Vec<String>,
+    /// Pupil sampling: grid:N, hex:N or random:N (random points seeded by --seed).
+    #[arg(long, default_value = "grid:32")]
+    pub pupil: String,
+}
+
+impl RaySampleArgs {
+    /// The fields, wavelengths (nm) and pupil.
+    pub fn parse(&self, lens: &Lens, seed: u64) -> anyhow::Result<(Vec<Field>, Vec<f64>, Pupil)> {
+        Ok((
+            parse_fields(&self.fields)?,
+            parse_wavelengths(&self.wavelengths, lens)?,
+            Pupil::parse(&self.pupil, seed)?,
+        ))
+    }
+}
+
+#[derive(Args)]
+pub struct TolArgs {
+    /// Tolerance spec (JSON); default: the paper's Table A1 (decenter 0.04 mm, tilt 0.05 deg,
+    /// axial shift 0.04 mm per element, curvature 0.3 % per surface; N(0, (max/3)^2) clamped).
+    #[arg(long, value_name = "SPEC.json")]
+    pub spec: Option<PathBuf>,
+    #[command(flatten)]
+    pub rays: RaySampleArgs,
+    /// Compensator: "focus" refocuses the sensor per trial to the best RMS focus.
+    #[arg(long, value_parser = ["focus"])]
+    pub compensate: Option<String>,
+    /// Ignore clear apertures and the stop.
+    #[arg(long)]
+    pub no_apertures: bool,
+}
+
+impl TolArgs {
+    pub fn options(&self, lens: &Lens, trials: usize, seed: u64) -> anyhow::Result<McOptions> {
+        let spec = match &self.spec {
+            Some(p) => ToleranceSpec::read(p)?,
+            None => ToleranceSpec::default(),
+        };
+        spec.validate(lens).map_err(|e| {
+            e.context(
+                self.spec
+                    .as_ref()
+                    .map_or("default spec".into(), |p| p.display().to_string()),
+            )
+        })?;
+        let (fields, wavelengths_nm, pupil) = self.rays.parse(lens, seed)?;
+        Ok(McOptions {
+            spec,
+            trials,
+            seed,
+            fields,
+            wavelengths_nm,
+            pupil,
+            compensate_focus: self.compensate.is_some(),
+            apertures: !self.no_apertures,
+        })
+    }
+}
+
+/// Parses fields: fractions of the full field, `5deg` angles or `2.5mm` heights.
+pub fn parse_fields(list: &[String]) -> tolray::Result<Vec<Field>> {
+    list.iter().map(|f| Field::parse(f)).collect()
+}
+
+/// Parses wavelengths: nanometres, or d, F, C, rgb (the lens' RGB wavelengths).
+pub fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64>> {
+    let mut out = Vec::new();
+    for w in list {
+        match w.trim() {
+            "d" => out.push(LAMBDA_D_NM),
+            "F" => out.push(LAMBDA_F_NM),
+            "C" => out.push(LAMBDA_C_NM),
+            "rgb" => out.extend(lens.rgb_wavelengths_nm),
+            s => match s.parse::<f64>() {
+                Ok(v) => out.push(
+                    material::check_wavelength_nm(v)
+                        .with_context(|| format!("wavelength \"{s}\""))?,
+                ),
+                _ => usage!("wavelength \"{s}\": give nanometres (e.g. 587.56) or d, F, C, rgb"),
+            },
+        }
+    }
+    Ok(out)
+}
+
+/// Parses `--shard K/N` (0 <= K < N).
+pub fn parse_shard(s: &str) -> anyhow::Result<(usize, usize)> {
+    let bad = || anyhow::anyhow!("--shard \"{s}\": expected K/N with 0 <= K < N");
+    let (k, n) = s.split_once('/').ok_or_else(bad)?;
+    let (k, n): (usize, usize) = (
+        k.trim().parse().map_err(|_| bad())?,
+        n.trim().parse().map_err(|_| bad())?,
+    );
+    if n == 0 || k >= n {
+        return Err(bad());
+    }
+    Ok((k, n))
+}

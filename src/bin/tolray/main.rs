@@ -1,0 +1,124 @@
+//! The `tolray` command-line tool. Exit codes: 0 success, 1 runtime error, 2 usage error.
+//!
+//! This file parses the command line and dispatches; each command lives in its own module with
+//! its arguments and a `run` function. Shared argument groups are in [`args`], shared text in
+//! [`report`], exit codes, Ctrl-C and the check of output paths in [`app`].
+// `!(x >= 0.0)` refuses NaN too, on purpose (as in the library).
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+mod app;
+mod args;
+mod convert;
+mod deep;
+mod demo;
+mod glass;
+mod info;
+mod layout;
+mod psf;
+mod report;
+mod spot;
+mod tolerance;
+mod trace;
+mod train;
+mod validate;
+
+#[derive(Parser)]
+#[command(
+    name = "tolray",
+    version,
+    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in µm, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Paraxial data and prescription of a lens.
+    Info(info::InfoArgs),
+    /// Spot diagrams and RMS spot radii per field and wavelength.
+    Spot(spot::SpotArgs),
+    /// Monte Carlo tolerance analysis: RMS spot statistics and yield over random fabricated lenses.
+    Tolerance(tolerance::ToleranceArgs),
+    /// Sensitivity: each tolerance operand alone at -max and +max, worst first.
+    Sensitivity(tolerance::SensitivityArgs),
+    /// Geometric PSF of one field (bilinear splat at the sensor pixel pitch, unit sum).
+    Psf(psf::PsfCmdArgs),
+    /// PSF map: PSFs over a grid of fields covering the sensor.
+    PsfMap(psf::PsfMapArgs),
+    /// Two-stage optimization: stage 1 (pretrain) minimizes the RMS spot without tolerances;
+    /// stage 2 (tolerance) samples tolerance patterns each iteration and minimizes the spot and
+    /// PSF-similarity losses.
+    Train(train::TrainArgs),
+    /// Merge shard reports of one Monte Carlo study into the report a single run gives.
+    Merge(tolerance::MergeArgs),
+    /// Raw ray trace: rays from a CSV/JSON file to the image plane.
+    Trace(trace::TraceArgs),
+    /// Meridional lens drawing with a ray fan per field.
+    Layout(layout::LayoutArgs),
+    /// Look a glass up in the built-in vendor catalogs (and --glass-catalog files): its vendor,
+    /// dispersion formula and coefficients, valid range, catalog n_d / V_d and indices.
+    Glass(glass::GlassArgs),
+    /// Convert a lens between Zemax .zmx and DeepLens JSON (the formats follow the extensions).
+    Convert(convert::ConvertArgs),
+    /// Cross-check the analytic tracer against an independent engine: every surface, nominal and
+    /// under Monte Carlo tolerance patterns, is tessellated within a chord bound and traced with
+    /// Intel Embree 4; hits must lie within the bound of the analytic hits and RMS spots must
+    /// agree. Exits with 1 when any deviation exceeds its bound. Needs a build with
+    /// `--features embree`.
+    Validate(validate::ValidateArgs),
+    /// The main job on built-in defaults: info, spots and pictures for every built-in lens.
+    /// The main job: the deep-optics study on lens1 with the built-in defaults (`deep lens1`),
+    /// or with --optics the tour of the optics half (paraxial data, spots, Monte Carlo).
+    Demo(demo::DemoArgs),
+    /// Deep optics: lens and decoder trained jointly, conventionally and tolerance-aware, and
+    /// evaluated over random fabricated units (PSNR/SSIM, manufacturing yield).
+    Deep(deep::DeepArgs),
+    /// Evaluates saved designs (lens + decoder) over random fabricated units.
+    Evaluate(deep::EvaluateArgs),
+    /// Combines `evaluate --shard` reports into the single-run report.
+    MergeEval(deep::MergeEvalArgs),
+    /// Simulates a capture: an image blurred by the lens' spatially variant RGB PSF map, plus noise.
+    Render(deep::RenderArgs),
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Spot(a) => spot::run(a),
+        Command::Tolerance(a) => tolerance::run(a),
+        Command::Sensitivity(a) => tolerance::run_sensitivity(a),
+        Command::Psf(a) => psf::run(a),
+        Command::PsfMap(a) => psf::run_map(a),
+        Command::Train(a) => train::run(a),
+        Command::Merge(a) => tolerance::run_merge(a),
+        Command::Trace(a) => trace::run(a),
+        Command::Layout(a) => layout::run(a),
+        Command::Glass(a) => glass::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Validate(a) => validate::run(a),
+        Command::Demo(a) => demo::run(a),
+        Command::Deep(a) => deep::deep(&a),
+        Command::Evaluate(a) => deep::evaluate_cmd(&a),
+        Command::MergeEval(a) => deep::merge_eval(&a),
+        Command::Render(a) => deep::render_cmd(&a),
+    }
+}
+
+fn main() -> ExitCode {
+    use clap::{CommandFactory, FromArgMatches};
+    let m = Cli::command().get_matches();
+    let checked = app::check_outputs(&m).and_then(|()| Ok(Cli::from_arg_matches(&m)?));
+    app::install_interrupt_handler();
+    match checked.and_then(run) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(app::exit_code(&e))
+        }
+    }
+}

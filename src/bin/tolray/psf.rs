@@ -1,0 +1,176 @@
+//! The PSF commands: `tolray psf` and `psf-map`.
+
+use crate::args::{parse_wavelengths, perturbed_system, LensArgs, PsfArgs};
+use crate::report::emit_line;
+use crate::usage;
+use clap::Args;
+use std::path::PathBuf;
+use tolray::figures;
+use tolray::psf::PsfRays;
+use tolray::trace::{Field, TraceOptions};
+
+/// Arguments of `tolray psf`.
+#[derive(Args)]
+pub struct PsfCmdArgs {
+    #[command(flatten)]
+    pub lens: LensArgs,
+    /// Field (fraction, 5deg angle or 2.5mm height; x:y pairs allowed).
+    #[arg(long, default_value = "0")]
+    pub field: String,
+    /// Wavelengths in nm, or d, F, C, rgb (one PSF each).
+    #[arg(long, value_delimiter = ',', default_value = "d")]
+    pub wavelengths: Vec<String>,
+    #[command(flatten)]
+    pub psf: PsfArgs,
+    /// Trace the lens perturbed by this tolerance pattern.
+    #[arg(long, value_name = "PATTERN.json")]
+    pub perturb: Option<PathBuf>,
+    /// Write the PSF picture.
+    #[arg(long, value_name = "FILE.png")]
+    pub png: Option<PathBuf>,
+    /// Write the linear PSF(s) as OpenEXR.
+    #[arg(long, value_name = "FILE.exr")]
+    pub exr: Option<PathBuf>,
+    /// Print the PSF values as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `tolray psf`.
+pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
+    let PsfCmdArgs {
+        lens,
+        field,
+        wavelengths,
+        psf,
+        perturb,
+        png,
+        exr,
+        json,
+    } = a;
+    let l = lens.load()?;
+    let opts = psf.options(&l)?;
+    let field = Field::parse(&field)?;
+    let wls = parse_wavelengths(&wavelengths, &l)?;
+    let sys = perturbed_system(&l, perturb.as_deref())?;
+    let pairs: Vec<(Field, f64)> = wls.iter().map(|&w| (field, w)).collect();
+    let rays = PsfRays::new(&l, &pairs, &opts.pupil)?;
+    let psfs: Vec<Vec<f64>> = (0..pairs.len())
+        .map(|k| tolray::psf::psf_of(&sys, &rays, k, &opts, TraceOptions::default()).0)
+        .collect();
+    for (w, p) in wls.iter().zip(&psfs) {
+        tolray::psf::check_landed(p, &format!("PSF at field {}, {w} nm", field.label()))?;
+    }
+    for (w, p) in wls.iter().zip(&psfs) {
+        let c = p[(opts.ks / 2) * opts.ks + opts.ks / 2];
+        let ee: f64 = (0..opts.ks * opts.ks)
+            .filter(|k| {
+                ((k / opts.ks) as isize - (opts.ks / 2) as isize).abs() <= 1
+                    && ((k % opts.ks) as isize - (opts.ks / 2) as isize).abs() <= 1
+            })
+            .map(|k| p[k])
+            .sum();
+        emit_line(&format!("PSF at field {}, {w:.2} nm: {}x{} px of {:.3} µm, sum {:.6}, centre pixel {:.4}, central 3x3 {:.4}", field.label(), opts.ks, opts.ks, opts.pitch_mm * 1e3, p.iter().sum::<f64>(), c, ee));
+    }
+    if json {
+        emit_line(&serde_json::to_string(
+            &serde_json::json!({"ks": opts.ks, "pitch_mm": opts.pitch_mm, "wavelengths_nm": wls, "psf": psfs}),
+        )?);
+    }
+    if let Some(p) = png {
+        figures::save(
+            &figures::psf_figure(
+                &psfs,
+                opts.ks,
+                psfs.len(),
+                &format!("PSF {} field {}", lens.lens, field.label()),
+            ),
+            &p,
+        )?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = exr {
+        let (w, h, v) = figures::mosaic(&psfs, opts.ks, psfs.len());
+        figures::save_exr(&p, w, h, &v)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+/// Arguments of `tolray psf-map`.
+#[derive(Args)]
+pub struct PsfMapArgs {
+    #[command(flatten)]
+    pub lens: LensArgs,
+    /// Fields per side of the grid.
+    #[arg(long, default_value_t = 8)]
+    pub grid: usize,
+    /// Wavelength, nm (or d, F, C).
+    #[arg(long, default_value = "d")]
+    pub wavelength: String,
+    #[command(flatten)]
+    pub psf: PsfArgs,
+    /// Write the map picture (each PSF normalized to its peak).
+    #[arg(long, value_name = "FILE.png")]
+    pub png: Option<PathBuf>,
+    /// Write the linear mosaic as OpenEXR.
+    #[arg(long, value_name = "FILE.exr")]
+    pub exr: Option<PathBuf>,
+}
+
+/// Runs `tolray psf-map`.
+pub fn run_map(a: PsfMapArgs) -> anyhow::Result<()> {
+    let PsfMapArgs {
+        lens,
+        grid,
+        wavelength,
+        psf,
+        png,
+        exr,
+    } = a;
+    let l = lens.load()?;
+    let opts = psf.options(&l)?;
+    if grid == 0 || grid > 64 {
+        usage!("--grid {grid}: give 1 to 64 fields per side");
+    }
+    // The map holds grid² kernels of ks² f64 values.
+    let cells = grid * grid * opts.ks * opts.ks;
+    if cells > 1 << 26 {
+        usage!(
+            "--grid {grid} with --ks {}: the map would hold {cells} values; at most {} \
+             (512 MB) are allowed",
+            opts.ks,
+            1usize << 26
+        );
+    }
+    let wl = parse_wavelengths(&[wavelength], &l)?[0];
+    let map = tolray::psf::psf_map(&l, &l.compile(), grid, wl, &opts)?;
+    for (k, p) in map.iter().enumerate() {
+        tolray::psf::check_landed(
+            p,
+            &format!("PSF map cell {k} (row-major from the top left)"),
+        )?;
+    }
+    emit_line(&format!(
+        "PSF map of {}: {grid}x{grid} fields, {}x{} px kernels, {} rays each, {wl:.2} nm",
+        lens.lens, opts.ks, opts.ks, psf.spp
+    ));
+    if let Some(p) = png {
+        figures::save(
+            &figures::psf_figure(
+                &map,
+                opts.ks,
+                grid,
+                &format!("PSF map {} ({grid}x{grid})", lens.lens),
+            ),
+            &p,
+        )?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = exr {
+        let (w, h, v) = figures::mosaic(&map, opts.ks, grid);
+        figures::save_exr(&p, w, h, &v)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}

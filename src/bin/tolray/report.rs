@@ -1,0 +1,245 @@
+//! Text shared by several commands: paraxial data, spot tables, Monte Carlo statistics, and
+//! writing to stdout and files.
+
+use std::path::Path;
+use tolray::analysis::SpotResult;
+use tolray::lens::Paraxial;
+use tolray::tolerance::analysis::Stats;
+use tolray::tolerance::McReport;
+use tolray::{Lens, Object};
+
+/// The paraxial data and the prescription of `lens` (what `tolray info` prints).
+pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
+    let obj = match lens.object {
+        Object::Infinite => "infinity".to_string(),
+        Object::Finite { distance_mm } => format!("{distance_mm} mm"),
+    };
+    let mut s = format!(
+        "{}\n\nParaxial data at {:.4} nm (object at {obj})\n",
+        lens.info, p.wavelength_nm
+    );
+    let rows = [
+        ("effective focal length", p.efl_mm, "mm"),
+        ("back focal distance", p.bfd_mm, "mm"),
+        (
+            "paraxial image distance (from last vertex)",
+            p.image_distance_mm,
+            "mm",
+        ),
+        (
+            "prescribed image distance (from last vertex)",
+            lens.image_distance_mm(),
+            "mm",
+        ),
+        ("entrance pupil position (z)", p.entrance_pupil_z_mm, "mm"),
+        (
+            "entrance pupil diameter",
+            p.entrance_pupil_diameter_mm,
+            "mm",
+        ),
+        ("exit pupil position (z)", p.exit_pupil_z_mm, "mm"),
+        ("exit pupil diameter", p.exit_pupil_diameter_mm, "mm"),
+        ("F-number (infinity)", p.fnum, ""),
+        ("working F-number", p.working_fnum, ""),
+        ("paraxial magnification", p.magnification, ""),
+        ("half field of view (sensor)", p.half_fov_deg, "deg"),
+        ("total track", p.total_track_mm, "mm"),
+    ];
+    for (name, v, unit) in rows {
+        s.push_str(&format!("  {name:<46} {v:>14.6} {unit}\n"));
+    }
+    s.push_str(&format!(
+        "  {:<46} {:>14}\n",
+        "aperture stop surface", p.stop_surface
+    ));
+    s.push_str(&format!(
+        "  {:<46} {:>14.4} mm ({} x {} px, pitch {:.3} µm)\n\nPrescription (surfaces from 0; radius and gaps in mm)\n",
+        "sensor half-diagonal",
+        lens.sensor.half_diagonal_mm(),
+        lens.sensor.resolution[0],
+        lens.sensor.resolution[1],
+        lens.sensor.pixel_pitch_mm() * 1e3
+    ));
+    s.push_str(&format!(
+        "  {:>4} {:>10} {:>12} {:>9} {:>10} {:>10}  {}\n",
+        "surf", "type", "radius", "conic", "gap", "semi-ap", "material after"
+    ));
+    for (i, sf) in lens.surfaces.iter().enumerate() {
+        let ty = match (sf.role, sf.is_stop, sf.is_aspheric()) {
+            (tolray::lens::SurfaceRole::Aperture, _, _) => "stop",
+            (_, _, true) => "asphere",
+            (_, true, _) => "sphere/stop",
+            _ => "sphere",
+        };
+        let r = if sf.c == 0.0 {
+            "inf".to_string()
+        } else {
+            format!("{:.4}", 1.0 / sf.c)
+        };
+        s.push_str(&format!(
+            "  {i:>4} {ty:>10} {r:>12} {:>9.4} {:>10.4} {:>10.4}  {}\n",
+            sf.k,
+            sf.d_next_mm,
+            sf.semi_aperture_mm,
+            sf.material.json_name()
+        ));
+    }
+    for w in lens.warnings() {
+        s.push_str(&format!("warning: {w}\n"));
+    }
+    s
+}
+
+/// One row per spot result: field, wavelength, rays, RMS and geometric radii, vignetting,
+/// centroid.
+pub fn spot_table(results: &[SpotResult]) -> String {
+    let mut s = format!(
+        "{:>14} {:>12} {:>8} {:>12} {:>12} {:>12} {:>10} {:>12} {:>12}\n",
+        "field",
+        "wavelength",
+        "rays",
+        "RMS (µm)",
+        "RMS/chief",
+        "geo (µm)",
+        "vignetted",
+        "centroid x",
+        "centroid y"
+    );
+    for r in results {
+        let wl = r
+            .wavelength_nm
+            .map_or("poly".to_string(), |w| format!("{w:.2} nm"));
+        let chief = r
+            .stats
+            .rms_chief_um
+            .map_or("-".to_string(), |v| format!("{v:.4}"));
+        s.push_str(&format!(
+            "{:>14} {:>12} {:>8} {:>12.4} {:>12} {:>12.4} {:>9.2}% {:>12.6} {:>12.6}\n",
+            r.field.label(),
+            wl,
+            r.stats.n_valid,
+            r.stats.rms_um,
+            chief,
+            r.stats.geo_radius_um,
+            100.0 * r.stats.vignetted_fraction,
+            r.stats.centroid_mm[0],
+            r.stats.centroid_mm[1]
+        ));
+    }
+    s
+}
+
+/// Numbers to three decimals, separated by spaces.
+pub fn fmt_list(v: &[f64]) -> String {
+    v.iter()
+        .map(|x| format!("{x:.3}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// A row of RMS spot statistics (mean, std, min, max, yields) named `name`.
+pub fn stats_row(name: &str, s: &Stats) -> String {
+    let y: Vec<String> = s
+        .yield_below
+        .iter()
+        .map(|r| format!("{:.3}", r[1]))
+        .collect();
+    format!(
+        "{name:>14} {:>10.3} {:>10.3} {:>10.3} {:>10.3}   {}\n",
+        s.mean,
+        s.std,
+        s.min,
+        s.max,
+        y.join("  ")
+    )
+}
+
+/// The text report of a Monte Carlo study (or of one shard of it).
+pub fn tolerance_text(r: &McReport) -> String {
+    let o = &r.options;
+    let mut s = format!(
+        "Monte Carlo tolerance analysis of {}: {} trials (seed {}){}, pupil {:?}, {} nm{}\n",
+        r.lens,
+        o.trials,
+        o.seed,
+        r.shard.map_or(String::new(), |[k, n]| format!(
+            ", shard {k}/{n}: trials {}..{}",
+            k * o.trials / n,
+            (k + 1) * o.trials / n
+        )),
+        o.pupil.pattern,
+        fmt_list(&o.wavelengths_nm),
+        if o.compensate_focus {
+            ", compensator: best focus"
+        } else {
+            ""
+        }
+    );
+    let fields: Vec<String> = o.fields.iter().map(|f| f.label()).collect();
+    s.push_str(&format!(
+        "nominal RMS spot per field ({}): {} µm\n",
+        fields.join(", "),
+        fmt_list(&r.nominal_rms_um)
+    ));
+    let Some(sm) = &r.summary else {
+        s.push_str(&format!(
+            "partial report: {} trials; merge the shards with `tolray merge` for statistics\n",
+            r.trials.len()
+        ));
+        return s;
+    };
+    s.push_str(&format!("\nRMS spot (µm)    {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n", "mean", "std", "min", "max"));
+    for (f, st) in o.fields.iter().zip(&sm.per_field) {
+        s.push_str(&stats_row(&format!("field {}", f.label()), st));
+    }
+    s.push_str(&stats_row("field mean", &sm.mean_over_fields));
+    if let Some(fs) = &sm.focus_shift_mm {
+        s.push_str(&format!(
+            "refocus (mm): mean {:.4}, std {:.4}, min {:.4}, max {:.4} (nominal {:.4})\n",
+            fs.mean,
+            fs.std,
+            fs.min,
+            fs.max,
+            r.nominal_focus_shift_mm.unwrap_or(0.0)
+        ));
+    }
+    s
+}
+
+/// Runs `f` with a progress bar of `n` steps on stderr (hidden when stderr is not a terminal).
+pub fn with_progress<T>(n: u64, what: &str, f: impl FnOnce(&(dyn Fn() + Sync)) -> T) -> T {
+    let bar = indicatif::ProgressBar::new(n);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {what} ({{per_sec}}, ETA {{eta}})"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let out = f(&|| bar.inc(1));
+    bar.finish_and_clear();
+    out
+}
+
+/// Writes to stdout; a closed pipe (e.g. `| head`) ends the program quietly.
+pub fn emit(s: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(s.as_bytes()).and_then(|_| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to stdout: {e}");
+        std::process::exit(1);
+    }
+}
+
+/// [`emit`] with a newline.
+pub fn emit_line(s: &str) {
+    emit(&format!("{s}\n"));
+}
+
+/// Writes `text` to `path` atomically (a temporary file and a rename).
+pub fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
+    tolray::error::write_atomic(path, text.as_bytes())?;
+    Ok(())
+}

@@ -1,0 +1,47 @@
+//! `tolray spot`: spot diagrams and RMS spot radii.
+
+use crate::args::{perturbed_system, LensArgs, RayArgs};
+use crate::report::{emit, emit_line, spot_table};
+use clap::Args;
+use std::path::PathBuf;
+use tolray::analysis::spot_diagram;
+use tolray::figures;
+
+/// Arguments of `tolray spot`.
+#[derive(Args)]
+pub struct SpotArgs {
+    #[command(flatten)]
+    pub lens: LensArgs,
+    #[command(flatten)]
+    pub rays: RayArgs,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a spot-diagram picture.
+    #[arg(long, value_name = "FILE.png")]
+    pub png: Option<PathBuf>,
+    /// Trace the lens perturbed by this tolerance pattern (JSON, as written by `tolerance --json`).
+    #[arg(long, value_name = "PATTERN.json")]
+    pub perturb: Option<PathBuf>,
+}
+
+/// Runs `tolray spot`.
+pub fn run(a: SpotArgs) -> anyhow::Result<()> {
+    let l = a.lens.load()?;
+    let opts = a.rays.options(&l)?;
+    let sys = perturbed_system(&l, a.perturb.as_deref())?;
+    let results = spot_diagram(&l, &sys, &opts)?;
+    if a.json {
+        emit_line(&serde_json::to_string_pretty(&results)?.to_string());
+    } else {
+        emit(&spot_table(&results).to_string());
+    }
+    if let Some(p) = a.png {
+        figures::save(
+            &figures::spot_figure(&results, &format!("Spot diagram: {}", a.lens.lens)),
+            &p,
+        )?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}
