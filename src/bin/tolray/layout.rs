@@ -11,7 +11,7 @@ use tolray::figures;
 pub struct LayoutArgs {
     #[command(flatten)]
     pub lens: LensArgs,
-    /// Output picture.
+    /// Output picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: PathBuf,
     /// Fields (see `spot --fields`).

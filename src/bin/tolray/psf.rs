@@ -25,7 +25,7 @@ pub struct PsfCmdArgs {
     /// Trace the lens perturbed by this tolerance pattern.
     #[arg(long, value_name = "PATTERN.json")]
     pub perturb: Option<PathBuf>,
-    /// Write the PSF picture.
+    /// Write the PSF picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
     /// Write the linear PSF(s) as OpenEXR.
@@ -110,7 +110,8 @@ pub struct PsfMapArgs {
     pub wavelength: String,
     #[command(flatten)]
     pub psf: PsfArgs,
-    /// Write the map picture (each PSF normalized to its peak).
+    /// Write the map picture, each PSF normalized to its peak (PNG at 2 pixels per point, or SVG
+    /// if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
     /// Write the linear mosaic as OpenEXR.

@@ -17,7 +17,7 @@ pub struct SpotArgs {
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
-    /// Write a spot-diagram picture.
+    /// Write a spot-diagram picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
     /// Trace the lens perturbed by this tolerance pattern (JSON, as written by `tolerance --json`).

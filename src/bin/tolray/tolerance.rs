@@ -27,7 +27,7 @@ pub struct ToleranceArgs {
     /// Write the report (every trial with its pattern, statistics, yield) as JSON.
     #[arg(long, value_name = "FILE.json")]
     pub json: Option<PathBuf>,
-    /// Write a histogram and CDF picture.
+    /// Write a histogram and CDF picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
     /// Write the pattern of trial K to a file, to re-trace it with `spot --perturb`.
@@ -153,7 +153,7 @@ pub struct MergeArgs {
     /// Output report.
     #[arg(long, value_name = "FILE.json")]
     pub json: PathBuf,
-    /// Write a histogram and CDF picture.
+    /// Write a histogram and CDF picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
 }
