@@ -26,7 +26,7 @@ use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
 use crate::optim::GRAD_WIDTH;
 use crate::optim::{
-    bundle_spot, gradient, param_value, set_param, Bundles, Objective, SpotMeasure,
+    bundle_spot, gradient, param_value, set_param, Bundles, FocusMoments, Objective, SpotMeasure,
 };
 use crate::psf::{grid_fields, psf_of, psf_similarity, PsfCentre, PsfOptions, PsfRays};
 use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
@@ -690,26 +690,9 @@ impl Objective for FocusObjective {
             let f = self.bundles.sets[k].0;
             rays[f].extend(self.bundles.sensor_rays(sys, k));
         }
-        let (mut sb, mut sc) = (S::cst(0.0), S::cst(0.0));
-        for r in rays.iter().filter(|r| !r.is_empty()) {
-            let inv = S::cst(1.0 / r.len() as f64);
-            let mut m = [S::cst(0.0); 4];
-            for q in r {
-                for k in 0..4 {
-                    m[k] += q[k] * inv;
-                }
-            }
-            for q in r {
-                let (px, py, sx, sy) = (q[0] - m[0], q[1] - m[1], q[2] - m[2], q[3] - m[3]);
-                sb += (px * sx + py * sy) * inv;
-                sc += (sx * sx + sy * sy) * inv;
-            }
-        }
-        if sc.value() > 0.0 {
-            -(sb / sc)
-        } else {
-            S::cst(0.0)
-        }
+        let moments: Vec<FocusMoments<S>> =
+            rays.iter().filter_map(|r| FocusMoments::of(r)).collect();
+        FocusMoments::best_focus(&moments)
     }
 }
 

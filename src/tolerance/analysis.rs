@@ -5,7 +5,8 @@ use super::spec::{OperandKind, Slot, ToleranceSpec};
 use super::Perturbation;
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
-use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions};
+use crate::optim::{Bundles, FocusMoments};
+use crate::trace::{Field, Pupil, TraceOptions};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -134,87 +135,49 @@ pub struct McReport {
     pub summary: Option<Summary>,
 }
 
-/// Rays of every field and wavelength, generated once from the nominal lens.
-struct Bundles {
-    /// Per (field, wavelength): the batch to copy for each trial.
-    batches: Vec<(usize, f64, RayBatch<f64>)>,
-    n_fields: usize,
+/// Rays of every field and wavelength, generated once from the nominal lens (the optimizer's
+/// [`Bundles`], aimed at the nominal paraxial entrance pupil).
+fn bundles(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
+    if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
+        return Err(Error::argument(
+            "a tolerance analysis needs at least one field and one wavelength",
+        ));
+    }
+    let trace = TraceOptions {
+        apertures: opts.apertures,
+    };
+    Bundles::new(lens, &opts.fields, &opts.wavelengths_nm, &opts.pupil, trace)
 }
 
-impl Bundles {
-    fn new(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
-        if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
-            return Err(Error::argument(
-                "a tolerance analysis needs at least one field and one wavelength",
-            ));
-        }
-        let para = lens.paraxial(opts.wavelengths_nm[0])?;
-        let mut batches = Vec::new();
-        for (f, field) in opts.fields.iter().enumerate() {
-            for &wl in &opts.wavelengths_nm {
-                let set = RaySet::generate(lens, &para, *field, &opts.pupil, wl)?;
-                batches.push((f, wl, set.batch::<f64>()));
-            }
-        }
-        Ok(Bundles {
-            batches,
-            n_fields: opts.fields.len(),
-        })
+/// RMS per field (µm) of a compiled system, refocused when `opts.compensate_focus` (one sensor
+/// shift for all fields, [`FocusMoments::best_focus`]).
+fn system_rms(
+    bundles: &Bundles,
+    sys: &System<f64>,
+    opts: &McOptions,
+) -> Result<(Vec<f64>, Option<f64>)> {
+    let mut rays: Vec<Vec<[f64; 4]>> = vec![Vec::new(); opts.fields.len()];
+    for k in 0..bundles.sets.len() {
+        rays[bundles.sets[k].0].extend(bundles.sensor_rays(sys, k));
     }
-
-    /// RMS per field (µm) of a compiled system, refocused when `compensate`.
-    fn rms(&self, sys: &System<f64>, opts: &McOptions) -> Result<(Vec<f64>, Option<f64>)> {
-        // Per field: moments of sensor positions p and slopes s = (dx/dz, dy/dz) in the image
-        // plane frame, so that the mean-square radius at a refocus δ is A + 2 B δ + C δ².
-        let mut pts: Vec<Vec<[f64; 4]>> = vec![Vec::new(); self.n_fields];
-        for (f, wl, batch) in &self.batches {
-            let mut b = batch.clone();
-            trace_serial(
-                sys,
-                *wl,
-                &mut b,
-                TraceOptions {
-                    apertures: opts.apertures,
-                },
-            );
-            for r in b.iter().filter(|r| r.status.is_alive()) {
-                let p = sys.image.point_to_local(r.o);
-                let d = sys.image.rotation.apply_t(r.d);
-                pts[*f].push([p.x, p.y, d.x / d.z, d.y / d.z]);
-            }
-        }
-        let mut abc = Vec::with_capacity(self.n_fields);
-        for (f, p) in pts.iter().enumerate() {
-            if p.is_empty() {
-                return Err(Error::numerical(format!(
+    let moments = rays
+        .iter()
+        .enumerate()
+        .map(|(f, r)| {
+            FocusMoments::of(r).ok_or_else(|| {
+                Error::numerical(format!(
                     "no ray of field {} reached the image",
                     opts.fields[f].label()
-                )));
-            }
-            let n = p.len() as f64;
-            let m: [f64; 4] = std::array::from_fn(|k| p.iter().map(|q| q[k]).sum::<f64>() / n);
-            let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
-            for q in p {
-                let (px, py, sx, sy) = (q[0] - m[0], q[1] - m[1], q[2] - m[2], q[3] - m[3]);
-                a += px * px + py * py;
-                b += px * sx + py * sy;
-                c += sx * sx + sy * sy;
-            }
-            abc.push((a / n, b / n, c / n));
-        }
-        let delta = if opts.compensate_focus {
-            let (sb, sc): (f64, f64) = abc.iter().fold((0.0, 0.0), |(x, y), t| (x + t.1, y + t.2));
-            Some(if sc > 0.0 { -sb / sc } else { 0.0 })
-        } else {
-            None
-        };
-        let d = delta.unwrap_or(0.0);
-        let rms = abc
-            .iter()
-            .map(|&(a, b, c)| (a + 2.0 * b * d + c * d * d).max(0.0).sqrt() * 1e3)
-            .collect();
-        Ok((rms, delta))
-    }
+                ))
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let delta = opts
+        .compensate_focus
+        .then(|| FocusMoments::best_focus(&moments));
+    let d = delta.unwrap_or(0.0);
+    let rms = moments.iter().map(|m| m.rms_at(d) * 1e3).collect();
+    Ok((rms, delta))
 }
 
 fn trial_rms(
@@ -225,7 +188,7 @@ fn trial_rms(
 ) -> Result<(Vec<f64>, Option<f64>)> {
     let (plens, adj) = pattern.apply(lens)?;
     let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-    bundles.rms(&sys, opts)
+    system_rms(bundles, &sys, opts)
 }
 
 /// RMS spot per field (µm) of `lens` perturbed by `pattern`, refocused when the options say so.
@@ -237,7 +200,7 @@ pub fn perturbed_rms(
     opts: &McOptions,
     pattern: &Perturbation,
 ) -> Result<(Vec<f64>, Option<f64>)> {
-    trial_rms(lens, &Bundles::new(lens, opts)?, opts, pattern)
+    trial_rms(lens, &bundles(lens, opts)?, opts, pattern)
 }
 
 /// Runs the Monte Carlo trials `range` (all of them when `shard` is `None`) in parallel; results
@@ -260,8 +223,8 @@ pub fn monte_carlo(
         )));
     }
     let slots = opts.spec.slots(lens)?;
-    let bundles = Bundles::new(lens, opts)?;
-    let (nominal, nominal_shift) = bundles.rms(&lens.compile(), opts)?;
+    let bundles = bundles(lens, opts)?;
+    let (nominal, nominal_shift) = system_rms(&bundles, &lens.compile(), opts)?;
     let range = match shard {
         None => 0..opts.trials,
         Some((k, n)) => {
@@ -393,8 +356,8 @@ pub struct SensitivityRow {
 /// As [`monte_carlo`].
 pub fn sensitivity(lens: &Lens, opts: &McOptions) -> Result<(Vec<f64>, Vec<SensitivityRow>)> {
     let slots: Vec<Slot> = opts.spec.slots(lens)?;
-    let bundles = Bundles::new(lens, opts)?;
-    let (nominal, _) = bundles.rms(&lens.compile(), opts)?;
+    let bundles = bundles(lens, opts)?;
+    let (nominal, _) = system_rms(&bundles, &lens.compile(), opts)?;
     let mut rows = slots
         .par_iter()
         .map(|&(k, t, axis)| {
