@@ -16,7 +16,7 @@
 use super::{psf_options, rgb_psf_map, Design};
 use crate::decoder::Crop;
 use crate::error::{Error, Result};
-use crate::image::metrics::{paired_bootstrap, psnr, ssim, YieldTable};
+use crate::image::metrics::{paired_bootstrap, pooled_paired_bootstrap, psnr, ssim, YieldTable};
 use crate::image::render::{add_gaussian_noise, blur_patch, pad_reflect};
 use crate::image::Image;
 use crate::lens::System;
@@ -544,6 +544,113 @@ impl EvalImages {
     }
 }
 
+/// A comparison pooled over studies that differ only in their training seed (see [`pool`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PooledPair {
+    /// Design a.
+    pub a: String,
+    /// Design b.
+    pub b: String,
+    /// Per study, the mean PSNR difference a − b, dB.
+    pub per_seed_mean_diff: Vec<f64>,
+    /// Per study, the difference of the PSNR at 90 % yield, dB.
+    pub per_seed_yield90_diff: Vec<f64>,
+    /// Mean over the studies of the mean PSNR difference, dB.
+    pub psnr_mean_diff: f64,
+    /// Its two-level bootstrap 95 % interval (studies and units resampled).
+    pub psnr_mean_diff_ci95: [f64; 2],
+    /// Mean over the studies of the 90 %-yield PSNR difference, dB.
+    pub psnr_yield90_diff: f64,
+    /// Its two-level bootstrap 95 % interval.
+    pub psnr_yield90_diff_ci95: [f64; 2],
+}
+
+/// Several studies' evaluations pooled (see [`pool`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PooledReport {
+    /// Number of studies (training seeds).
+    pub studies: usize,
+    /// Units per study (the same patterns in every study).
+    pub trials: usize,
+    /// Bootstrap resamples.
+    pub bootstrap: usize,
+    /// One row per pair of the first report.
+    pub pairs: Vec<PooledPair>,
+}
+
+/// Pools the evaluation reports of studies that differ only in their training seed (the same
+/// evaluation settings, hence the same fabricated units): for each pair of the first report,
+/// the mean over studies of the per-study PSNR differences (mean and 90 % yield), with a
+/// two-level paired bootstrap interval ([`pooled_paired_bootstrap`]: studies and shared units
+/// resampled), so that a direction seen in every seed can be tested as a whole.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for no report, reports evaluated with different settings
+/// (trials, evaluation seed, tolerance spec, images) or on different units, or a pair naming a
+/// design some report lacks.
+pub fn pool(reports: &[Report]) -> Result<PooledReport> {
+    let first = reports
+        .first()
+        .ok_or_else(|| Error::argument("pooling needs at least one report"))?;
+    for (k, r) in reports.iter().enumerate() {
+        if r.config != first.config || r.images != first.images {
+            return Err(Error::argument(format!(
+                "report {k}: its evaluation settings or images differ from report 0's; pooled \
+                 studies must be evaluated on the same units"
+            )));
+        }
+    }
+    let psnr = |r: &Report, name: &str| -> Result<(Vec<usize>, Vec<f64>)> {
+        let s =
+            r.scores.iter().find(|s| s.name == name).ok_or_else(|| {
+                Error::argument(format!("a report has no design \"{name}\" to pool"))
+            })?;
+        Ok((
+            s.trials.iter().map(|t| t.index).collect(),
+            s.trials.iter().map(|t| t.psnr).collect(),
+        ))
+    };
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let y90 = |v: &[f64]| YieldTable::from(v).y90;
+    let mut pairs = Vec::new();
+    for p in &first.pairs {
+        let mut groups = Vec::new();
+        let mut units: Option<Vec<usize>> = None;
+        for r in reports {
+            let (ia, a) = psnr(r, &p.a)?;
+            let (ib, b) = psnr(r, &p.b)?;
+            if ia != ib || units.as_ref().is_some_and(|u| *u != ia) {
+                return Err(Error::argument(format!(
+                    "designs {} and {} are not scored on the same units in every report",
+                    p.a, p.b
+                )));
+            }
+            units = Some(ia);
+            groups.push((a, b));
+        }
+        let (dm, cim) =
+            pooled_paired_bootstrap(&groups, mean, first.config.bootstrap, first.config.seed)?;
+        let (dy, ciy) =
+            pooled_paired_bootstrap(&groups, y90, first.config.bootstrap, first.config.seed ^ 1)?;
+        pairs.push(PooledPair {
+            a: p.a.clone(),
+            b: p.b.clone(),
+            per_seed_mean_diff: groups.iter().map(|g| mean(&g.0) - mean(&g.1)).collect(),
+            per_seed_yield90_diff: groups.iter().map(|g| y90(&g.0) - y90(&g.1)).collect(),
+            psnr_mean_diff: dm,
+            psnr_mean_diff_ci95: cim,
+            psnr_yield90_diff: dy,
+            psnr_yield90_diff_ci95: ciy,
+        });
+    }
+    Ok(PooledReport {
+        studies: reports.len(),
+        trials: first.config.trials,
+        bootstrap: first.config.bootstrap,
+        pairs,
+    })
+}
+
 /// Combines the reports of evaluation shards (the same designs, settings and images, disjoint
 /// trial slices) into exactly the report of a single run, bootstrap intervals included.
 ///
@@ -593,4 +700,84 @@ pub fn merge(parts: &[Report]) -> Result<Report> {
         .map(|p| (p.a.clone(), p.b.clone()))
         .collect();
     report(&first.config, &first.images, scores, &pairs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn score(index: usize, psnr: f64) -> TrialScore {
+        TrialScore {
+            index,
+            psnr,
+            ssim: 0.5,
+            rms_spot_um: 10.0,
+            psf_similarity: 0.8,
+        }
+    }
+
+    /// A report of designs "ta" and "conv" on `n` units, ta = conv + `shift(unit)`.
+    fn study(n: usize, shift: impl Fn(usize) -> f64) -> Report {
+        let cfg = EvalConfig {
+            trials: n,
+            bootstrap: 500,
+            ..EvalConfig::default()
+        };
+        let conv: Vec<TrialScore> = (0..n).map(|i| score(i, 20.0 + (i % 7) as f64)).collect();
+        let ta: Vec<TrialScore> = conv
+            .iter()
+            .map(|t| score(t.index, t.psnr + shift(t.index)))
+            .collect();
+        let d = |name: &str, trials: Vec<TrialScore>| DesignScores {
+            name: name.into(),
+            trials,
+            nominal: score(0, 30.0),
+        };
+        report(
+            &cfg,
+            &["dead-leaves".into()],
+            vec![d("ta", ta), d("conv", conv)],
+            &[("ta".into(), "conv".into())],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn pooling_averages_the_seeds_and_resamples_seeds_and_units() {
+        // Constant shifts per seed: every resample lies between the smallest and largest shift.
+        let r = pool(&[study(40, |_| 0.5), study(40, |_| 0.1), study(40, |_| 0.3)]).unwrap();
+        let p = &r.pairs[0];
+        assert_eq!((r.studies, r.trials), (3, 40));
+        assert!((p.psnr_mean_diff - 0.3).abs() < 1e-12);
+        assert_eq!(p.per_seed_mean_diff.len(), 3);
+        assert!((p.per_seed_mean_diff[0] - 0.5).abs() < 1e-12);
+        assert!(p.psnr_mean_diff_ci95[0] >= 0.1 - 1e-12 && p.psnr_mean_diff_ci95[1] <= 0.5 + 1e-12);
+        assert!(
+            p.psnr_mean_diff_ci95[1] - p.psnr_mean_diff_ci95[0] > 0.05,
+            "seeds resampled"
+        );
+        // One seed, unit-varying shifts: the pooled estimate is the single study's, and the
+        // interval is as wide as the unit spread makes it.
+        let noisy = study(60, |i| if i % 2 == 0 { 1.0 } else { -0.6 });
+        let one = pool(std::slice::from_ref(&noisy)).unwrap();
+        assert!((one.pairs[0].psnr_mean_diff - noisy.pairs[0].psnr_mean_diff).abs() < 1e-12);
+        let ci = one.pairs[0].psnr_mean_diff_ci95;
+        assert!(ci[0] < 0.2 && ci[1] > 0.2 && ci[1] - ci[0] > 0.2, "{ci:?}");
+        // Same seed, same numbers.
+        let again = pool(std::slice::from_ref(&noisy)).unwrap();
+        assert_eq!(again.pairs[0].psnr_mean_diff_ci95, ci);
+    }
+
+    #[test]
+    fn pooling_refuses_studies_on_different_units_or_settings() {
+        let mut other = study(40, |_| 0.2);
+        other.config.seed += 1;
+        let e = pool(&[study(40, |_| 0.2), other]).unwrap_err();
+        assert!(e.message.contains("report 1"), "{}", e.message);
+        let mut shuffled = study(40, |_| 0.2);
+        shuffled.scores[0].trials[0].index = 99;
+        let e = pool(&[study(40, |_| 0.2), shuffled]).unwrap_err();
+        assert!(e.message.contains("same units"), "{}", e.message);
+        assert!(pool(&[]).is_err());
+    }
 }

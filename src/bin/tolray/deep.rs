@@ -410,6 +410,70 @@ pub fn merge_eval(a: &MergeEvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `tolray pool-eval`: pools the reports of studies that differ only in their training seed.
+#[derive(Args)]
+pub struct PoolEvalArgs {
+    /// Study directories (their report.json) or evaluation reports, one per training seed, all
+    /// evaluated with the same settings (the same fabricated units).
+    #[arg(required = true, value_name = "DIR|REPORT.json")]
+    pub reports: Vec<PathBuf>,
+    /// Also write the pooled comparison as JSON.
+    #[arg(long, value_name = "FILE.json")]
+    pub json: Option<PathBuf>,
+}
+
+pub fn pool_eval(a: &PoolEvalArgs) -> anyhow::Result<()> {
+    let reports: Vec<Report> = a
+        .reports
+        .iter()
+        .map(|p| {
+            let f = if p.is_dir() {
+                p.join("report.json")
+            } else {
+                p.clone()
+            };
+            Ok(tolray::error::read_json(&f)?)
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let r = tolray::deep::eval::pool(&reports)?;
+    emit_line(&format!(
+        "{} studies (training seeds) on the same {} fabricated units; intervals: two-level \
+         bootstrap ({} resamples of seeds and units), 95 %",
+        r.studies, r.trials, r.bootstrap
+    ));
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:+.3}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    for p in &r.pairs {
+        emit_line(&format!(
+            "{} − {}: mean PSNR per seed {}; pooled {:+.3} dB [{:+.3}, {:+.3}]",
+            p.a,
+            p.b,
+            list(&p.per_seed_mean_diff),
+            p.psnr_mean_diff,
+            p.psnr_mean_diff_ci95[0],
+            p.psnr_mean_diff_ci95[1]
+        ));
+        emit_line(&format!(
+            "{} − {}: PSNR @90 % per seed {}; pooled {:+.3} dB [{:+.3}, {:+.3}]",
+            p.a,
+            p.b,
+            list(&p.per_seed_yield90_diff),
+            p.psnr_yield90_diff,
+            p.psnr_yield90_diff_ci95[0],
+            p.psnr_yield90_diff_ci95[1]
+        ));
+    }
+    if let Some(j) = &a.json {
+        write_text(j, &(serde_json::to_string_pretty(&r)? + "\n"))?;
+        eprintln!("wrote {}", j.display());
+    }
+    Ok(())
+}
+
 /// The best, median and worst unit of each design, rendered again for the HTML report.
 fn examples(
     r: &Report,

@@ -82,6 +82,8 @@ enum Command {
     Evaluate(deep::EvaluateArgs),
     /// Combines `evaluate --shard` reports into the single-run report.
     MergeEval(deep::MergeEvalArgs),
+    /// Pools the evaluations of studies that differ only in their training seed: per-seed and pooled PSNR differences with two-level bootstrap intervals (seeds and units resampled).
+    PoolEval(deep::PoolEvalArgs),
     /// Simulates a capture: an image blurred by the lens' spatially variant RGB PSF map, plus noise.
     Render(deep::RenderArgs),
 }
@@ -105,6 +107,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Deep(a) => deep::deep(&a),
         Command::Evaluate(a) => deep::evaluate_cmd(&a),
         Command::MergeEval(a) => deep::merge_eval(&a),
+        Command::PoolEval(a) => deep::pool_eval(&a),
         Command::Render(a) => deep::render_cmd(&a),
     }
 }
