@@ -435,6 +435,53 @@ macro_rules! house_mesh {
     };
 }
 
+/// What a chart keeps on its right.
+#[derive(Clone, Copy)]
+enum Right {
+    /// A secondary axis with its labels.
+    Axis,
+    /// As much room as an axis, empty (so stacked panels line up with one that has an axis).
+    Room,
+    /// The margin only.
+    Margin,
+}
+
+/// A chart builder on `area` in the house layout (margins and label areas in points).
+fn frame<'a, 'b, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    s: f64,
+    right: Right,
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut b = ChartBuilder::on(area);
+    b.margin(px(10.0, s))
+        .x_label_area_size(px(40.0, s))
+        .y_label_area_size(px(64.0, s));
+    match right {
+        Right::Axis => {
+            b.right_y_label_area_size(px(58.0, s));
+        }
+        Right::Room => {
+            b.margin_right(px(68.0, s));
+        }
+        Right::Margin => {}
+    }
+    b
+}
+
+/// The labels of a dual-axis chart's secondary (right) axis in the house style, with `desc`.
+macro_rules! house_secondary {
+    ($chart:expr, $s:expr, $desc:expr) => {
+        $chart
+            .configure_secondary_axes()
+            .y_desc($desc)
+            .label_style(font(11.0, $s))
+            .axis_desc_style(font(12.0, $s))
+            .y_label_formatter(&|v| tick(*v))
+            .axis_style(BLACK.stroke_width(px(0.8, $s)))
+            .draw()
+    };
+}
+
 fn legend_box<'a, DB: DrawingBackend + 'a, C>(
     chart: &mut ChartContext<'a, DB, C>,
     s: f64,
@@ -861,22 +908,11 @@ fn draw_tolerance<DB: DrawingBackend>(
     }
     let top = *counts.iter().max().unwrap_or(&1) as f64;
     let xr = (r.start - w)..(r.end + w);
-    let mut chart = ChartBuilder::on(body)
-        .margin(px(10.0, s))
-        .x_label_area_size(px(42.0, s))
-        .y_label_area_size(px(58.0, s))
-        .right_y_label_area_size(px(58.0, s))
+    let mut chart = frame(body, s, Right::Axis)
         .build_cartesian_2d(xr.clone(), 0.0..(top * 1.12).max(1.0))?
         .set_secondary_coord(xr, 0.0..112.0);
     house_mesh!(chart, s, "mean RMS spot over fields (µm)", "trials").draw()?;
-    chart
-        .configure_secondary_axes()
-        .y_desc("cumulative share of trials (%)")
-        .label_style(font(11.0, s))
-        .axis_desc_style(font(12.0, s))
-        .y_label_formatter(&|v| tick(*v))
-        .axis_style(BLACK.stroke_width(px(0.8, s)))
-        .draw()?;
+    house_secondary!(chart, s, "cumulative share of trials (%)")?;
     let bar = tint(PALETTE[0], 0.55);
     chart
         .draw_series(
@@ -1179,15 +1215,10 @@ fn draw_training<DB: DrawingBackend>(
     let (top, bottom) = body.split_vertically(body.dim_in_pixel().1 / 2);
     let xr = 0.0..rows.iter().map(|r| r.0 + 1.0).fold(2.0, f64::max);
     let lr = log_span(rows.iter().map(|r| r.1));
-    let mut chart = ChartBuilder::on(&top)
-        .margin(px(10.0, s))
-        .margin_right(px(68.0, s))
-        .x_label_area_size(px(40.0, s))
-        .y_label_area_size(px(64.0, s))
-        .build_cartesian_2d(
-            xr.clone(),
-            lr.clone().log_scale().with_key_points(log_keys(&lr)),
-        )?;
+    let mut chart = frame(&top, s, Right::Room).build_cartesian_2d(
+        xr.clone(),
+        lr.clone().log_scale().with_key_points(log_keys(&lr)),
+    )?;
     house_mesh!(chart, s, "iteration", "training loss (log scale)").draw()?;
     let blue = rgb(PALETTE[0]);
     let loss: Vec<(f64, f64)> = rows
@@ -1220,11 +1251,7 @@ fn draw_training<DB: DrawingBackend>(
         .filter(finite)
         .collect();
     let simr = span(sims.iter().map(|p| p.1), 0.06, 0.0..1.0);
-    let mut chart = ChartBuilder::on(&bottom)
-        .margin(px(10.0, s))
-        .x_label_area_size(px(40.0, s))
-        .y_label_area_size(px(64.0, s))
-        .right_y_label_area_size(px(58.0, s))
+    let mut chart = frame(&bottom, s, Right::Axis)
         .build_cartesian_2d(xr.clone(), sr.clone())?
         .set_secondary_coord(xr, simr);
     house_mesh!(
@@ -1244,14 +1271,7 @@ fn draw_training<DB: DrawingBackend>(
         .label("spot (left axis)")
         .legend(line_glyph(orange, s));
     if !sims.is_empty() {
-        chart
-            .configure_secondary_axes()
-            .y_desc("PSF similarity")
-            .label_style(font(11.0, s))
-            .axis_desc_style(font(12.0, s))
-            .y_label_formatter(&|v| tick(*v))
-            .axis_style(BLACK.stroke_width(px(0.8, s)))
-            .draw()?;
+        house_secondary!(chart, s, "PSF similarity")?;
         let green = rgb(PALETTE[2]);
         chart
             .draw_secondary_series(std::iter::once(PathElement::new(
@@ -1337,11 +1357,7 @@ fn draw_deep_training<DB: DrawingBackend>(
         0.05,
         0.0..1.0,
     );
-    let mut chart = ChartBuilder::on(&top)
-        .margin(px(10.0, s))
-        .x_label_area_size(px(40.0, s))
-        .y_label_area_size(px(64.0, s))
-        .build_cartesian_2d(xr.clone(), yr.clone())?;
+    let mut chart = frame(&top, s, Right::Margin).build_cartesian_2d(xr.clone(), yr.clone())?;
     house_mesh!(chart, s, "iteration", "PSNR (dB)").draw()?;
     if split > 0 {
         stage_mark(&mut chart, s, split as f64, (yr.start, yr.end), "stage 2")?;
@@ -1386,10 +1402,7 @@ fn draw_deep_training<DB: DrawingBackend>(
     legend_box(&mut chart, s, SeriesLabelPosition::LowerRight)?;
 
     let lr = log_span(all().map(|r| r.3));
-    let mut chart = ChartBuilder::on(&bottom)
-        .margin(px(10.0, s))
-        .x_label_area_size(px(40.0, s))
-        .y_label_area_size(px(64.0, s))
+    let mut chart = frame(&bottom, s, Right::Margin)
         .build_cartesian_2d(xr, lr.clone().log_scale().with_key_points(log_keys(&lr)))?;
     house_mesh!(chart, s, "iteration", "training batch image loss (log)").draw()?;
     if split > 0 {
