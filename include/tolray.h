@@ -18,6 +18,146 @@
  *   is at z = 0.
  * - Tracing runs on a rayon thread pool (set RAYON_NUM_THREADS to size it); results do not
  *   depend on the thread count.
+ * - Every wavelength argument must be finite and strictly between 100 and 20000 nm
+ *   (TOLRAY_ERROR_ARGUMENT otherwise, which catches micrometres given for nanometres).
+ */
+
+/*
+ * Ray bundles (tolray_spot, tolray_psf, tolray_spot_loss_gradient, tolray_psf_loss_gradient,
+ * tolray_render) are launched from the nominal lens of the system (its lens without the
+ * tolerance pattern), as a fabricated lens is used, and traced through the system:
+ * - Field: a tolray_field gives the tangents (tx, ty) of the field angle seen from the first
+ *   vertex. TOLRAY_FIELD_ANGLE_DEG: tx = tan(x), ty = tan(y). TOLRAY_FIELD_FRACTION:
+ *   tx = x r_sensor / EFL, ty = y r_sensor / EFL, with the nominal lens' paraxial EFL (also for
+ *   a finite object). TOLRAY_FIELD_HEIGHT_MM: tx = x / d, ty = y / d. An object at infinity
+ *   sends parallel rays of direction (-tx, -ty, 1), normalized, from a plane 1 mm in front of
+ *   the first of: the entrance pupil, the first vertex, the rim of surface 0. An object at
+ *   distance d sends rays from the point (d tx, d ty, -d).
+ * - Pupil: a ray passes through the point (px r_ep, py r_ep) of the paraxial entrance-pupil
+ *   plane (z = entrance_pupil_z_mm), (px, py) being a tolray_pupil point (unit disk times
+ *   `scale`) and r_ep the paraxial entrance-pupil radius; the chief ray passes through its
+ *   centre. With `aim` nonzero, each ray is instead aimed (Newton iteration on real rays of the
+ *   nominal lens at the bundle's wavelength) to cross the stop at (px, py) times the stop's
+ *   semi-aperture; if aiming fails, TOLRAY_ERROR_NUMERICAL.
+ * - Paraxial data of the launch (entrance pupil, EFL): tolray_spot and
+ *   tolray_spot_loss_gradient use the first wavelength of their list for every wavelength (all
+ *   wavelengths share one pupil and one field direction). tolray_psf, tolray_psf_loss_gradient
+ *   and tolray_render use the lens' primary wavelength (JSON "primary_wvln"), whatever
+ *   wavelength they trace.
+ * - The rays are generated once per call and depend neither on the tolerance pattern nor on
+ *   the variables of a gradient. Sensor positions are in the sensor frame: x, y on the image
+ *   plane, origin where the axis meets it (a pattern's gap changes move the image plane
+ *   along z).
+ */
+
+/*
+ * Lens JSON (tolray_lens_from_json, tolray_lens_load, tolray_lens_to_json), as DeepLens writes
+ * it and src/lens/json.rs reads it. Lengths in mm, curvatures in 1/mm, wavelengths in
+ * micrometres (um, in this format only). Keys not listed here, and keys in parentheses, are
+ * ignored, except "(object)" and "(c)" (the exact curvature, used when it equals 1 / "roc" to
+ * rounding).
+ * Top level:
+ * - "surfaces": the surfaces from the object side, an array of objects (required, not empty).
+ * - "r_sensor": sensor half-diagonal, mm, > 0. If it is absent: "sensor_size": [w, h] mm, of
+ *   which only the half-diagonal is used (the aspect ratio always follows "sensor_res").
+ * - "sensor_res": [columns, rows], whole numbers >= 1 (default [2000, 2000]). Pixels are square,
+ *   pitch = 2 r_sensor / hypot(columns, rows).
+ * - "obj_depth": object distance, mm (DeepLens writes it negative; the sign is ignored, 0 is
+ *   refused), or "(object)": "inf" or a distance as a string ("1000"), which wins. Neither: the
+ *   object is at infinity. A finite object plane lies at z = -distance.
+ * - "primary_wvln": design wavelength, um (default 0.5875618); "wvln_rgb": [r, g, b], um
+ *   (default [0.656, 0.587, 0.486]), the channels of tolray_render. Each strictly between 0.1
+ *   and 20 um.
+ * - "info": free text. Legacy "d_sensor": the sensor's z, with absolute "d" on the surfaces.
+ * Surfaces (each is an interface and the medium after it):
+ * - "type": "Spheric", "Aspheric" or "Plane" (refracting; all three read "roc"/"c", "k" and
+ *   "ai"), or "Aperture" or "Stop" (the aperture stop: flat, it clips and refracts only when
+ *   the media on its two sides differ). Other types are errors.
+ * - "r": clear semi-aperture, mm, > 0: rays farther from the surface's axis are vignetted (with
+ *   apertures on). For an aperture, the stop radius.
+ * - "roc": radius of curvature, mm, positive when the centre of curvature lies toward +z (0:
+ *   flat), or "c": curvature, 1/mm, which wins. One of them is required for Spheric and
+ *   Aspheric; an aperture must be flat.
+ * - "k": conic constant (default 0; -1 is a paraboloid).
+ * - "ai": even-asphere coefficients, a_2i in mm^(1-2i) for the r^(2i) term. With "use_ai2":
+ *   true (the default) they are [a2, a4, ..., a16], at most 8; with false, [a4, ..., a16].
+ *   Sag: z(r) = c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + a2 r^2 + a4 r^4 + ... + a16 r^16.
+ * - "mat2": the medium after the surface (required): "air" (n = 1 at every wavelength; also
+ *   "vacuum"), a glass of the built-in catalogs (Schott, Ohara, Hoya, CDGM, Hikari, Sumita,
+ *   Misc) in any case ("N-BK7", "n-bk7"), a model glass "n_d/V_d" (e.g. "1.5168/64.17": index
+ *   n_d >= 1 at 587.5618 nm, Abbe number V_d > 0, dispersion n = A + B / lambda^2), or a
+ *   constant index ("1.5"). The medium before surface 0 is air.
+ * - "d_next": gap from this vertex to the next one (after the last surface: to the image plane),
+ *   mm, >= 0. Legacy: absolute vertex positions "d" with a top-level "d_sensor".
+ * - "is_aperture": true marks a refracting surface as the stop. At most one surface is the stop;
+ *   with none, the paraxial stop is the surface that limits the axial beam.
+ * - "pos_xy": [x, y] lateral offset of the vertex, mm (default [0, 0]); "vec_local": [x, y, z]
+ *   direction of the surface's axis, z > 0 (default [0, 0, 1]). "is_square": true is refused.
+ * Limits: |c| <= 1000 1/mm, |k| <= 1e6, "r" and gaps <= 1e6 mm, "r" inside the conic's rim
+ * ((1 + k) c^2 r^2 <= 1), every medium's index between 1 and 5 at the primary wavelength.
+ * Errors: TOLRAY_ERROR_PARSE for malformed JSON or a value of the wrong JSON type,
+ * TOLRAY_ERROR_INVALID_INPUT for a missing key, an unknown type or glass or a broken limit,
+ * TOLRAY_ERROR_ARGUMENT for an object distance of 0; messages name the surface and the key.
+ * tolray_lens_to_json writes every key above ("roc" with the exact "(c)", all 8 "ai" with
+ * "use_ai2": true on Aspheric surfaces, "obj_depth" negative or "(object)": "inf") and the
+ * ignored "foclen", "fnum", "(d_sensor)" and "(sensor_size)".
+ * Example, an f/3.3 aspheric singlet (EFL 33.5 mm) with the stop in front:
+ *   {
+ *     "info": "aspheric singlet",
+ *     "primary_wvln": 0.5875618,
+ *     "wvln_rgb": [0.656, 0.587, 0.486],
+ *     "(object)": "inf",
+ *     "r_sensor": 3.0,
+ *     "sensor_res": [2000, 2000],
+ *     "surfaces": [
+ *       {"type": "Aperture", "r": 5.0, "d_next": 2.0, "mat2": "air"},
+ *       {"type": "Aspheric", "r": 7.0, "roc": 20.0, "k": -0.6, "ai": [0.0, -2.5e-6, 1.2e-9],
+ *        "d_next": 4.0, "mat2": "N-BK7"},
+ *       {"type": "Spheric", "r": 7.0, "roc": -120.0, "d_next": 30.5, "mat2": "air"}
+ *     ]
+ *   }
+ */
+
+/*
+ * Tolerance spec JSON (tolray_spec_from_json, tolray_spec_load; unknown keys are errors).
+ * tolray_spec_default is:
+ *   {"distribution": "normal", "pivot": "front",
+ *    "operands": [{"type": "decenter", "max": 0.04}, {"type": "tilt", "max": 0.05},
+ *                 {"type": "shift", "max": 0.04}, {"type": "curvature", "max": 0.3}]}
+ * - "operands" (required): each draws a value in +-"max" (a finite number >= 0, in the
+ *   operand's unit) per target and axis. Element operands (targets "elements": [indices],
+ *   default every element): "decenter" mm (x, y), "tilt" degrees (about x, y, z), "shift" mm
+ *   (axial shift of the element), "thickness" mm (its centre thickness; later surfaces and the
+ *   image plane move), "index" (delta n_d of its glass), "abbe" (delta V_d). Surface operands
+ *   (targets "surfaces": [indices], default every refracting surface; for "curvature" every
+ *   curved one, for "gap" every surface but the last): "curvature" percent, "gap" mm (the gap
+ *   after the surface; later surfaces and the image plane move), "surface_decenter" mm (x, y),
+ *   "surface_tilt" degrees (about x, y).
+ * - "distribution" (of the spec, or of one operand): "normal" (N(0, (max/3)^2) clamped to
+ *   +-max; the default), "uniform", or "truncated_normal" (N(0, (max/3)^2) redrawn until inside
+ *   +-max).
+ * - "pivot" of element tilts: "front" (the element's front vertex; the default), "back" or
+ *   "center".
+ * Elements are counted from 0 along the lens; each runs from a surface that enters glass to the
+ * one that leaves it into air (a cemented group is one element). A negative or non-finite max,
+ * an unknown key or operand type gives TOLRAY_ERROR_PARSE; indices are checked against the lens
+ * by tolray_pattern_sample (TOLRAY_ERROR_INVALID_INPUT).
+ *
+ * Tolerance pattern JSON (tolray_pattern_from_json, tolray_pattern_load, tolray_pattern_to_json;
+ * every key is optional, defaulting to 0, "front" or an empty list; unknown keys are errors):
+ *   {"pivot": "front",
+ *    "elements": [{"element": 0, "decenter_mm": [0.01, -0.02], "tilt_deg": [0.03, 0.0, 0.0],
+ *                  "shift_mm": 0.01, "thickness_mm": 0.0, "index": 0.0, "abbe": 0.0}],
+ *    "surfaces": [{"surface": 1, "curvature_pct": 0.2, "gap_mm": 0.0,
+ *                  "decenter_mm": [0.0, 0.0], "tilt_deg": [0.0, 0.0]}]}
+ * An element moves rigidly, x -> pivot + R (x - pivot) + (dx, dy, shift_mm), with
+ * R = Rz(c) Ry(b) Rx(a) for "tilt_deg" [a, b, c] (right-handed, degrees). "thickness_mm" (the
+ * gap after the element's front surface) and "gap_mm" (the gap after a surface) move every
+ * later surface and the image plane. "curvature_pct" makes a surface's curvature
+ * c (1 + pct / 100). A surface's "decenter_mm" and "tilt_deg" move it about its own vertex,
+ * before its element moves. "index" and "abbe" shift n_d and V_d of the element's glass,
+ * keeping the shape of its dispersion curve. tolray_system_new checks the pattern against the
+ * lens.
  */
 
 
@@ -52,57 +192,65 @@
 #define TOLRAY_ABI_VERSION 1
 
 /**
- * `x`, `y` are fractions of the full field (tan of the angle scaled to the sensor half-diagonal).
+ * `x`, `y` are fractions of the full field: the tangent of the field angle is the fraction
+ * times r_sensor / EFL (the nominal lens' paraxial EFL), so 1 reaches the sensor's
+ * half-diagonal paraxially for an object at infinity.
  */
 #define TOLRAY_FIELD_FRACTION 0
 
 /**
- * `x`, `y` are field angles, degrees.
+ * `x`, `y` are field angles, degrees, in the x-z and y-z planes (tangents tan x, tan y), seen
+ * from the first vertex. They are not range-checked: keep them below 90 in magnitude.
  */
 #define TOLRAY_FIELD_ANGLE_DEG 1
 
 /**
- * `x`, `y` are object heights, mm (finite objects only).
+ * `x`, `y` are object heights, mm: the object point is (x, y, -d) for an object at distance d
+ * (finite objects only; at infinity `TOLRAY_ERROR_ARGUMENT`).
  */
 #define TOLRAY_FIELD_HEIGHT_MM 2
 
 /**
- * Cell-centred square grid.
+ * Cell-centred square grid: point (i, j) at ((2i + 1) / n - 1, (2j + 1) / n - 1).
  */
 #define TOLRAY_PUPIL_GRID 0
 
 /**
- * Hexapolar rings.
+ * Hexapolar: the centre plus rings k = 1 to n of radius k / n, ring k holding 6 k points.
  */
 #define TOLRAY_PUPIL_HEX 1
 
 /**
- * Uniform random points over the disk, seeded.
+ * Uniform random points over the disk area, seeded.
  */
 #define TOLRAY_PUPIL_RANDOM 2
 
 /**
- * The chief ray sits in the centre pixel.
+ * The chief ray of the PSF's own wavelength sits at the centre of the centre pixel; when the
+ * chief ray is lost, the centroid does.
  */
 #define TOLRAY_PSF_CENTRE_CHIEF 0
 
 /**
- * The centroid sits in the centre pixel.
+ * The centroid of all arriving rays (also those outside the window) sits at the centre of the
+ * centre pixel.
  */
 #define TOLRAY_PSF_CENTRE_CENTROID 1
 
 /**
- * Spot measure of the spot loss: the paper's mean distance from the centroid.
+ * Spot measure of the spot loss: the paper's mean distance from the centroid, mean |p - c|.
  */
 #define TOLRAY_SPOT_MEAN 0
 
 /**
- * Spot measure of the spot loss: RMS radius about the centroid.
+ * Spot measure of the spot loss: RMS radius about the centroid, sqrt(mean |p - c|^2).
  */
 #define TOLRAY_SPOT_RMS 1
 
 /**
- * Trace flag: clip rays at clear apertures and the stop.
+ * Trace flag: clip rays at clear apertures and the stop (a ray farther than a surface's clear
+ * semi-aperture from its axis, in the surface's own frame, is vignetted there). Without it
+ * nothing clips, not even the stop.
  */
 #define TOLRAY_TRACE_APERTURES 1
 
@@ -114,17 +262,22 @@
 
 /**
  * Ray status value: reached the image plane. Other statuses carry a surface index (from 0; the
- * image plane is surface N) in their low 24 bits: `status & TOLRAY_RAY_SURFACE_MASK`.
+ * image plane is surface N, N the number of surfaces) in their low 24 bits:
+ * `status & TOLRAY_RAY_SURFACE_MASK`. When several failures apply at one surface, the first of
+ * missed, backward, vignetted and TIR is reported; at the image plane only missed (a ray
+ * parallel to it) and backward occur.
  */
 #define TOLRAY_RAY_ALIVE 0
 
 /**
- * Ray status kind: outside the clear aperture or stop of a surface.
+ * Ray status kind: outside the clear aperture or stop of a surface (only with
+ * `TOLRAY_TRACE_APERTURES`).
  */
 #define TOLRAY_RAY_VIGNETTED (1 << 24)
 
 /**
- * Ray status kind: did not meet a surface.
+ * Ray status kind: did not meet a surface (passes beside a sphere, beyond a conic's rim, the
+ * asphere intersection did not converge, or parallel to a flat surface or the image plane).
  */
 #define TOLRAY_RAY_MISSED (2 << 24)
 
@@ -134,13 +287,17 @@
 #define TOLRAY_RAY_TIR (3 << 24)
 
 /**
- * Ray status kind: the input ray was invalid (non-finite, zero direction).
+ * Ray status kind: the input ray was invalid (a non-finite number or a zero direction); it is
+ * returned at position (0, 0, 0) with direction (0, 0, 1) in the global frame and `opl` 0, and
+ * its surface bits are 0.
  */
 #define TOLRAY_RAY_INVALID (4 << 24)
 
 /**
  * Ray status kind: the surface lies behind the ray (reaching it would take travel against the
- * ray's direction; accepted only after a negative gap, which asks for virtual propagation).
+ * ray's direction), e.g. an origin past surface 0 or a ray launched away from the lens. The
+ * tracer accepts such a step only after a negative gap, and lenses with negative gaps are
+ * refused when they are read or edited, so through this API the status always means a lost ray.
  */
 #define TOLRAY_RAY_BACKWARD (5 << 24)
 
@@ -155,7 +312,7 @@
 #define TOLRAY_RAY_SURFACE_MASK 16777215
 
 /**
- * Curvature of a surface, 1/mm.
+ * Curvature c of a surface, 1/mm (the radius is 1/c; 0 is flat).
  */
 #define TOLRAY_PARAM_CURVATURE 0
 
@@ -170,17 +327,19 @@
 #define TOLRAY_PARAM_ASPHERE 2
 
 /**
- * Gap after a surface (thickness or air space), mm.
+ * Gap after a surface (thickness or air space), mm. Changing it moves every later surface and
+ * the image plane; the last surface's gap is its distance to the image plane.
  */
 #define TOLRAY_PARAM_GAP 3
 
 /**
- * n_d of the model glass after a surface.
+ * n_d (the index at 587.5618 nm) of the model glass after a surface. A model glass' index is
+ * n = A + B / lambda^2, fitted to n_d and V_d.
  */
 #define TOLRAY_PARAM_GLASS_ND 4
 
 /**
- * V_d of the model glass after a surface.
+ * V_d (the Abbe number) of the model glass after a surface.
  */
 #define TOLRAY_PARAM_GLASS_VD 5
 
@@ -254,12 +413,16 @@ typedef struct tolray_spec tolray_spec;
 
 /**
  * A lens as traced: a nominal lens compiled with a tolerance pattern applied (or none). Rays are
- * aimed at the nominal lens' entrance pupil, as a fabricated lens is used. Immutable; shareable.
+ * aimed at the nominal lens' entrance pupil, as a fabricated lens is used ("Ray bundles" at the
+ * top of tolray.h). Immutable; shareable.
  */
 typedef struct tolray_system tolray_system;
 
 /**
- * A design variable of a lens, for gradients.
+ * A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
+ * lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 5; `surface` below the number of surfaces; `term`
+ * 0 to 7 for `TOLRAY_PARAM_ASPHERE` (ignored by the other kinds); for the glass kinds, the
+ * medium after the surface must be a model glass ("n_d/V_d" in the lens JSON).
  */
 typedef struct tolray_param {
     /**
@@ -318,7 +481,7 @@ typedef struct tolray_paraxial {
      */
     double fnum;
     /**
-     * Working F-number for the stated object.
+     * Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray.
      */
     double working_fnum;
     /**
@@ -326,7 +489,7 @@ typedef struct tolray_paraxial {
      */
     double magnification;
     /**
-     * Half field of view from the sensor's half-diagonal, degrees.
+     * Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees.
      */
     double half_fov_deg;
     /**
@@ -334,7 +497,8 @@ typedef struct tolray_paraxial {
      */
     double total_track_mm;
     /**
-     * Index of the aperture-stop surface.
+     * Index of the aperture-stop surface: the marked one, else the surface that limits the axial
+     * beam.
      */
     uint32_t stop_surface;
     /**
@@ -344,7 +508,8 @@ typedef struct tolray_paraxial {
 } tolray_paraxial;
 
 /**
- * A field point.
+ * A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 2, `x` and `y` finite. How a
+ * field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
  */
 typedef struct tolray_field {
     /**
@@ -352,17 +517,23 @@ typedef struct tolray_field {
      */
     uint32_t kind;
     /**
-     * Field along x (sagittal).
+     * Field along x (sagittal). Positive values put the object right of the axis (+x).
      */
     double x;
     /**
-     * Field along y (meridional). Positive values put the object above the axis.
+     * Field along y (meridional). Positive values put the object above the axis (+y): the
+     * rays then travel toward -y.
      */
     double y;
 } tolray_field;
 
 /**
- * Pupil sampling.
+ * Pupil sampling: points (px, py) in the unit disk times `scale`, normalized coordinates of the
+ * paraxial entrance pupil ("Ray bundles" at the top of tolray.h). Checked everywhere
+ * (`TOLRAY_ERROR_ARGUMENT`): `pattern` 0 to 2, `n` 1 to 100000000, `scale` in (0, 10]. In
+ * [`tolray_psf_options`] the pattern may also hold at most 4194304 (2^22) points;
+ * [`tolray_spot`] and [`tolray_spot_loss_gradient`] do not apply that limit, so a large grid or
+ * hex `n` there allocates about n^2 or 3 n^2 rays.
  */
 typedef struct tolray_pupil {
     /**
@@ -370,37 +541,45 @@ typedef struct tolray_pupil {
      */
     uint32_t pattern;
     /**
-     * Grid: n x n points (those inside the disk are kept); hex: n rings; random: n points.
+     * Grid: n x n cell centres, those inside the disk kept (about 0.785 n^2 points); hex: n
+     * rings (1 + 3 n (n + 1) points); random: n points.
      */
     uint32_t n;
     /**
-     * Seed of the random pattern (ignored by the others).
+     * Seed of the random pattern (ChaCha8; ignored by the others).
      */
     uint64_t seed;
     /**
-     * Radius of the sampled disk relative to the paraxial entrance pupil (1 = full pupil).
+     * Radius of the sampled disk relative to the paraxial entrance pupil, in (0, 10]: 1 is the
+     * full pupil; above 1 overfills it (apertures then clip).
      */
     double scale;
     /**
-     * Nonzero: aim every ray at the real stop (iteratively) instead of the paraxial pupil.
+     * Nonzero: aim every ray (Newton iteration on real rays of the nominal lens at the
+     * bundle's wavelength) so that it crosses the stop at the pattern point times the stop's
+     * semi-aperture, instead of passing through the paraxial entrance pupil.
      */
     uint32_t aim;
 } tolray_pupil;
 
 /**
- * PSF settings.
+ * PSF settings, checked by every function that takes them (`TOLRAY_ERROR_ARGUMENT`): `kernel_px`
+ * odd, 3 to 1025; `pitch_mm` 1e-5 to 10 mm; `centre` 0 or 1; `pupil` as [`tolray_pupil`] says,
+ * with at most 4194304 (2^22) points. How a PSF is built: [`tolray_psf`].
  */
 typedef struct tolray_psf_options {
     /**
-     * Kernel size in pixels, odd (the PSF is `kernel_px` x `kernel_px`, row-major, row 0 at +y).
+     * Kernel size in pixels, odd, 3 to 1025 (the PSF is `kernel_px` x `kernel_px`, row-major,
+     * row 0 at +y, column 0 at -x).
      */
     uint32_t kernel_px;
     /**
-     * Pixel pitch, mm.
+     * Pixel pitch, mm, 1e-5 to 10.
      */
     double pitch_mm;
     /**
-     * `TOLRAY_PSF_CENTRE_CHIEF` or `TOLRAY_PSF_CENTRE_CENTROID`.
+     * `TOLRAY_PSF_CENTRE_CHIEF` or `TOLRAY_PSF_CENTRE_CENTROID`: the point placed at the centre
+     * of pixel (`kernel_px` / 2, `kernel_px` / 2).
      */
     uint32_t centre;
     /**
@@ -410,11 +589,12 @@ typedef struct tolray_psf_options {
 } tolray_psf_options;
 
 /**
- * Spot statistics of one field; sizes in micrometres, sensor positions in millimetres.
+ * Spot statistics of one field; sizes in micrometres, sensor positions in millimetres (sensor
+ * frame: origin where the axis meets the image plane).
  */
 typedef struct tolray_spot_stats {
     /**
-     * Rays launched.
+     * Rays launched: pupil points times wavelengths (chief rays not counted).
      */
     uint64_t n_launched;
     /**
@@ -426,7 +606,7 @@ typedef struct tolray_spot_stats {
      */
     double centroid_mm[2];
     /**
-     * RMS radius about the centroid, um.
+     * RMS radius about the centroid, sqrt(mean |p - centroid|^2), um.
      */
     double rms_um;
     /**
@@ -438,7 +618,7 @@ typedef struct tolray_spot_stats {
      */
     double geo_radius_um;
     /**
-     * Fraction of the launched rays that did not arrive.
+     * Fraction of the launched rays that did not arrive, 1 - `n_valid` / `n_launched`.
      */
     double vignetted_fraction;
     /**
@@ -452,8 +632,11 @@ typedef struct tolray_spot_stats {
 } tolray_spot_stats;
 
 /**
- * Input rays, structure of arrays: `n` origins (mm, global frame) and directions (any length
- * but 0; normalized on input).
+ * Input rays, structure of arrays: `n` origins (mm, global frame: z along the axis, the first
+ * vertex at z = 0) and directions (any length but 0; normalized on input). Each ray meets
+ * surface 0, 1, ... and then the image plane, in that order, so it must start in front of
+ * surface 0 and travel toward +z (otherwise it stops as `TOLRAY_RAY_BACKWARD`). The medium
+ * before surface 0 is air, n = 1.
  */
 typedef struct tolray_rays_in {
     /**
@@ -483,9 +666,12 @@ typedef struct tolray_rays_in {
 } tolray_rays_in;
 
 /**
- * Output rays, structure of arrays of `n` each: positions on the image plane (mm), unit
- * directions, optical path lengths from the origin (mm) and status. `opl` may be NULL. They may
- * be the same arrays as the input (in-place tracing).
+ * Output rays, structure of arrays of `n` each: positions (mm) and unit directions, in the
+ * global frame or, with `TOLRAY_TRACE_SENSOR_FRAME`, the sensor's; optical path lengths from the
+ * origin (mm: the sum of index times distance, n = 1 before surface 0); and statuses. A ray that
+ * arrived is on the image plane; a lost ray keeps the position, direction and path length it
+ * had after the last surface it passed (its input for a ray lost at surface 0). `opl` may be
+ * NULL. They may be the same arrays as the input (in-place tracing).
  */
 typedef struct tolray_rays_out {
     /**
@@ -552,7 +738,10 @@ size_t tolray_last_error(char *buf, size_t cap);
 void tolray_lens_free(struct tolray_lens *lens);
 
 /**
- * Parses a lens from DeepLens JSON text; `*out` receives a new handle.
+ * Parses a lens from DeepLens JSON text (the format at the top of tolray.h); `*out` receives a
+ * new handle. `TOLRAY_ERROR_PARSE` for malformed JSON or a value of the wrong JSON type,
+ * `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass or a lens
+ * beyond the limits listed there, `TOLRAY_ERROR_ARGUMENT` for an object distance of 0.
  *
  * # Safety
  * `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -560,8 +749,11 @@ void tolray_lens_free(struct tolray_lens *lens);
 tolray_status tolray_lens_from_json(const char *json, struct tolray_lens **out);
 
 /**
- * Loads a lens from a built-in name (`lens1`, `lens2`, `cooke-triplet`) or a DeepLens JSON file
- * path; `*out` receives a new handle to free with [`tolray_lens_free`].
+ * Loads a lens from a built-in name (`lens1`, `lens2`, `cooke-triplet`, in any case; tried
+ * first) or a file path: a Zemax OpticStudio .zmx file by its extension (in any case), otherwise
+ * lens JSON (the format at the top of tolray.h). `*out` receives a new handle to free with
+ * [`tolray_lens_free`]. A path that does not exist gives `TOLRAY_ERROR_IO`; a JSON file's
+ * errors are those of [`tolray_lens_from_json`].
  *
  * # Safety
  * `name_or_path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -569,7 +761,8 @@ tolray_status tolray_lens_from_json(const char *json, struct tolray_lens **out);
 tolray_status tolray_lens_load(const char *name_or_path, struct tolray_lens **out);
 
 /**
- * The current value of a design variable of the lens.
+ * The current value of a design variable of the lens (`param` checked as [`tolray_param`]
+ * says).
  *
  * # Safety
  * `lens` and `param` are valid pointers; `value_out` points to a writable `double`.
@@ -579,7 +772,9 @@ tolray_status tolray_lens_param_get(const struct tolray_lens *lens,
                                     double *value_out);
 
 /**
- * Paraxial (first-order) data of the lens at `wavelength_nm`.
+ * Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
+ * `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 1 and 5;
+ * `TOLRAY_ERROR_NUMERICAL` for an afocal lens or one without a finite first-order image.
  *
  * # Safety
  * `lens` is a live handle; `out` points to a writable `tolray_paraxial`.
@@ -589,8 +784,9 @@ tolray_status tolray_lens_paraxial(const struct tolray_lens *lens,
                                    struct tolray_paraxial *out);
 
 /**
- * Writes the lens as DeepLens JSON into `buf` (`cap` bytes, NUL-terminated) and its length
- * without the NUL into `*len_out`. Call with `buf` NULL and `cap` 0 to learn the length; a `cap`
+ * Writes the lens as DeepLens JSON (the format at the top of tolray.h; it reads back to the
+ * same lens) into `buf` (`cap` bytes, NUL-terminated) and its length without the NUL into
+ * `*len_out`. Call with `buf` NULL and `cap` 0 to learn the length; a `cap`
  * smaller than length + 1 gives `TOLRAY_ERROR_BUFFER_SIZE` and writes nothing.
  *
  * # Safety
@@ -604,7 +800,12 @@ tolray_status tolray_lens_to_json(const struct tolray_lens *lens,
 
 /**
  * A new lens equal to `lens` with one design variable set to `value` (lenses are immutable;
- * this is how an optimizer steps). The new lens is validated.
+ * this is how an optimizer steps). `param` is checked as [`tolray_param`] says and `value` must
+ * be finite (`TOLRAY_ERROR_ARGUMENT`). The new lens is validated as a lens read from JSON
+ * (`TOLRAY_ERROR_INVALID_INPUT`): |c| at most 1000 1/mm and 0 on an aperture surface, which
+ * also takes no asphere terms; |k| at most 1e6; gaps 0 to 1e6 mm; the clear semi-aperture r
+ * inside the conic's rim, (1 + k) c^2 r^2 at most 1; a model glass' n_d at least 1 and V_d above
+ * 0; every medium's index between 1 and 5 at the primary wavelength.
  *
  * # Safety
  * `lens` and `param` are valid pointers; `out` points to writable storage for a pointer.
@@ -623,7 +824,9 @@ tolray_status tolray_lens_with_param(const struct tolray_lens *lens,
 void tolray_pattern_free(struct tolray_pattern *pattern);
 
 /**
- * Parses a tolerance pattern from JSON text.
+ * Parses a tolerance pattern from JSON text (the format at the top of tolray.h).
+ * `TOLRAY_ERROR_PARSE` for malformed JSON, an unknown key or a value of the wrong type. The
+ * pattern is checked against a lens by [`tolray_system_new`].
  *
  * # Safety
  * `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -631,7 +834,9 @@ void tolray_pattern_free(struct tolray_pattern *pattern);
 tolray_status tolray_pattern_from_json(const char *json, struct tolray_pattern **out);
 
 /**
- * Reads a tolerance pattern file (JSON, the format of `--perturb`).
+ * Reads a tolerance pattern file (JSON, the format of `--perturb`, described at the top of
+ * tolray.h). A file that cannot be read gives `TOLRAY_ERROR_IO`; other errors are those of
+ * [`tolray_pattern_from_json`].
  *
  * # Safety
  * `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -641,6 +846,9 @@ tolray_status tolray_pattern_load(const char *path, struct tolray_pattern **out)
 /**
  * Samples tolerance pattern `index` of `seed` for `lens`: the same pattern on every machine and
  * thread count (ChaCha8 seeded with `seed`, stream `index`), identical to the CLI's trial `index`.
+ * Values are drawn operand by operand in spec order, then target by target in index order,
+ * then axis x, y, z. `TOLRAY_ERROR_INVALID_INPUT` when an operand names an element or surface
+ * the lens does not have, or an element operand lists surfaces (or a surface operand elements).
  *
  * # Safety
  * `spec` and `lens` are live handles; `out` points to writable storage for a pointer.
@@ -663,9 +871,23 @@ tolray_status tolray_pattern_to_json(const struct tolray_pattern *pattern,
                                      size_t *len_out);
 
 /**
- * The geometric PSF of one field at one wavelength: `kernel_px`² values, row-major with row 0
- * at +y, summing to 1. A PSF into whose window no ray lands is an error
- * (`TOLRAY_ERROR_NUMERICAL`), not a result. `out_len` must equal `kernel_px * kernel_px`.
+ * The geometric PSF of one field at one wavelength (finite, 100 to 20000 nm): `kernel_px`^2
+ * values, row-major with row 0 at +y and column 0 at -x, summing to 1.
+ *
+ * The rays of `opts->pupil` and the chief ray are launched from the nominal lens' paraxial
+ * pupil at its primary wavelength ("Ray bundles" at the top of tolray.h), traced through
+ * `system` at `wavelength_nm` with apertures clipping, and taken in the sensor frame. The
+ * reference point (x0, y0) of `opts->centre` (the chief ray, or the centroid of the arriving
+ * rays when the chief ray is lost or `TOLRAY_PSF_CENTRE_CENTROID` is asked for) goes to the
+ * centre of pixel (h, h), h = (`kernel_px` - 1) / 2. A ray at (x, y) has the column
+ * u = h + (x - x0) / `pitch_mm` and the row v = h - (y - y0) / `pitch_mm`, and is splatted
+ * bilinearly: its weight 1 is shared among the 2 x 2 pixels around (u, v) by the fractional
+ * parts of u and v. Rays whose 2 x 2 footprint leaves the window (u or v below 0, or at or
+ * above `kernel_px` - 1) and rays that did not arrive are left out, and the PSF is divided by
+ * the number of rays splatted, so it sums to 1 however many were lost. A PSF into whose window
+ * no ray lands is an error (`TOLRAY_ERROR_NUMERICAL`), not a result. `opts` is checked as
+ * [`tolray_psf_options`] says; `out_len` must equal `kernel_px * kernel_px`
+ * (`TOLRAY_ERROR_BUFFER_SIZE`).
  *
  * # Safety
  * `system`, `field`, `opts` are valid pointers; `out` holds `out_len` writable doubles.
@@ -678,9 +900,24 @@ tolray_status tolray_psf(const struct tolray_system *system,
                          size_t out_len);
 
 /**
- * The paper's PSF-similarity loss of `system` - 1 - the mean over fields × wavelengths of the
- * similarity between each PSF and the nominal lens' PSF at the same field and wavelength - and
- * its exact gradient with respect to `vars`.
+ * The paper's PSF-similarity loss of `system` and its exact gradient with respect to `vars`, in
+ * `*value_out` and `grad_out[0..n_vars]`.
+ *
+ * Loss: 1 - the mean, over the `n_fields` x `n_wavelengths` PSFs, of the similarity between the
+ * system's PSF and the nominal lens' PSF at the same field and wavelength, both built as
+ * [`tolray_psf`] builds a PSF with `opts` (the same rays, apertures clipping). Similarity: both
+ * PSFs scaled to unit L2 norm, then the largest cross-correlation over integer pixel shifts of
+ * at most `kernel_px` / 2 in x and in y (zero padding), in [0, 1]; 0 when either PSF is empty
+ * (no error here, unlike [`tolray_psf`]).
+ *
+ * Gradient: as for [`tolray_spot_loss_gradient`] (exact, pattern fixed, launch frozen), except
+ * that the launch uses the nominal lens' paraxial data at its primary wavelength. The nominal
+ * (reference) PSFs are computed once, in f64, and held fixed, as are the best shift and the
+ * pixel each ray falls in; derivatives flow through the ray positions, the reference point
+ * (chief ray or centroid) and the bilinear weights of the system's PSFs.
+ *
+ * Checked: fields, wavelengths and variables as for [`tolray_spot_loss_gradient`], `opts` as
+ * [`tolray_psf_options`] says.
  *
  * # Safety
  * Pointers valid as named; arrays hold the given counts; outputs writable.
@@ -697,8 +934,9 @@ tolray_status tolray_psf_loss_gradient(const struct tolray_system *system,
                                        double *grad_out);
 
 /**
- * The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch,
- * chief-ray centred, 8192 uniform random pupil rays with seed 0.
+ * The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch
+ * (2 r_sensor / hypot(columns, rows) of the lens JSON), chief-ray centred, 8192 uniform random
+ * pupil rays with seed 0, scale 1, no aiming.
  *
  * # Safety
  * `system` is a live handle; `out` points to a writable `tolray_psf_options`.
@@ -708,12 +946,19 @@ tolray_status tolray_psf_options_default(const struct tolray_system *system,
 
 /**
  * Simulates a capture through `system` (its lens with its tolerance pattern): the image is cut
- * into `grid x grid` tiles, each blurred by the RGB PSF of its field (the lens' RGB wavelengths,
- * `opts` for kernel size, pitch and rays; chief-ray centred) over the tile plus a halo from the
- * reflect-padded image, then white Gaussian noise of standard deviation `noise_sigma` (linear
- * [0, 1] units; 0 for none) from `seed` is added. `in` and `out` are planar linear RGB,
- * `3 * width * height` floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must
- * equal that count.
+ * into `grid x grid` tiles, each blurred by the RGB PSF of the field at the centre of the
+ * matching cell of a `grid x grid` partition of the sensor (the lens' "wvln_rgb" wavelengths;
+ * `opts` for kernel size, pitch, centring and rays; built as [`tolray_psf`] builds a PSF, traced
+ * in single precision) over the tile plus a halo from the reflect-padded image, then white
+ * Gaussian noise of standard deviation `noise_sigma` (linear [0, 1] units; 0 for none; not
+ * clipped) from `seed` is added. `in` and `out` are planar linear RGB, `3 * width * height`
+ * floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must equal that count.
+ *
+ * Checked: `grid` 1 to 64 and at most `width` and `height`, and `out_len`
+ * (`TOLRAY_ERROR_BUFFER_SIZE`); `noise_sigma` finite and 0 or more, `opts` as
+ * [`tolray_psf_options`] says, `kernel_px` / 2 below `width` and `height`, and the padded image,
+ * (`width` + `kernel_px` - 1) x (`height` + `kernel_px` - 1), at most 2^28 pixels
+ * (`TOLRAY_ERROR_ARGUMENT`). `TOLRAY_ERROR_NUMERICAL` when a PSF is empty.
  *
  * # Safety
  * `system` and `opts` are valid pointers; `in` holds `3 * width * height` readable floats and
@@ -748,7 +993,9 @@ tolray_status tolray_spec_default(struct tolray_spec **out);
 void tolray_spec_free(struct tolray_spec *spec);
 
 /**
- * Parses a tolerance spec from JSON text.
+ * Parses a tolerance spec from JSON text (the format at the top of tolray.h).
+ * `TOLRAY_ERROR_PARSE` for malformed JSON, an unknown key, operand type or distribution, or a
+ * `max` that is negative or not finite. Indices are checked later, by [`tolray_pattern_sample`].
  *
  * # Safety
  * `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -756,7 +1003,9 @@ void tolray_spec_free(struct tolray_spec *spec);
 tolray_status tolray_spec_from_json(const char *json, struct tolray_spec **out);
 
 /**
- * Reads a tolerance spec file (JSON, the format of `tolray tolerance --spec`).
+ * Reads a tolerance spec file (JSON, the format of `tolray tolerance --spec`, described at the
+ * top of tolray.h). A file that cannot be read gives `TOLRAY_ERROR_IO`; other errors are those
+ * of [`tolray_spec_from_json`].
  *
  * # Safety
  * `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -764,9 +1013,13 @@ tolray_status tolray_spec_from_json(const char *json, struct tolray_spec **out);
 tolray_status tolray_spec_load(const char *path, struct tolray_spec **out);
 
 /**
- * Spot statistics of one field over `n_wavelengths` wavelengths (polychromatic when more than
- * one: all arriving rays together, about the first wavelength's chief ray). Rays are aimed at
- * the nominal lens' entrance pupil; apertures clip when `apertures` is nonzero.
+ * Spot statistics of one field over `n_wavelengths` wavelengths (at least 1, else
+ * `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 to 20000 nm), polychromatic when more than
+ * one: all arriving rays together, about the first wavelength's chief ray. The rays are
+ * launched from the nominal lens' paraxial pupil at the first wavelength ("Ray bundles" at the
+ * top of tolray.h) and traced through `system`; apertures clip when `apertures` is nonzero.
+ * `field` and `pupil` are checked as their types say. `TOLRAY_ERROR_NUMERICAL` when no ray of
+ * some wavelength reaches the image.
  *
  * # Safety
  * `system`, `field`, `pupil` are valid pointers; `wavelengths_nm` holds `n_wavelengths`
@@ -781,10 +1034,30 @@ tolray_status tolray_spot(const struct tolray_system *system,
                           struct tolray_spot_stats *out);
 
 /**
- * The paper's spot loss of `system` - the sum over fields and wavelengths of each bundle's spot
- * size in mm (`measure`: `TOLRAY_SPOT_MEAN` or `TOLRAY_SPOT_RMS`) - and its exact gradient with
- * respect to `vars` (forward-mode dual numbers through the tracer), in `*value_out` and
- * `grad_out[0..n_vars]`. Apertures clip.
+ * The paper's spot loss of `system` and its exact gradient with respect to `vars`, in
+ * `*value_out` and `grad_out[0..n_vars]`.
+ *
+ * Loss: the sum over the `n_fields` x `n_wavelengths` bundles of each bundle's spot size, in mm,
+ * of the rays that reach the image plane (apertures always clip), about the bundle's own
+ * centroid in the sensor frame: `TOLRAY_SPOT_MEAN`, mean |p - c|, or `TOLRAY_SPOT_RMS`,
+ * sqrt(mean |p - c|^2). A bundle none of whose rays arrives counts 10 mm (and adds nothing to
+ * the gradient). Chief rays are not part of the bundles.
+ *
+ * Gradient: exact derivatives (forward-mode dual numbers through the same tracer, 8 variables
+ * per trace) with respect to design variables of the system's lens, at their current values,
+ * with the tolerance pattern held fixed: a curvature variable c is traced as
+ * c (1 + curvature_pct / 100), a gap with the pattern's gap changes added, and the pattern's
+ * motions are constants. The ray launch is frozen: the bundles are generated once from the
+ * nominal lens (its paraxial entrance pupil and EFL at the first wavelength, used for every
+ * wavelength; aiming, if on, at its stop) and do not move with the variables, so the gradient
+ * does not include a variable's effect on the entrance pupil or the field angle. Which rays
+ * arrive is held at the current values (vignetting changes are steps, not derivatives).
+ *
+ * Checked: `n_fields` and `n_wavelengths` at least 1 (`TOLRAY_ERROR_BUFFER_SIZE`), fields,
+ * wavelengths and `pupil` as for [`tolray_spot`], `measure` 0 or 1, every variable as
+ * [`tolray_param`] says on the system's lens (a glass the pattern perturbs is no longer a model
+ * glass, so its glass variables are refused). `grad_out` may be NULL when `n_vars` is 0.
+ * `TOLRAY_ERROR_NUMERICAL` when the loss or a derivative is not finite.
  *
  * # Safety
  * Pointers valid as named; arrays hold the given counts; outputs writable.
@@ -818,6 +1091,9 @@ void tolray_system_free(struct tolray_system *system);
 /**
  * Compiles `lens` for tracing with the tolerance pattern `pattern` applied, or nominal when
  * `pattern` is NULL. The lens handle is not changed and may be freed afterwards.
+ * `TOLRAY_ERROR_INVALID_INPUT` when the pattern does not fit the lens: an element or surface
+ * index out of range, a value that is not finite, an index error that takes n_d below 1 or an
+ * Abbe-number error that makes V_d 0 or less.
  *
  * # Safety
  * `lens` is a live handle; `pattern` is NULL or a live handle; `out` points to writable
@@ -828,10 +1104,13 @@ tolray_status tolray_system_new(const struct tolray_lens *lens,
                                 struct tolray_system **out);
 
 /**
- * Traces `n` caller rays of one wavelength through `system`, in parallel (rayon; results do not
- * depend on the thread count). `flags` combines `TOLRAY_TRACE_*`. Every output array receives `n`
- * values; rays that did not arrive keep the position and direction where they stopped, and their
- * status says why.
+ * Traces `n` caller rays of one wavelength through `system` (its tolerance pattern applied), in
+ * parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 to
+ * 20000 nm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
+ * `TOLRAY_ERROR_ARGUMENT`). Every output array receives `n` values, one status per ray; rays
+ * that did not arrive keep the position and direction where they stopped, and their status says
+ * why and where. `n` may be 0 (nothing is read or written; the arrays may be NULL); otherwise
+ * every array but `out->opl` must be non-NULL (`TOLRAY_ERROR_NULL_ARGUMENT`).
  *
  * # Safety
  * `system`, `rays`, `out` are valid pointers; the arrays they name hold `n` doubles (`status`:

@@ -9,65 +9,81 @@ use crate::optim::{self, Bundles, PsfLoss, SpotLoss, SpotMeasure};
 use crate::psf::{self, PsfCentre, PsfOptions, PsfRays};
 use crate::trace::{self, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
 
-/// A field point.
+/// A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 2, `x` and `y` finite. How a
+/// field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct tolray_field {
     /// One of the `TOLRAY_FIELD_*` values: how `x` and `y` are measured.
     pub kind: u32,
-    /// Field along x (sagittal).
+    /// Field along x (sagittal). Positive values put the object right of the axis (+x).
     pub x: f64,
-    /// Field along y (meridional). Positive values put the object above the axis.
+    /// Field along y (meridional). Positive values put the object above the axis (+y): the
+    /// rays then travel toward -y.
     pub y: f64,
 }
 
-/// `x`, `y` are fractions of the full field (tan of the angle scaled to the sensor half-diagonal).
+/// `x`, `y` are fractions of the full field: the tangent of the field angle is the fraction
+/// times r_sensor / EFL (the nominal lens' paraxial EFL), so 1 reaches the sensor's
+/// half-diagonal paraxially for an object at infinity.
 pub const TOLRAY_FIELD_FRACTION: u32 = 0;
-/// `x`, `y` are field angles, degrees.
+/// `x`, `y` are field angles, degrees, in the x-z and y-z planes (tangents tan x, tan y), seen
+/// from the first vertex. They are not range-checked: keep them below 90 in magnitude.
 pub const TOLRAY_FIELD_ANGLE_DEG: u32 = 1;
-/// `x`, `y` are object heights, mm (finite objects only).
+/// `x`, `y` are object heights, mm: the object point is (x, y, -d) for an object at distance d
+/// (finite objects only; at infinity `TOLRAY_ERROR_ARGUMENT`).
 pub const TOLRAY_FIELD_HEIGHT_MM: u32 = 2;
 
-/// Pupil sampling.
+/// Pupil sampling: points (px, py) in the unit disk times `scale`, normalized coordinates of the
+/// paraxial entrance pupil ("Ray bundles" at the top of tolray.h). Checked everywhere
+/// (`TOLRAY_ERROR_ARGUMENT`): `pattern` 0 to 2, `n` 1 to 100000000, `scale` in (0, 10]. In
+/// [`tolray_psf_options`] the pattern may also hold at most 4194304 (2^22) points;
+/// [`tolray_spot`] and [`tolray_spot_loss_gradient`] do not apply that limit, so a large grid or
+/// hex `n` there allocates about n^2 or 3 n^2 rays.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct tolray_pupil {
     /// One of the `TOLRAY_PUPIL_*` values.
     pub pattern: u32,
-    /// Grid: n x n points (those inside the disk are kept); hex: n rings; random: n points.
+    /// Grid: n x n cell centres, those inside the disk kept (about 0.785 n^2 points); hex: n
+    /// rings (1 + 3 n (n + 1) points); random: n points.
     pub n: u32,
-    /// Seed of the random pattern (ignored by the others).
+    /// Seed of the random pattern (ChaCha8; ignored by the others).
     pub seed: u64,
-    /// Radius of the sampled disk relative to the paraxial entrance pupil (1 = full pupil).
+    /// Radius of the sampled disk relative to the paraxial entrance pupil, in (0, 10]: 1 is the
+    /// full pupil; above 1 overfills it (apertures then clip).
     pub scale: f64,
-    /// Nonzero: aim every ray at the real stop (iteratively) instead of the paraxial pupil.
+    /// Nonzero: aim every ray (Newton iteration on real rays of the nominal lens at the
+    /// bundle's wavelength) so that it crosses the stop at the pattern point times the stop's
+    /// semi-aperture, instead of passing through the paraxial entrance pupil.
     pub aim: u32,
 }
 
-/// Cell-centred square grid.
+/// Cell-centred square grid: point (i, j) at ((2i + 1) / n - 1, (2j + 1) / n - 1).
 pub const TOLRAY_PUPIL_GRID: u32 = 0;
-/// Hexapolar rings.
+/// Hexapolar: the centre plus rings k = 1 to n of radius k / n, ring k holding 6 k points.
 pub const TOLRAY_PUPIL_HEX: u32 = 1;
-/// Uniform random points over the disk, seeded.
+/// Uniform random points over the disk area, seeded.
 pub const TOLRAY_PUPIL_RANDOM: u32 = 2;
 
-/// Spot statistics of one field; sizes in micrometres, sensor positions in millimetres.
+/// Spot statistics of one field; sizes in micrometres, sensor positions in millimetres (sensor
+/// frame: origin where the axis meets the image plane).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct tolray_spot_stats {
-    /// Rays launched.
+    /// Rays launched: pupil points times wavelengths (chief rays not counted).
     pub n_launched: u64,
     /// Rays that reached the image plane.
     pub n_valid: u64,
     /// Centroid of the arriving rays on the sensor, mm.
     pub centroid_mm: [f64; 2],
-    /// RMS radius about the centroid, um.
+    /// RMS radius about the centroid, sqrt(mean |p - centroid|^2), um.
     pub rms_um: f64,
     /// RMS radius about the chief ray, um (0 when `chief_valid` is 0).
     pub rms_chief_um: f64,
     /// Largest distance from the centroid, um.
     pub geo_radius_um: f64,
-    /// Fraction of the launched rays that did not arrive.
+    /// Fraction of the launched rays that did not arrive, 1 - `n_valid` / `n_launched`.
     pub vignetted_fraction: f64,
     /// Chief-ray position on the sensor at the first wavelength, mm (0 when lost).
     pub chief_mm: [f64; 2],
@@ -75,57 +91,77 @@ pub struct tolray_spot_stats {
     pub chief_valid: u32,
 }
 
-/// PSF settings.
+/// PSF settings, checked by every function that takes them (`TOLRAY_ERROR_ARGUMENT`): `kernel_px`
+/// odd, 3 to 1025; `pitch_mm` 1e-5 to 10 mm; `centre` 0 or 1; `pupil` as [`tolray_pupil`] says,
+/// with at most 4194304 (2^22) points. How a PSF is built: [`tolray_psf`].
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct tolray_psf_options {
-    /// Kernel size in pixels, odd (the PSF is `kernel_px` x `kernel_px`, row-major, row 0 at +y).
+    /// Kernel size in pixels, odd, 3 to 1025 (the PSF is `kernel_px` x `kernel_px`, row-major,
+    /// row 0 at +y, column 0 at -x).
     pub kernel_px: u32,
-    /// Pixel pitch, mm.
+    /// Pixel pitch, mm, 1e-5 to 10.
     pub pitch_mm: f64,
-    /// `TOLRAY_PSF_CENTRE_CHIEF` or `TOLRAY_PSF_CENTRE_CENTROID`.
+    /// `TOLRAY_PSF_CENTRE_CHIEF` or `TOLRAY_PSF_CENTRE_CENTROID`: the point placed at the centre
+    /// of pixel (`kernel_px` / 2, `kernel_px` / 2).
     pub centre: u32,
     /// Pupil sampling of each PSF.
     pub pupil: tolray_pupil,
 }
 
-/// The chief ray sits in the centre pixel.
+/// The chief ray of the PSF's own wavelength sits at the centre of the centre pixel; when the
+/// chief ray is lost, the centroid does.
 pub const TOLRAY_PSF_CENTRE_CHIEF: u32 = 0;
-/// The centroid sits in the centre pixel.
+/// The centroid of all arriving rays (also those outside the window) sits at the centre of the
+/// centre pixel.
 pub const TOLRAY_PSF_CENTRE_CENTROID: u32 = 1;
 
-/// Spot measure of the spot loss: the paper's mean distance from the centroid.
+/// Spot measure of the spot loss: the paper's mean distance from the centroid, mean |p - c|.
 pub const TOLRAY_SPOT_MEAN: u32 = 0;
-/// Spot measure of the spot loss: RMS radius about the centroid.
+/// Spot measure of the spot loss: RMS radius about the centroid, sqrt(mean |p - c|^2).
 pub const TOLRAY_SPOT_RMS: u32 = 1;
 
-/// Trace flag: clip rays at clear apertures and the stop.
+/// Trace flag: clip rays at clear apertures and the stop (a ray farther than a surface's clear
+/// semi-aperture from its axis, in the surface's own frame, is vignetted there). Without it
+/// nothing clips, not even the stop.
 pub const TOLRAY_TRACE_APERTURES: u32 = 1;
 /// Trace flag: return positions and directions in the sensor's own frame (origin at the sensor
 /// centre, z along its normal) instead of the global frame.
 pub const TOLRAY_TRACE_SENSOR_FRAME: u32 = 2;
 
 /// Ray status value: reached the image plane. Other statuses carry a surface index (from 0; the
-/// image plane is surface N) in their low 24 bits: `status & TOLRAY_RAY_SURFACE_MASK`.
+/// image plane is surface N, N the number of surfaces) in their low 24 bits:
+/// `status & TOLRAY_RAY_SURFACE_MASK`. When several failures apply at one surface, the first of
+/// missed, backward, vignetted and TIR is reported; at the image plane only missed (a ray
+/// parallel to it) and backward occur.
 pub const TOLRAY_RAY_ALIVE: u32 = 0;
-/// Ray status kind: outside the clear aperture or stop of a surface.
+/// Ray status kind: outside the clear aperture or stop of a surface (only with
+/// `TOLRAY_TRACE_APERTURES`).
 pub const TOLRAY_RAY_VIGNETTED: u32 = 1 << 24;
-/// Ray status kind: did not meet a surface.
+/// Ray status kind: did not meet a surface (passes beside a sphere, beyond a conic's rim, the
+/// asphere intersection did not converge, or parallel to a flat surface or the image plane).
 pub const TOLRAY_RAY_MISSED: u32 = 2 << 24;
 /// Ray status kind: total internal reflection.
 pub const TOLRAY_RAY_TIR: u32 = 3 << 24;
-/// Ray status kind: the input ray was invalid (non-finite, zero direction).
+/// Ray status kind: the input ray was invalid (a non-finite number or a zero direction); it is
+/// returned at position (0, 0, 0) with direction (0, 0, 1) in the global frame and `opl` 0, and
+/// its surface bits are 0.
 pub const TOLRAY_RAY_INVALID: u32 = 4 << 24;
 /// Ray status kind: the surface lies behind the ray (reaching it would take travel against the
-/// ray's direction; accepted only after a negative gap, which asks for virtual propagation).
+/// ray's direction), e.g. an origin past surface 0 or a ray launched away from the lens. The
+/// tracer accepts such a step only after a negative gap, and lenses with negative gaps are
+/// refused when they are read or edited, so through this API the status always means a lost ray.
 pub const TOLRAY_RAY_BACKWARD: u32 = 5 << 24;
 /// Mask of the kind bits of a ray status.
 pub const TOLRAY_RAY_KIND_MASK: u32 = 0xff00_0000;
 /// Mask of the surface-index bits of a ray status.
 pub const TOLRAY_RAY_SURFACE_MASK: u32 = 0x00ff_ffff;
 
-/// Input rays, structure of arrays: `n` origins (mm, global frame) and directions (any length
-/// but 0; normalized on input).
+/// Input rays, structure of arrays: `n` origins (mm, global frame: z along the axis, the first
+/// vertex at z = 0) and directions (any length but 0; normalized on input). Each ray meets
+/// surface 0, 1, ... and then the image plane, in that order, so it must start in front of
+/// surface 0 and travel toward +z (otherwise it stops as `TOLRAY_RAY_BACKWARD`). The medium
+/// before surface 0 is air, n = 1.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct tolray_rays_in {
@@ -143,9 +179,12 @@ pub struct tolray_rays_in {
     pub dz: *const f64,
 }
 
-/// Output rays, structure of arrays of `n` each: positions on the image plane (mm), unit
-/// directions, optical path lengths from the origin (mm) and status. `opl` may be NULL. They may
-/// be the same arrays as the input (in-place tracing).
+/// Output rays, structure of arrays of `n` each: positions (mm) and unit directions, in the
+/// global frame or, with `TOLRAY_TRACE_SENSOR_FRAME`, the sensor's; optical path lengths from the
+/// origin (mm: the sum of index times distance, n = 1 before surface 0); and statuses. A ray that
+/// arrived is on the image plane; a lost ray keeps the position, direction and path length it
+/// had after the last surface it passed (its input for a ray lost at surface 0). `opl` may be
+/// NULL. They may be the same arrays as the input (in-place tracing).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct tolray_rays_out {
@@ -279,10 +318,13 @@ fn params(
         .collect()
 }
 
-/// Traces `n` caller rays of one wavelength through `system`, in parallel (rayon; results do not
-/// depend on the thread count). `flags` combines `TOLRAY_TRACE_*`. Every output array receives `n`
-/// values; rays that did not arrive keep the position and direction where they stopped, and their
-/// status says why.
+/// Traces `n` caller rays of one wavelength through `system` (its tolerance pattern applied), in
+/// parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 to
+/// 20000 nm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
+/// `TOLRAY_ERROR_ARGUMENT`). Every output array receives `n` values, one status per ray; rays
+/// that did not arrive keep the position and direction where they stopped, and their status says
+/// why and where. `n` may be 0 (nothing is read or written; the arrays may be NULL); otherwise
+/// every array but `out->opl` must be non-NULL (`TOLRAY_ERROR_NULL_ARGUMENT`).
 ///
 /// # Safety
 /// `system`, `rays`, `out` are valid pointers; the arrays they name hold `n` doubles (`status`:
@@ -371,9 +413,13 @@ pub unsafe extern "C" fn tolray_trace(
     })
 }
 
-/// Spot statistics of one field over `n_wavelengths` wavelengths (polychromatic when more than
-/// one: all arriving rays together, about the first wavelength's chief ray). Rays are aimed at
-/// the nominal lens' entrance pupil; apertures clip when `apertures` is nonzero.
+/// Spot statistics of one field over `n_wavelengths` wavelengths (at least 1, else
+/// `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 to 20000 nm), polychromatic when more than
+/// one: all arriving rays together, about the first wavelength's chief ray. The rays are
+/// launched from the nominal lens' paraxial pupil at the first wavelength ("Ray bundles" at the
+/// top of tolray.h) and traced through `system`; apertures clip when `apertures` is nonzero.
+/// `field` and `pupil` are checked as their types say. `TOLRAY_ERROR_NUMERICAL` when no ray of
+/// some wavelength reaches the image.
 ///
 /// # Safety
 /// `system`, `field`, `pupil` are valid pointers; `wavelengths_nm` holds `n_wavelengths`
@@ -429,8 +475,9 @@ pub unsafe extern "C" fn tolray_spot(
     })
 }
 
-/// The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch,
-/// chief-ray centred, 8192 uniform random pupil rays with seed 0.
+/// The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch
+/// (2 r_sensor / hypot(columns, rows) of the lens JSON), chief-ray centred, 8192 uniform random
+/// pupil rays with seed 0, scale 1, no aiming.
 ///
 /// # Safety
 /// `system` is a live handle; `out` points to a writable `tolray_psf_options`.
@@ -468,9 +515,23 @@ pub unsafe extern "C" fn tolray_psf_options_default(
     })
 }
 
-/// The geometric PSF of one field at one wavelength: `kernel_px`² values, row-major with row 0
-/// at +y, summing to 1. A PSF into whose window no ray lands is an error
-/// (`TOLRAY_ERROR_NUMERICAL`), not a result. `out_len` must equal `kernel_px * kernel_px`.
+/// The geometric PSF of one field at one wavelength (finite, 100 to 20000 nm): `kernel_px`^2
+/// values, row-major with row 0 at +y and column 0 at -x, summing to 1.
+///
+/// The rays of `opts->pupil` and the chief ray are launched from the nominal lens' paraxial
+/// pupil at its primary wavelength ("Ray bundles" at the top of tolray.h), traced through
+/// `system` at `wavelength_nm` with apertures clipping, and taken in the sensor frame. The
+/// reference point (x0, y0) of `opts->centre` (the chief ray, or the centroid of the arriving
+/// rays when the chief ray is lost or `TOLRAY_PSF_CENTRE_CENTROID` is asked for) goes to the
+/// centre of pixel (h, h), h = (`kernel_px` - 1) / 2. A ray at (x, y) has the column
+/// u = h + (x - x0) / `pitch_mm` and the row v = h - (y - y0) / `pitch_mm`, and is splatted
+/// bilinearly: its weight 1 is shared among the 2 x 2 pixels around (u, v) by the fractional
+/// parts of u and v. Rays whose 2 x 2 footprint leaves the window (u or v below 0, or at or
+/// above `kernel_px` - 1) and rays that did not arrive are left out, and the PSF is divided by
+/// the number of rays splatted, so it sums to 1 however many were lost. A PSF into whose window
+/// no ray lands is an error (`TOLRAY_ERROR_NUMERICAL`), not a result. `opts` is checked as
+/// [`tolray_psf_options`] says; `out_len` must equal `kernel_px * kernel_px`
+/// (`TOLRAY_ERROR_BUFFER_SIZE`).
 ///
 /// # Safety
 /// `system`, `field`, `opts` are valid pointers; `out` holds `out_len` writable doubles.
@@ -538,10 +599,30 @@ fn write_gradient(
     Ok(())
 }
 
-/// The paper's spot loss of `system` - the sum over fields and wavelengths of each bundle's spot
-/// size in mm (`measure`: `TOLRAY_SPOT_MEAN` or `TOLRAY_SPOT_RMS`) - and its exact gradient with
-/// respect to `vars` (forward-mode dual numbers through the tracer), in `*value_out` and
-/// `grad_out[0..n_vars]`. Apertures clip.
+/// The paper's spot loss of `system` and its exact gradient with respect to `vars`, in
+/// `*value_out` and `grad_out[0..n_vars]`.
+///
+/// Loss: the sum over the `n_fields` x `n_wavelengths` bundles of each bundle's spot size, in mm,
+/// of the rays that reach the image plane (apertures always clip), about the bundle's own
+/// centroid in the sensor frame: `TOLRAY_SPOT_MEAN`, mean |p - c|, or `TOLRAY_SPOT_RMS`,
+/// sqrt(mean |p - c|^2). A bundle none of whose rays arrives counts 10 mm (and adds nothing to
+/// the gradient). Chief rays are not part of the bundles.
+///
+/// Gradient: exact derivatives (forward-mode dual numbers through the same tracer, 8 variables
+/// per trace) with respect to design variables of the system's lens, at their current values,
+/// with the tolerance pattern held fixed: a curvature variable c is traced as
+/// c (1 + curvature_pct / 100), a gap with the pattern's gap changes added, and the pattern's
+/// motions are constants. The ray launch is frozen: the bundles are generated once from the
+/// nominal lens (its paraxial entrance pupil and EFL at the first wavelength, used for every
+/// wavelength; aiming, if on, at its stop) and do not move with the variables, so the gradient
+/// does not include a variable's effect on the entrance pupil or the field angle. Which rays
+/// arrive is held at the current values (vignetting changes are steps, not derivatives).
+///
+/// Checked: `n_fields` and `n_wavelengths` at least 1 (`TOLRAY_ERROR_BUFFER_SIZE`), fields,
+/// wavelengths and `pupil` as for [`tolray_spot`], `measure` 0 or 1, every variable as
+/// [`tolray_param`] says on the system's lens (a glass the pattern perturbs is no longer a model
+/// glass, so its glass variables are refused). `grad_out` may be NULL when `n_vars` is 0.
+/// `TOLRAY_ERROR_NUMERICAL` when the loss or a derivative is not finite.
 ///
 /// # Safety
 /// Pointers valid as named; arrays hold the given counts; outputs writable.
@@ -587,9 +668,24 @@ pub unsafe extern "C" fn tolray_spot_loss_gradient(
     })
 }
 
-/// The paper's PSF-similarity loss of `system` - 1 - the mean over fields × wavelengths of the
-/// similarity between each PSF and the nominal lens' PSF at the same field and wavelength - and
-/// its exact gradient with respect to `vars`.
+/// The paper's PSF-similarity loss of `system` and its exact gradient with respect to `vars`, in
+/// `*value_out` and `grad_out[0..n_vars]`.
+///
+/// Loss: 1 - the mean, over the `n_fields` x `n_wavelengths` PSFs, of the similarity between the
+/// system's PSF and the nominal lens' PSF at the same field and wavelength, both built as
+/// [`tolray_psf`] builds a PSF with `opts` (the same rays, apertures clipping). Similarity: both
+/// PSFs scaled to unit L2 norm, then the largest cross-correlation over integer pixel shifts of
+/// at most `kernel_px` / 2 in x and in y (zero padding), in [0, 1]; 0 when either PSF is empty
+/// (no error here, unlike [`tolray_psf`]).
+///
+/// Gradient: as for [`tolray_spot_loss_gradient`] (exact, pattern fixed, launch frozen), except
+/// that the launch uses the nominal lens' paraxial data at its primary wavelength. The nominal
+/// (reference) PSFs are computed once, in f64, and held fixed, as are the best shift and the
+/// pixel each ray falls in; derivatives flow through the ray positions, the reference point
+/// (chief ray or centroid) and the bilinear weights of the system's PSFs.
+///
+/// Checked: fields, wavelengths and variables as for [`tolray_spot_loss_gradient`], `opts` as
+/// [`tolray_psf_options`] says.
 ///
 /// # Safety
 /// Pointers valid as named; arrays hold the given counts; outputs writable.
@@ -626,12 +722,19 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
 }
 
 /// Simulates a capture through `system` (its lens with its tolerance pattern): the image is cut
-/// into `grid x grid` tiles, each blurred by the RGB PSF of its field (the lens' RGB wavelengths,
-/// `opts` for kernel size, pitch and rays; chief-ray centred) over the tile plus a halo from the
-/// reflect-padded image, then white Gaussian noise of standard deviation `noise_sigma` (linear
-/// [0, 1] units; 0 for none) from `seed` is added. `in` and `out` are planar linear RGB,
-/// `3 * width * height` floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must
-/// equal that count.
+/// into `grid x grid` tiles, each blurred by the RGB PSF of the field at the centre of the
+/// matching cell of a `grid x grid` partition of the sensor (the lens' "wvln_rgb" wavelengths;
+/// `opts` for kernel size, pitch, centring and rays; built as [`tolray_psf`] builds a PSF, traced
+/// in single precision) over the tile plus a halo from the reflect-padded image, then white
+/// Gaussian noise of standard deviation `noise_sigma` (linear [0, 1] units; 0 for none; not
+/// clipped) from `seed` is added. `in` and `out` are planar linear RGB, `3 * width * height`
+/// floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must equal that count.
+///
+/// Checked: `grid` 1 to 64 and at most `width` and `height`, and `out_len`
+/// (`TOLRAY_ERROR_BUFFER_SIZE`); `noise_sigma` finite and 0 or more, `opts` as
+/// [`tolray_psf_options`] says, `kernel_px` / 2 below `width` and `height`, and the padded image,
+/// (`width` + `kernel_px` - 1) x (`height` + `kernel_px` - 1), at most 2^28 pixels
+/// (`TOLRAY_ERROR_ARGUMENT`). `TOLRAY_ERROR_NUMERICAL` when a PSF is empty.
 ///
 /// # Safety
 /// `system` and `opts` are valid pointers; `in` holds `3 * width * height` readable floats and

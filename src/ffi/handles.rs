@@ -21,7 +21,8 @@ pub struct tolray_pattern {
 }
 
 /// A lens as traced: a nominal lens compiled with a tolerance pattern applied (or none). Rays are
-/// aimed at the nominal lens' entrance pupil, as a fabricated lens is used. Immutable; shareable.
+/// aimed at the nominal lens' entrance pupil, as a fabricated lens is used ("Ray bundles" at the
+/// top of tolray.h). Immutable; shareable.
 pub struct tolray_system {
     /// The nominal lens (ray generation, ideal PSFs).
     pub(crate) nominal: Lens,
@@ -33,7 +34,10 @@ pub struct tolray_system {
     pub(crate) sys: System<f64>,
 }
 
-/// A design variable of a lens, for gradients.
+/// A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
+/// lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 5; `surface` below the number of surfaces; `term`
+/// 0 to 7 for `TOLRAY_PARAM_ASPHERE` (ignored by the other kinds); for the glass kinds, the
+/// medium after the surface must be a model glass ("n_d/V_d" in the lens JSON).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct tolray_param {
@@ -45,17 +49,19 @@ pub struct tolray_param {
     pub term: u32,
 }
 
-/// Curvature of a surface, 1/mm.
+/// Curvature c of a surface, 1/mm (the radius is 1/c; 0 is flat).
 pub const TOLRAY_PARAM_CURVATURE: u32 = 0;
 /// Conic constant of a surface.
 pub const TOLRAY_PARAM_CONIC: u32 = 1;
 /// Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
 pub const TOLRAY_PARAM_ASPHERE: u32 = 2;
-/// Gap after a surface (thickness or air space), mm.
+/// Gap after a surface (thickness or air space), mm. Changing it moves every later surface and
+/// the image plane; the last surface's gap is its distance to the image plane.
 pub const TOLRAY_PARAM_GAP: u32 = 3;
-/// n_d of the model glass after a surface.
+/// n_d (the index at 587.5618 nm) of the model glass after a surface. A model glass' index is
+/// n = A + B / lambda^2, fitted to n_d and V_d.
 pub const TOLRAY_PARAM_GLASS_ND: u32 = 4;
-/// V_d of the model glass after a surface.
+/// V_d (the Abbe number) of the model glass after a surface.
 pub const TOLRAY_PARAM_GLASS_VD: u32 = 5;
 
 impl tolray_param {
@@ -100,15 +106,16 @@ pub struct tolray_paraxial {
     pub exit_pupil_diameter_mm: f64,
     /// F-number for an object at infinity, EFL / EPD.
     pub fnum: f64,
-    /// Working F-number for the stated object.
+    /// Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray.
     pub working_fnum: f64,
     /// Lateral magnification for the stated object (0 at infinity).
     pub magnification: f64,
-    /// Half field of view from the sensor's half-diagonal, degrees.
+    /// Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees.
     pub half_fov_deg: f64,
     /// Total track: first vertex to the image plane, mm.
     pub total_track_mm: f64,
-    /// Index of the aperture-stop surface.
+    /// Index of the aperture-stop surface: the marked one, else the surface that limits the axial
+    /// beam.
     pub stop_surface: u32,
     /// Number of surfaces of the lens (the image plane not counted).
     pub num_surfaces: u32,
@@ -143,8 +150,11 @@ fn parse_json<T: serde::de::DeserializeOwned>(text: &str, what: &str) -> FfiResu
     })
 }
 
-/// Loads a lens from a built-in name (`lens1`, `lens2`, `cooke-triplet`) or a DeepLens JSON file
-/// path; `*out` receives a new handle to free with [`tolray_lens_free`].
+/// Loads a lens from a built-in name (`lens1`, `lens2`, `cooke-triplet`, in any case; tried
+/// first) or a file path: a Zemax OpticStudio .zmx file by its extension (in any case), otherwise
+/// lens JSON (the format at the top of tolray.h). `*out` receives a new handle to free with
+/// [`tolray_lens_free`]. A path that does not exist gives `TOLRAY_ERROR_IO`; a JSON file's
+/// errors are those of [`tolray_lens_from_json`].
 ///
 /// # Safety
 /// `name_or_path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -162,7 +172,10 @@ pub unsafe extern "C" fn tolray_lens_load(
     })
 }
 
-/// Parses a lens from DeepLens JSON text; `*out` receives a new handle.
+/// Parses a lens from DeepLens JSON text (the format at the top of tolray.h); `*out` receives a
+/// new handle. `TOLRAY_ERROR_PARSE` for malformed JSON or a value of the wrong JSON type,
+/// `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass or a lens
+/// beyond the limits listed there, `TOLRAY_ERROR_ARGUMENT` for an object distance of 0.
 ///
 /// # Safety
 /// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -180,8 +193,9 @@ pub unsafe extern "C" fn tolray_lens_from_json(
     })
 }
 
-/// Writes the lens as DeepLens JSON into `buf` (`cap` bytes, NUL-terminated) and its length
-/// without the NUL into `*len_out`. Call with `buf` NULL and `cap` 0 to learn the length; a `cap`
+/// Writes the lens as DeepLens JSON (the format at the top of tolray.h; it reads back to the
+/// same lens) into `buf` (`cap` bytes, NUL-terminated) and its length without the NUL into
+/// `*len_out`. Call with `buf` NULL and `cap` 0 to learn the length; a `cap`
 /// smaller than length + 1 gives `TOLRAY_ERROR_BUFFER_SIZE` and writes nothing.
 ///
 /// # Safety
@@ -212,7 +226,9 @@ pub unsafe extern "C" fn tolray_lens_free(lens: *mut tolray_lens) {
     unsafe { free(lens) }
 }
 
-/// Paraxial (first-order) data of the lens at `wavelength_nm`.
+/// Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
+/// `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 1 and 5;
+/// `TOLRAY_ERROR_NUMERICAL` for an afocal lens or one without a finite first-order image.
 ///
 /// # Safety
 /// `lens` is a live handle; `out` points to a writable `tolray_paraxial`.
@@ -253,7 +269,8 @@ pub unsafe extern "C" fn tolray_lens_paraxial(
     })
 }
 
-/// The current value of a design variable of the lens.
+/// The current value of a design variable of the lens (`param` checked as [`tolray_param`]
+/// says).
 ///
 /// # Safety
 /// `lens` and `param` are valid pointers; `value_out` points to a writable `double`.
@@ -279,7 +296,12 @@ pub unsafe extern "C" fn tolray_lens_param_get(
 }
 
 /// A new lens equal to `lens` with one design variable set to `value` (lenses are immutable;
-/// this is how an optimizer steps). The new lens is validated.
+/// this is how an optimizer steps). `param` is checked as [`tolray_param`] says and `value` must
+/// be finite (`TOLRAY_ERROR_ARGUMENT`). The new lens is validated as a lens read from JSON
+/// (`TOLRAY_ERROR_INVALID_INPUT`): |c| at most 1000 1/mm and 0 on an aperture surface, which
+/// also takes no asphere terms; |k| at most 1e6; gaps 0 to 1e6 mm; the clear semi-aperture r
+/// inside the conic's rim, (1 + k) c^2 r^2 at most 1; a model glass' n_d at least 1 and V_d above
+/// 0; every medium's index between 1 and 5 at the primary wavelength.
 ///
 /// # Safety
 /// `lens` and `param` are valid pointers; `out` points to writable storage for a pointer.
@@ -328,7 +350,9 @@ pub unsafe extern "C" fn tolray_spec_default(out: *mut *mut tolray_spec) -> tolr
     })
 }
 
-/// Reads a tolerance spec file (JSON, the format of `tolray tolerance --spec`).
+/// Reads a tolerance spec file (JSON, the format of `tolray tolerance --spec`, described at the
+/// top of tolray.h). A file that cannot be read gives `TOLRAY_ERROR_IO`; other errors are those
+/// of [`tolray_spec_from_json`].
 ///
 /// # Safety
 /// `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -346,7 +370,9 @@ pub unsafe extern "C" fn tolray_spec_load(
     })
 }
 
-/// Parses a tolerance spec from JSON text.
+/// Parses a tolerance spec from JSON text (the format at the top of tolray.h).
+/// `TOLRAY_ERROR_PARSE` for malformed JSON, an unknown key, operand type or distribution, or a
+/// `max` that is negative or not finite. Indices are checked later, by [`tolray_pattern_sample`].
 ///
 /// # Safety
 /// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -376,6 +402,9 @@ pub unsafe extern "C" fn tolray_spec_free(spec: *mut tolray_spec) {
 
 /// Samples tolerance pattern `index` of `seed` for `lens`: the same pattern on every machine and
 /// thread count (ChaCha8 seeded with `seed`, stream `index`), identical to the CLI's trial `index`.
+/// Values are drawn operand by operand in spec order, then target by target in index order,
+/// then axis x, y, z. `TOLRAY_ERROR_INVALID_INPUT` when an operand names an element or surface
+/// the lens does not have, or an element operand lists surfaces (or a surface operand elements).
 ///
 /// # Safety
 /// `spec` and `lens` are live handles; `out` points to writable storage for a pointer.
@@ -398,7 +427,9 @@ pub unsafe extern "C" fn tolray_pattern_sample(
     })
 }
 
-/// Reads a tolerance pattern file (JSON, the format of `--perturb`).
+/// Reads a tolerance pattern file (JSON, the format of `--perturb`, described at the top of
+/// tolray.h). A file that cannot be read gives `TOLRAY_ERROR_IO`; other errors are those of
+/// [`tolray_pattern_from_json`].
 ///
 /// # Safety
 /// `path` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -416,7 +447,9 @@ pub unsafe extern "C" fn tolray_pattern_load(
     })
 }
 
-/// Parses a tolerance pattern from JSON text.
+/// Parses a tolerance pattern from JSON text (the format at the top of tolray.h).
+/// `TOLRAY_ERROR_PARSE` for malformed JSON, an unknown key or a value of the wrong type. The
+/// pattern is checked against a lens by [`tolray_system_new`].
 ///
 /// # Safety
 /// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -465,6 +498,9 @@ pub unsafe extern "C" fn tolray_pattern_free(pattern: *mut tolray_pattern) {
 
 /// Compiles `lens` for tracing with the tolerance pattern `pattern` applied, or nominal when
 /// `pattern` is NULL. The lens handle is not changed and may be freed afterwards.
+/// `TOLRAY_ERROR_INVALID_INPUT` when the pattern does not fit the lens: an element or surface
+/// index out of range, a value that is not finite, an index error that takes n_d below 1 or an
+/// Abbe-number error that makes V_d 0 or less.
 ///
 /// # Safety
 /// `lens` is a live handle; `pattern` is NULL or a live handle; `out` points to writable
