@@ -1399,7 +1399,7 @@ fn draw_deep_training<DB: DrawingBackend>(
         .draw_series(std::iter::empty::<PathElement<(f64, f64)>>())?
         .label("light: training batch; dots: held-out fabricated units")
         .legend(|(x, y)| EmptyElement::at((x, y)));
-    legend_box(&mut chart, s, SeriesLabelPosition::LowerRight)?;
+    legend_box(&mut chart, s, SeriesLabelPosition::LowerMiddle)?;
 
     let lr = log_span(all().map(|r| r.3));
     let mut chart = frame(&bottom, s, Right::Margin)

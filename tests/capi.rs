@@ -604,3 +604,60 @@ fn render_through_the_c_abi_matches_the_library() {
         tolray_lens_free(lens);
     }
 }
+
+/// A spot pupil of more rays than `MAX_PUPIL_RAYS` is refused with a status before anything is
+/// allocated (a 3000 x 3000 grid was accepted and traced; a larger one could abort the host).
+#[test]
+fn oversized_spot_pupils_are_refused_with_a_status() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    let name = std::ffi::CString::new("lens2").unwrap();
+    let (mut lens, mut sys) = (null_mut(), null_mut());
+    // SAFETY: valid pointers; handles freed below.
+    unsafe {
+        assert_eq!(
+            tolray_lens_load(name.as_ptr(), &mut lens),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_system_new(lens, std::ptr::null(), &mut sys),
+            tolray_status::TOLRAY_OK
+        );
+    }
+    let field = tolray_field {
+        kind: TOLRAY_FIELD_FRACTION,
+        x: 0.0,
+        y: 0.7,
+    };
+    let wl = [587.5618];
+    let mut stats = std::mem::MaybeUninit::<tolray_spot_stats>::uninit();
+    for (n, want) in [
+        (2048u32, tolray_status::TOLRAY_OK),
+        (3000, tolray_status::TOLRAY_ERROR_ARGUMENT),
+        (100_000_000, tolray_status::TOLRAY_ERROR_ARGUMENT),
+    ] {
+        let pupil = tolray_pupil {
+            pattern: TOLRAY_PUPIL_GRID,
+            n,
+            seed: 0,
+            scale: 1.0,
+            aim: 0,
+        };
+        // SAFETY: valid handle, field, wavelength and pupil; `stats` is writable.
+        let st = unsafe { tolray_spot(sys, &field, wl.as_ptr(), 1, &pupil, 1, stats.as_mut_ptr()) };
+        assert_eq!(st, want, "grid {n}");
+        if n == 3000 {
+            let mut buf = [0 as std::ffi::c_char; 256];
+            // SAFETY: `buf` holds 256 bytes.
+            unsafe { tolray_last_error(buf.as_mut_ptr(), buf.len()) };
+            // SAFETY: NUL-terminated by tolray_last_error.
+            let msg = unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }.to_string_lossy();
+            assert!(msg.contains("at most 4194304"), "{msg}");
+        }
+    }
+    // SAFETY: handles from the calls above.
+    unsafe {
+        tolray_system_free(sys);
+        tolray_lens_free(lens);
+    }
+}

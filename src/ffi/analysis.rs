@@ -36,10 +36,9 @@ pub const TOLRAY_FIELD_HEIGHT_MM: u32 = 2;
 
 /// Pupil sampling: points (px, py) in the unit disk times `scale`, normalized coordinates of the
 /// paraxial entrance pupil ("Ray bundles" at the top of tolray.h). Checked everywhere
-/// (`TOLRAY_ERROR_ARGUMENT`): `pattern` 0 to 2, `n` 1 to 100000000, `scale` in (0, 10]. In
-/// [`tolray_psf_options`] the pattern may also hold at most 4194304 (2^22) points;
-/// [`tolray_spot`] and [`tolray_spot_loss_gradient`] do not apply that limit, so a large grid or
-/// hex `n` there allocates about n^2 or 3 n^2 rays.
+/// (`TOLRAY_ERROR_ARGUMENT`): `pattern` 0 to 2, `n` 1 to 100000000, `scale` in (0, 10], and the
+/// pattern holds at most 4194304 (2^22) points per bundle (a grid n^2, a hex pattern about
+/// 3 n^2, random n), checked before any ray is allocated.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct tolray_pupil {

@@ -285,7 +285,8 @@ impl RaySet {
     /// Generates the rays of `field` through `pupil` at `wavelength_nm` (used for aiming only).
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for an object-height field at infinity;
+    /// [`crate::ErrorKind::Argument`] for an object-height field at infinity or a pupil pattern
+    /// with no ray or more than [`MAX_PUPIL_RAYS`] (checked before anything is allocated);
     /// [`crate::ErrorKind::Numerical`] when ray aiming fails to converge.
     pub fn generate(
         lens: &Lens,
@@ -294,6 +295,7 @@ impl RaySet {
         pupil: &Pupil,
         wavelength_nm: f64,
     ) -> Result<RaySet> {
+        pupil.pattern.check()?;
         Self::generate_at(lens, para, field, &pupil.points(), pupil.aim, wavelength_nm)
     }
 
