@@ -200,7 +200,7 @@
 
 /**
  * `x`, `y` are field angles, degrees, in the x-z and y-z planes (tangents tan x, tan y), seen
- * from the first vertex. They are not range-checked: keep them below 90 in magnitude.
+ * from the first vertex; each must be finite and below 90 in magnitude (`TOLRAY_ERROR_ARGUMENT`).
  */
 #define TOLRAY_FIELD_ANGLE_DEG 1
 
@@ -953,8 +953,8 @@ tolray_status tolray_psf_options_default(const struct tolray_system *system,
  * clipped) from `seed` is added. `in` and `out` are planar linear RGB, `3 * width * height`
  * floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must equal that count.
  *
- * Checked: `grid` 1 to 64 and at most `width` and `height`, and `out_len`
- * (`TOLRAY_ERROR_BUFFER_SIZE`); `noise_sigma` finite and 0 or more, `opts` as
+ * Checked: `out_len` (`TOLRAY_ERROR_BUFFER_SIZE`); `grid` 1 to 64 and at most `width` and
+ * `height`, `noise_sigma` finite and 0 or more, `opts` as
  * [`tolray_psf_options`] says, `kernel_px` / 2 below `width` and `height`, and the padded image,
  * (`width` + `kernel_px` - 1) x (`height` + `kernel_px` - 1), at most 2^28 pixels
  * (`TOLRAY_ERROR_ARGUMENT`). `TOLRAY_ERROR_NUMERICAL` when a PSF is empty.

@@ -562,44 +562,22 @@ fn render_through_the_c_abi_matches_the_library() {
     unsafe {
         let short = out.len() - 1;
         let p = out.as_mut_ptr();
-        assert_ne!(
-            tolray_render(sys, &opts, 4, 0.01, 5, w, h, img.data.as_ptr(), p, short),
-            tolray_status::TOLRAY_OK
+        let x = img.data.as_ptr();
+        let n = out.len();
+        let render = |grid: u32, sigma: f64, input: *const f32, len: usize| {
+            tolray_render(sys, &opts, grid, sigma, 5, w, h, input, p, len)
+        };
+        use tolray_status::*;
+        assert_eq!(render(4, 0.01, x, short), TOLRAY_ERROR_BUFFER_SIZE);
+        assert_eq!(
+            render(4, 0.01, std::ptr::null(), n),
+            TOLRAY_ERROR_NULL_ARGUMENT
         );
-        assert_ne!(
-            tolray_render(sys, &opts, 4, 0.01, 5, w, h, std::ptr::null(), p, out.len()),
-            tolray_status::TOLRAY_OK
-        );
-        assert_ne!(
-            tolray_render(
-                sys,
-                &opts,
-                0,
-                0.01,
-                5,
-                w,
-                h,
-                img.data.as_ptr(),
-                p,
-                out.len()
-            ),
-            tolray_status::TOLRAY_OK
-        );
-        assert_ne!(
-            tolray_render(
-                sys,
-                &opts,
-                4,
-                f64::NAN,
-                5,
-                w,
-                h,
-                img.data.as_ptr(),
-                p,
-                out.len()
-            ),
-            tolray_status::TOLRAY_OK
-        );
+        // A grid out of 1..=64 or larger than the image is a bad argument, not a buffer size.
+        assert_eq!(render(0, 0.01, x, n), TOLRAY_ERROR_ARGUMENT);
+        assert_eq!(render(49, 0.01, x, n), TOLRAY_ERROR_ARGUMENT);
+        assert_eq!(render(4, f64::NAN, x, n), TOLRAY_ERROR_ARGUMENT);
+        assert_eq!(render(4, -0.1, x, n), TOLRAY_ERROR_ARGUMENT);
         tolray_system_free(sys);
         tolray_lens_free(lens);
     }

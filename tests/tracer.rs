@@ -352,3 +352,34 @@ fn raw_trace_keeps_every_row() {
     let st: Vec<&str> = out.iter().map(|h| h.status.as_str()).collect();
     assert_eq!(st, ["invalid", "invalid", "invalid", "alive", "invalid"]);
 }
+
+/// A field angle of 90° or more (or NaN) is refused: tan flips sign past 90°, so such a field
+/// traced silently from the wrong side before.
+#[test]
+fn field_angles_of_90_degrees_or_more_are_refused() {
+    use tolray::trace::{Field, Pupil, RaySet};
+    let lens = Lens::load("cooke-triplet").unwrap();
+    let para = lens.paraxial(587.5618).unwrap();
+    let gen = |x: f64, y: f64| {
+        RaySet::generate(
+            &lens,
+            &para,
+            Field::AngleDeg { x, y },
+            &Pupil::grid(4),
+            587.5618,
+        )
+    };
+    assert!(gen(0.0, 20.0).is_ok());
+    assert!(gen(-89.0, 0.0).is_ok());
+    for (x, y) in [
+        (0.0, 90.0),
+        (0.0, 95.0),
+        (-120.0, 0.0),
+        (f64::NAN, 0.0),
+        (0.0, f64::INFINITY),
+    ] {
+        let e = gen(x, y).unwrap_err();
+        assert_eq!(e.kind, tolray::ErrorKind::Argument, "({x}, {y})");
+        assert!(e.message.contains("below 90°"), "{}", e.message);
+    }
+}

@@ -28,7 +28,7 @@ pub struct tolray_field {
 /// half-diagonal paraxially for an object at infinity.
 pub const TOLRAY_FIELD_FRACTION: u32 = 0;
 /// `x`, `y` are field angles, degrees, in the x-z and y-z planes (tangents tan x, tan y), seen
-/// from the first vertex. They are not range-checked: keep them below 90 in magnitude.
+/// from the first vertex; each must be finite and below 90 in magnitude (`TOLRAY_ERROR_ARGUMENT`).
 pub const TOLRAY_FIELD_ANGLE_DEG: u32 = 1;
 /// `x`, `y` are object heights, mm: the object point is (x, y, -d) for an object at distance d
 /// (finite objects only; at infinity `TOLRAY_ERROR_ARGUMENT`).
@@ -729,8 +729,8 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
 /// clipped) from `seed` is added. `in` and `out` are planar linear RGB, `3 * width * height`
 /// floats, channel-major, row 0 at the top (+y on the sensor); `out_len` must equal that count.
 ///
-/// Checked: `grid` 1 to 64 and at most `width` and `height`, and `out_len`
-/// (`TOLRAY_ERROR_BUFFER_SIZE`); `noise_sigma` finite and 0 or more, `opts` as
+/// Checked: `out_len` (`TOLRAY_ERROR_BUFFER_SIZE`); `grid` 1 to 64 and at most `width` and
+/// `height`, `noise_sigma` finite and 0 or more, `opts` as
 /// [`tolray_psf_options`] says, `kernel_px` / 2 below `width` and `height`, and the padded image,
 /// (`width` + `kernel_px` - 1) x (`height` + `kernel_px` - 1), at most 2^28 pixels
 /// (`TOLRAY_ERROR_ARGUMENT`). `TOLRAY_ERROR_NUMERICAL` when a PSF is empty.
@@ -759,7 +759,7 @@ pub unsafe extern "C" fn tolray_render(
         let (w, h) = (width as usize, height as usize);
         let n = 3usize.saturating_mul(w).saturating_mul(h);
         if !(1..=64).contains(&grid) || w < grid as usize || h < grid as usize {
-            return Err(FfiError::size(format!(
+            return Err(FfiError::argument(format!(
                 "grid {grid} must be 1 to 64 and at most the image size {width}x{height}"
             )));
         }

@@ -107,7 +107,16 @@ impl Field {
     /// Field angles (tan x, tan y) seen from the first vertex.
     fn tangents(&self, lens: &Lens, para: &Paraxial) -> Result<(f64, f64)> {
         Ok(match *self {
-            Field::AngleDeg { x, y } => (x.to_radians().tan(), y.to_radians().tan()),
+            Field::AngleDeg { x, y } => {
+                // tan flips sign past 90°: a field there is not a direction toward the lens.
+                if !(x.abs() < 90.0 && y.abs() < 90.0) {
+                    return Err(Error::argument(format!(
+                        "field angle ({x}°, {y}°): each angle must be finite and below 90° in \
+                         magnitude"
+                    )));
+                }
+                (x.to_radians().tan(), y.to_radians().tan())
+            }
             Field::Fraction { x, y } => {
                 let t = lens.sensor.half_diagonal_mm() / para.efl_mm;
                 (x * t, y * t)
