@@ -412,6 +412,16 @@ pub struct Report {
     pub scores: Vec<DesignScores>,
 }
 
+/// Mean of `v` (0 for none): the paired comparisons' first statistic.
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+/// The value 90 % of `v` exceed: the paired comparisons' yield statistic.
+fn y90(v: &[f64]) -> f64 {
+    YieldTable::from(v).y90
+}
+
 /// Builds the report from per-design scores; `pairs` names (a, b) design pairs.
 ///
 /// # Errors
@@ -457,8 +467,6 @@ pub fn report(
         }
         let pa: Vec<f64> = sa.trials.iter().map(|t| t.psnr).collect();
         let pb: Vec<f64> = sb.trials.iter().map(|t| t.psnr).collect();
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        let y90 = |v: &[f64]| YieldTable::from(v).y90;
         let (dm, cim) = paired_bootstrap(&pa, &pb, mean, config.bootstrap, config.seed)?;
         let (dy, ciy) = paired_bootstrap(&pa, &pb, y90, config.bootstrap, config.seed ^ 1)?;
         rows.push(PairRow {
@@ -610,8 +618,6 @@ pub fn pool(reports: &[Report]) -> Result<PooledReport> {
             s.trials.iter().map(|t| t.psnr).collect(),
         ))
     };
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let y90 = |v: &[f64]| YieldTable::from(v).y90;
     let mut pairs = Vec::new();
     for p in &first.pairs {
         let mut groups = Vec::new();

@@ -125,10 +125,7 @@ pub fn run_training(
             .map_err(|e| Error::new(ErrorKind::Invalid, format!("log: {e}")))
             .map(|s| s + "\n")
     };
-    let body: String = logs
-        .iter()
-        .map(|l| serde_json::to_string(l).unwrap_or_default() + "\n")
-        .collect();
+    let body = logs.iter().map(line).collect::<Result<String>>()?;
     write_atomic(&log_path, body.as_bytes())?;
     let mut log = std::fs::OpenOptions::new()
         .append(true)
