@@ -772,7 +772,7 @@ tolray_status tolray_lens_param_get(const struct tolray_lens *lens,
 
 /**
  * Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
- * `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 1 and 5;
+ * `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 0.9 and 5;
  * `TOLRAY_ERROR_NUMERICAL` for an afocal lens or one without a finite first-order image.
  *
  * # Safety
@@ -804,7 +804,7 @@ tolray_status tolray_lens_to_json(const struct tolray_lens *lens,
  * (`TOLRAY_ERROR_INVALID_INPUT`): |c| at most 1000 1/mm and 0 on an aperture surface, which
  * also takes no asphere terms; |k| at most 1e6; gaps 0 to 1e6 mm; the clear semi-aperture r
  * inside the conic's rim, (1 + k) c^2 r^2 at most 1; a model glass' n_d at least 1 and V_d above
- * 0; every medium's index between 1 and 5 at the primary wavelength.
+ * 0; every medium's index between 0.9 and 5 at the primary wavelength.
  *
  * # Safety
  * `lens` and `param` are valid pointers; `out` points to writable storage for a pointer.

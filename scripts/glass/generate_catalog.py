@@ -184,7 +184,8 @@ HEADER = """//! Built-in glass catalog ({n} glasses): dispersion data of the pub
 //! - **Sumita**: SUMITA Zemax catalog (sumita-opt.co.jp), likewise.
 //! - **Misc**: plastics and crystals from the Zemax `MISC.AGF` catalog as committed in the
 //!   DeepLens repository (carried over): PMMA, POLYCARB, POLYSTYR (Handbook of Optics Vol. II),
-//!   COC (Hoechst Celanese), F_SILICA (Malitson 1965), CAF2 (Handbook of Optics Vol. II).
+//!   COC (Hoechst Celanese), F_SILICA and SILICA (fused silica, both Malitson 1965, as
+//!   Zemax's MISC catalog has both names), CAF2 (Handbook of Optics Vol. II).
 //!
 //! Coefficients are the pages' own, in the formula the catalog uses (Sellmeier; the Schott
 //! formula; Hikari's extended formula), never refitted. `nd`/`vd` are the catalog's nominal

@@ -386,7 +386,7 @@ impl Stepper<'_> {
         };
         let t = q.t0 + hit.t as f64;
         let h = q.p + q.dl * t;
-        if h.x * h.x + h.y * h.y > row.ap2 {
+        if row.clip.stops(h.x, h.y) {
             s.status = RayStatus::Vignetted(i);
             return;
         }
@@ -451,7 +451,6 @@ impl SurfaceAcc {
     fn compare(&mut self, st: &Stepper, q: &Query, opts: &CheckOptions) {
         let (row, mesh) = (st.row, st.mesh);
         let analytic = intersect_local(row, q.p, q.dl);
-        let ap = row.ap2;
         match (q.hit, analytic) {
             (Some(hit), Some((ta, dza))) => {
                 let te = q.t0 + hit.t as f64;
@@ -481,7 +480,7 @@ impl SurfaceAcc {
                 if let Some(tx) = exact_t(mesh, hit.prim, q.org, q.dir) {
                     self.max_f32 = self.max_f32.max((hit.t as f64 - tx).abs());
                 }
-                let inside = |h: Vec3<f64>| h.x * h.x + h.y * h.y <= ap;
+                let inside = |h: Vec3<f64>| !row.clip.stops(h.x, h.y);
                 if inside(he) != inside(ha) {
                     self.rim_flips += 1;
                 }
@@ -489,7 +488,7 @@ impl SurfaceAcc {
             (None, Some((ta, _))) => {
                 let ha = q.p + q.dl * ta;
                 let r2 = ha.x * ha.x + ha.y * ha.y;
-                if r2 <= ap {
+                if !row.clip.stops(ha.x, ha.y) {
                     if r2.sqrt() <= mesh.disk_mm {
                         self.leaks += 1;
                     } else {
@@ -520,7 +519,7 @@ fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> 
                 let h = p + dl * t;
                 let r2 = h.x * h.x + h.y * h.y;
                 used[i] = used[i].max(r2.sqrt());
-                if r2 > row.ap2 {
+                if row.clip.stops(h.x, h.y) {
                     break;
                 }
                 let mut dn = dl;
@@ -591,7 +590,7 @@ pub fn check_system(
     let used = used_radii(sys, rays, &indices);
     for (i, row) in sys.rows.iter().enumerate() {
         let t_build = Instant::now();
-        let disk = (1.02 * used[i] + 0.05).min(row.ap2.sqrt());
+        let disk = (1.02 * used[i] + 0.05).min(row.clip.reach_mm);
         let mesh = Mesh::with_radius(row, i, disk, opts.chord_mm, opts.frame)?;
         let scene = Scene::new(
             device,

@@ -246,8 +246,9 @@ impl Mesh {
         Mesh::with_radius(row, surface, row.ap2.sqrt(), chord_mm, frame)
     }
 
-    /// As [`Mesh::new`], covering the disk of radius `radius_mm` (at most the clear
-    /// semi-aperture) instead of the whole clear aperture.
+    /// As [`Mesh::new`], covering the disk of radius `radius_mm` (at most the farthest a ray
+    /// can pass the surface's hard aperture, and inside a conic's rim) instead of the
+    /// semi-diameter's disk.
     ///
     /// # Errors
     /// As [`Mesh::new`]; also [`crate::ErrorKind::Argument`] for a radius that is not positive.
@@ -263,7 +264,13 @@ impl Mesh {
                 "chord bound {chord_mm} mm: must be positive"
             )));
         }
-        let a = radius_mm.min(row.ap2.sqrt());
+        let rim2 = row.k1 * row.c * row.c;
+        let rim = if rim2 > 0.0 {
+            (1.0 - 1e-12) / rim2.sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let a = radius_mm.min(row.clip.reach_mm).min(rim);
         if !(a > 0.0 && a.is_finite()) {
             return Err(Error::argument(format!(
                 "surface {surface}: a disk of radius {a} mm cannot be tessellated"

@@ -5,8 +5,18 @@
 //! `obj_depth` (negative mm), `ai` with or without `use_ai2`. Keys in parentheses are
 //! informational and ignored, except `"(object)": "inf"`, tolray's marker for an object at
 //! infinity (DeepLens ignores it too). Unknown surface types are errors, never skipped.
+//!
+//! A surface's `r` is its semi-diameter and, as in DeepLens, clips rays. tolray adds an optional
+//! `"aperture"` object (DeepLens ignores it) for what `r` cannot say: `{"type": "none"}` (the
+//! surface does not clip: an OpticStudio semi-diameter), or a hard aperture
+//! `{"type": "circular", "min": 0, "max": 5}`, `{"type": "rectangular", "half_x": 4, "half_y": 3}`,
+//! `{"type": "elliptical", "half_x": 4, "half_y": 3}`, each with optional `"decenter": [x, y]`
+//! (mm) and `"obscuration": true`.
 
-use super::{GlassCatalogs, Lens, Material, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use super::{
+    Aperture, ApertureShape, GlassCatalogs, Lens, Material, Object, Sensor, Surface, SurfaceRole,
+    N_ASPH,
+};
 use crate::error::{Error, ErrorKind, Result};
 use serde_json::{json, Map, Value};
 use std::path::Path;
@@ -95,6 +105,97 @@ fn finite(v: f64, at: &str, key: &str) -> Result<f64> {
             "{at}\"{key}\" is not a finite number"
         )))
     }
+}
+
+/// tolray's `"aperture"` key of a surface (see the module documentation); absent: the
+/// semi-diameter clips (DeepLens' meaning of `r`).
+fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
+    let Some(v) = s.get("aperture") else {
+        return Ok(Some(Aperture::SEMI_DIAMETER));
+    };
+    let at = format!("{at}\"aperture\": ");
+    let parse = |m: String| Error::new(ErrorKind::Parse, format!("{at}{m}"));
+    let Value::Object(a) = v else {
+        return Err(parse(format!("must be an object, found {v}")));
+    };
+    let ty = match a.get("type") {
+        Some(Value::String(t)) => t.as_str(),
+        _ => return Err(parse("needs a \"type\" string".into())),
+    };
+    let need = |key: &str| -> Result<f64> {
+        num(a, key, &at)?
+            .ok_or_else(|| parse(format!("a {ty} aperture needs \"{key}\" (mm)")))
+            .and_then(|v| finite(v, &at, key))
+    };
+    let shape = match ty {
+        "none" => return Ok(None),
+        "semi_diameter" => ApertureShape::SemiDiameter,
+        "circular" => ApertureShape::Circular {
+            min_mm: num(a, "min", &at)?.map_or(Ok(0.0), |v| finite(v, &at, "min"))?,
+            max_mm: need("max")?,
+        },
+        "rectangular" => ApertureShape::Rectangular {
+            half_x_mm: need("half_x")?,
+            half_y_mm: need("half_y")?,
+        },
+        "elliptical" => ApertureShape::Elliptical {
+            half_x_mm: need("half_x")?,
+            half_y_mm: need("half_y")?,
+        },
+        other => return Err(Error::invalid(format!(
+            "{at}unknown type \"{other}\" (none, semi_diameter, circular, rectangular, elliptical)"
+        ))),
+    };
+    let obscuration = match a.get("obscuration") {
+        None => false,
+        Some(Value::Bool(b)) => *b,
+        Some(other) => {
+            return Err(parse(format!(
+                "\"obscuration\" must be true or false, found {other}"
+            )))
+        }
+    };
+    let decenter_mm = num_array::<2>(a, "decenter", &at)?.unwrap_or([0.0; 2]);
+    for v in decenter_mm {
+        finite(v, &at, "decenter")?;
+    }
+    let ap = Aperture {
+        shape,
+        decenter_mm,
+        obscuration,
+    };
+    ap.validate()
+        .map_err(|e| Error::invalid(format!("{at}{}", e.message)))?;
+    Ok(Some(ap))
+}
+
+/// tolray's `"aperture"` value for `a`, or `None` where DeepLens' `r` says it all.
+fn aperture_value(a: Option<&Aperture>) -> Option<Value> {
+    let Some(a) = a else {
+        return Some(json!({"type": "none"}));
+    };
+    let mut m = match a.shape {
+        ApertureShape::SemiDiameter if a.decenter_mm == [0.0; 2] && !a.obscuration => return None,
+        ApertureShape::SemiDiameter => json!({"type": "semi_diameter"}),
+        ApertureShape::Circular { min_mm, max_mm } => {
+            json!({"type": "circular", "min": min_mm, "max": max_mm})
+        }
+        ApertureShape::Rectangular {
+            half_x_mm,
+            half_y_mm,
+        } => json!({"type": "rectangular", "half_x": half_x_mm, "half_y": half_y_mm}),
+        ApertureShape::Elliptical {
+            half_x_mm,
+            half_y_mm,
+        } => json!({"type": "elliptical", "half_x": half_x_mm, "half_y": half_y_mm}),
+    };
+    if a.decenter_mm != [0.0; 2] {
+        m["decenter"] = json!(a.decenter_mm);
+    }
+    if a.obscuration {
+        m["obscuration"] = json!(true);
+    }
+    Some(m)
 }
 
 /// Builds a lens from parsed JSON.
@@ -209,6 +310,16 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         sensor,
         primary_wavelength_nm: primary_um * 1e3,
         rgb_wavelengths_nm: rgb_um.map(|w| w * 1e3),
+        ray_aiming: match top.get("ray_aiming") {
+            None => false,
+            Some(Value::Bool(b)) => *b,
+            Some(other) => {
+                return Err(Error::new(
+                    ErrorKind::Parse,
+                    format!("\"ray_aiming\" must be true or false, found {other}"),
+                ))
+            }
+        },
     };
     lens.validate()?;
     Ok(lens)
@@ -234,7 +345,7 @@ fn surface_from(
         }
     };
     let r = num(s, "r", at)?
-        .ok_or_else(|| Error::invalid(format!("{at}missing \"r\" (clear semi-aperture, mm)")))?;
+        .ok_or_else(|| Error::invalid(format!("{at}missing \"r\" (semi-diameter, mm)")))?;
     let r = finite(r, at, "r")?;
     let c = match (num(s, "roc", at)?, num(s, "c", at)?) {
         (_, Some(c)) => finite(c, at, "c")?,
@@ -327,6 +438,7 @@ fn surface_from(
         k,
         asph,
         semi_aperture_mm: r,
+        aperture: aperture(s, at)?,
         d_next_mm: d_next,
         material,
         is_stop,
@@ -363,6 +475,9 @@ pub fn to_value(lens: &Lens) -> Value {
     );
     top.insert("(sensor_size)".into(), json!(lens.sensor.size_mm()));
     top.insert("sensor_res".into(), json!(lens.sensor.resolution));
+    if lens.ray_aiming {
+        top.insert("ray_aiming".into(), json!(true));
+    }
     let surfaces: Vec<Value> = lens
         .surfaces
         .iter()
@@ -394,6 +509,9 @@ pub fn to_value(lens: &Lens) -> Value {
             m.insert("vec_local".into(), json!(s.vec_local));
             m.insert("is_square".into(), json!(false));
             m.insert("mat2".into(), json!(s.material.json_name()));
+            if let Some(a) = aperture_value(s.aperture.as_ref()) {
+                m.insert("aperture".into(), a);
+            }
             if s.is_stop && s.role == SurfaceRole::Refractive {
                 m.insert("is_aperture".into(), json!(true));
             }

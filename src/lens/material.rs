@@ -307,7 +307,7 @@ impl Material {
     ///
     /// # Errors
     /// [`crate::ErrorKind::Invalid`] for an unknown glass (with the closest catalog names), an
-    /// index below 1, or a non-positive Abbe number.
+    /// index below [`MIN_INDEX`], or a negative Abbe number.
     pub fn parse(name: &str) -> Result<Material> {
         Material::parse_with(name, &GlassCatalogs::builtin())
     }
@@ -350,19 +350,27 @@ impl Material {
         )))
     }
 
-    /// A model glass, checked.
+    /// A model glass, checked. `vd` of 0 (OpticStudio) or at least 1e30 (DeepLens) means no
+    /// dispersion: a constant index (air when `nd` is 1).
+    ///
+    /// ```
+    /// use tolray::lens::Material;
+    /// assert_eq!(Material::model(1.5, 0.0).unwrap(), Material::Constant(1.5));
+    /// assert!(Material::model(0.8, 40.0).is_err() && Material::model(1.5, -1.0).is_err());
+    /// ```
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Invalid`] if `nd < 1`, `vd <= 0` or either is not finite.
+    /// [`crate::ErrorKind::Invalid`] if `nd` is below [`MIN_INDEX`], `vd` is negative, or either
+    /// is NaN.
     pub fn model(nd: f64, vd: f64) -> Result<Material> {
         check_index(nd, &format!("{nd}/{vd}"))?;
-        if !(vd > 0.0) {
+        if !(vd >= 0.0) {
             return Err(Error::invalid(format!(
-                "material \"{nd}/{vd}\": Abbe number must be positive"
+                "material \"{nd}/{vd}\": Abbe number must be positive (or 0 for no dispersion)"
             )));
         }
-        // DeepLens writes 1e38 for a dispersion-free medium.
-        if vd >= 1e30 || !vd.is_finite() {
+        // OpticStudio writes V_d = 0 and DeepLens 1e38 for a dispersion-free medium.
+        if vd == 0.0 || vd >= 1e30 || !vd.is_finite() {
             return Ok(if nd == 1.0 {
                 Material::Air
             } else {
@@ -522,10 +530,14 @@ impl GlassCatalogs {
     }
 }
 
+/// The smallest refractive index tolray accepts: indices are relative to air, so vacuum and
+/// purge gases (as in lithography lenses) sit just below 1.
+pub const MIN_INDEX: f64 = 0.9;
+
 fn check_index(n: f64, s: &str) -> Result<()> {
-    if !(n >= 1.0) || !n.is_finite() {
+    if !(n >= MIN_INDEX) || !n.is_finite() {
         return Err(Error::invalid(format!(
-            "material \"{s}\": refractive index {n} is below 1 or not finite"
+            "material \"{s}\": refractive index {n} is below {MIN_INDEX} or not finite"
         )));
     }
     Ok(())
@@ -629,7 +641,11 @@ mod tests {
         ));
         let e = Material::parse("N-BK8").unwrap_err();
         assert!(e.message.contains("N-BK7"), "{}", e.message);
-        assert!(Material::parse("0.9/50").is_err());
+        assert!(Material::parse("0.8/50").is_err());
+        assert_eq!(
+            Material::parse("0.9997/0").unwrap(),
+            Material::Constant(0.9997)
+        );
         assert!(Material::parse("1.5/-3").is_err());
         assert_eq!(Material::parse("1.5").unwrap(), Material::Constant(1.5));
         assert_eq!(Material::parse("1.0/1e38").unwrap(), Material::Air);

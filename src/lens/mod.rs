@@ -21,7 +21,7 @@ pub mod zemax;
 pub use builtin::{builtin, builtin_names};
 pub use material::{GlassCatalogs, Material};
 pub use paraxial::Paraxial;
-pub use system::{Adjustments, Param, SurfaceKind, SurfaceRow, System};
+pub use system::{Adjustments, Clip, Param, SurfaceKind, SurfaceRow, System};
 
 use crate::error::{Error, Result};
 use crate::math::{Mat3, Vec3};
@@ -39,6 +39,158 @@ pub enum SurfaceRole {
     Aperture,
 }
 
+/// The shape of a hard aperture, in the surface's own frame (sizes in mm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ApertureShape {
+    /// A circle of the surface's semi-diameter ([`Surface::semi_aperture_mm`]): the meaning of
+    /// DeepLens' `r`, which clips; it follows the semi-diameter when that changes.
+    SemiDiameter,
+    /// An annulus from `min_mm` to `max_mm` (OpticStudio `CLAP`, or `OBSC` for an obscuration).
+    Circular {
+        /// Inner radius, mm (0 for a disk).
+        min_mm: f64,
+        /// Outer radius, mm.
+        max_mm: f64,
+    },
+    /// A rectangle of half-widths `half_x_mm` × `half_y_mm` (OpticStudio `SQAP` / `OBSQ`).
+    Rectangular {
+        /// Half-width along x, mm.
+        half_x_mm: f64,
+        /// Half-width along y, mm.
+        half_y_mm: f64,
+    },
+    /// An ellipse of semi-axes `half_x_mm` × `half_y_mm` (OpticStudio `ELAP` / `OBEL`).
+    Elliptical {
+        /// Semi-axis along x, mm.
+        half_x_mm: f64,
+        /// Semi-axis along y, mm.
+        half_y_mm: f64,
+    },
+}
+
+/// A hard aperture: rays outside it (or, for an obscuration, inside it) are stopped. Unlike the
+/// semi-diameter, which is the surface's drawn size and clips only through
+/// [`ApertureShape::SemiDiameter`], a hard aperture always clips when tracing with apertures.
+///
+/// ```
+/// use tolray::lens::{Aperture, ApertureShape};
+/// let clap = Aperture::circular(0.0, 5.0);
+/// assert!(!clap.stops(3.0, 3.0, 10.0) && clap.stops(4.0, 4.0, 10.0));
+/// let mut obsc = Aperture::circular(0.0, 1.0);
+/// obsc.obscuration = true;
+/// assert!(obsc.stops(0.5, 0.0, 10.0) && !obsc.stops(2.0, 0.0, 10.0));
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aperture {
+    /// Shape and size.
+    pub shape: ApertureShape,
+    /// Centre of the shape in the surface frame, mm (OpticStudio `OBDC`).
+    pub decenter_mm: [f64; 2],
+    /// True for an obscuration: the shape blocks light instead of passing it.
+    pub obscuration: bool,
+}
+
+impl Aperture {
+    /// A circle of the surface's semi-diameter (DeepLens' clipping `r`).
+    pub const SEMI_DIAMETER: Aperture = Aperture {
+        shape: ApertureShape::SemiDiameter,
+        decenter_mm: [0.0, 0.0],
+        obscuration: false,
+    };
+    /// A centred annulus (a disk when `min_mm` is 0) that passes light.
+    pub fn circular(min_mm: f64, max_mm: f64) -> Aperture {
+        Aperture {
+            shape: ApertureShape::Circular { min_mm, max_mm },
+            decenter_mm: [0.0, 0.0],
+            obscuration: false,
+        }
+    }
+    /// True when a ray crossing the surface at local `(x, y)` mm is stopped, for a surface of
+    /// semi-diameter `semi_mm`.
+    pub fn stops(&self, x: f64, y: f64, semi_mm: f64) -> bool {
+        let (x, y) = (x - self.decenter_mm[0], y - self.decenter_mm[1]);
+        let inside = match self.shape {
+            ApertureShape::SemiDiameter => x * x + y * y <= semi_mm * semi_mm,
+            ApertureShape::Circular { min_mm, max_mm } => {
+                let r2 = x * x + y * y;
+                r2 <= max_mm * max_mm && r2 >= min_mm * min_mm
+            }
+            ApertureShape::Rectangular {
+                half_x_mm,
+                half_y_mm,
+            } => x.abs() <= half_x_mm && y.abs() <= half_y_mm,
+            ApertureShape::Elliptical {
+                half_x_mm,
+                half_y_mm,
+            } => (x / half_x_mm).powi(2) + (y / half_y_mm).powi(2) <= 1.0,
+        };
+        inside == self.obscuration
+    }
+    /// The largest distance from the surface vertex at which a ray can pass, mm (infinite for an
+    /// obscuration).
+    pub fn reach_mm(&self, semi_mm: f64) -> f64 {
+        if self.obscuration {
+            return f64::INFINITY;
+        }
+        let d = self.decenter_mm[0].hypot(self.decenter_mm[1]);
+        d + match self.shape {
+            ApertureShape::SemiDiameter => semi_mm,
+            ApertureShape::Circular { max_mm, .. } => max_mm,
+            ApertureShape::Rectangular {
+                half_x_mm,
+                half_y_mm,
+            } => half_x_mm.hypot(half_y_mm),
+            ApertureShape::Elliptical {
+                half_x_mm,
+                half_y_mm,
+            } => half_x_mm.max(half_y_mm),
+        }
+    }
+    /// Checks sizes: finite, positive, an annulus' inner radius below its outer one.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Invalid`] saying which size is wrong.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::invalid(format!("hard aperture: {m}")));
+        if !self
+            .decenter_mm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= 1e6)
+        {
+            return bad(format!("decenter {:?} mm is not finite", self.decenter_mm));
+        }
+        let pos = |v: f64| v > 0.0 && v <= 1e6;
+        match self.shape {
+            ApertureShape::SemiDiameter => Ok(()),
+            ApertureShape::Circular { min_mm, max_mm } => {
+                if !(pos(max_mm) && min_mm >= 0.0 && min_mm < max_mm) {
+                    bad(format!(
+                        "annulus {min_mm} to {max_mm} mm: need 0 <= inner < outer <= 1e6"
+                    ))
+                } else {
+                    Ok(())
+                }
+            }
+            ApertureShape::Rectangular {
+                half_x_mm,
+                half_y_mm,
+            }
+            | ApertureShape::Elliptical {
+                half_x_mm,
+                half_y_mm,
+            } => {
+                if !(pos(half_x_mm) && pos(half_y_mm)) {
+                    bad(format!(
+                        "half-widths {half_x_mm} x {half_y_mm} mm must be positive (at most 1e6)"
+                    ))
+                } else {
+                    Ok(())
+                }
+            }
+        }
+    }
+}
+
 /// One surface of a prescription.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Surface {
@@ -50,8 +202,13 @@ pub struct Surface {
     pub k: f64,
     /// Even-asphere coefficients a2, a4, ..., a16 (sag terms a_{2i} ρ^{2i}, mm^{1-2i}).
     pub asph: [f64; N_ASPH],
-    /// Clear semi-aperture, mm (the radius beyond which rays are vignetted).
+    /// Semi-diameter, mm: the surface's size (drawings, edge thickness, the clear size). It clips
+    /// rays only through an [`ApertureShape::SemiDiameter`] aperture (as DeepLens' `r` does) or
+    /// on the stop.
     pub semi_aperture_mm: f64,
+    /// Hard aperture: `None` when the surface does not clip (an OpticStudio surface with only a
+    /// semi-diameter); the stop clips at its semi-diameter unless it has a hard aperture.
+    pub aperture: Option<Aperture>,
     /// Axial gap from this vertex to the next (the last: to the image plane), mm.
     pub d_next_mm: f64,
     /// Medium after this surface.
@@ -65,7 +222,7 @@ pub struct Surface {
 }
 
 impl Surface {
-    /// A spherical (or flat, `c = 0`) refracting surface.
+    /// A spherical (or flat, `c = 0`) refracting surface that clips at its semi-diameter.
     pub fn sphere(c: f64, semi_aperture_mm: f64, d_next_mm: f64, material: Material) -> Self {
         Surface {
             role: SurfaceRole::Refractive,
@@ -73,6 +230,7 @@ impl Surface {
             k: 0.0,
             asph: [0.0; N_ASPH],
             semi_aperture_mm,
+            aperture: Some(Aperture::SEMI_DIAMETER),
             d_next_mm,
             material,
             is_stop: false,
@@ -87,6 +245,12 @@ impl Surface {
             is_stop: true,
             ..Surface::sphere(0.0, semi_aperture_mm, d_next_mm, Material::Air)
         }
+    }
+    /// The aperture that clips rays here: the hard aperture, else the semi-diameter on the stop,
+    /// else none.
+    pub fn clipping_aperture(&self) -> Option<Aperture> {
+        self.aperture
+            .or(self.is_stop.then_some(Aperture::SEMI_DIAMETER))
     }
     /// True if any asphere coefficient is non-zero.
     pub fn is_aspheric(&self) -> bool {
@@ -189,6 +353,10 @@ pub struct Lens {
     pub primary_wavelength_nm: f64,
     /// Red, green and blue wavelengths, nm.
     pub rgb_wavelengths_nm: [f64; 3],
+    /// Aim rays at the real stop by default (OpticStudio's ray aiming, `RAIM`; JSON
+    /// `"ray_aiming": true`) instead of at the paraxial entrance pupil. The CLI's `--aim` and
+    /// `--no-aim` override it.
+    pub ray_aiming: bool,
 }
 
 impl Lens {
@@ -235,6 +403,25 @@ impl Lens {
     /// Index of the aperture stop surface, if one is marked.
     pub fn stop_index(&self) -> Option<usize> {
         self.surfaces.iter().position(|s| s.is_stop)
+    }
+
+    /// Makes every surface without a hard aperture clip at its semi-diameter, as DeepLens does
+    /// (the CLI's `--clip-at-semi-diameter`). Returns how many surfaces changed.
+    ///
+    /// ```
+    /// let mut lens = tolray::lens::Lens::load("lens1").unwrap();
+    /// lens.surfaces[1].aperture = None;
+    /// assert_eq!(lens.clip_at_semi_diameters(), 1);
+    /// ```
+    pub fn clip_at_semi_diameters(&mut self) -> usize {
+        let mut n = 0;
+        for s in &mut self.surfaces {
+            if s.aperture.is_none() {
+                s.aperture = Some(Aperture::SEMI_DIAMETER);
+                n += 1;
+            }
+        }
+        n
     }
 
     /// True if surface `i` bends rays: every refracting surface, and a bare aperture that
@@ -321,6 +508,9 @@ impl Lens {
                     s.k
                 )));
             }
+            if let Some(a) = &s.aperture {
+                a.validate().map_err(|e| at(e.message))?;
+            }
             let n = s.vec_local;
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             if !(n[2] > 0.0) || !(len > 0.0) {
@@ -332,6 +522,12 @@ impl Lens {
             // What the readers refuse, validation refuses (a lens edited through the library or
             // the C ABI must still be a lens its own JSON can hold).
             if let Material::Model { nd, vd } = s.material {
+                // A stored model glass disperses (V_d = 0 reads as a constant index instead).
+                if !(vd > 0.0) {
+                    return Err(at(format!(
+                        "the medium after it: model glass Abbe number {vd} must be positive"
+                    )));
+                }
                 Material::model(nd, vd).map_err(|e| at(format!("the medium after it: {e}")))?;
             }
         }
@@ -347,7 +543,8 @@ impl Lens {
         Ok(())
     }
 
-    /// Checks that every medium has a finite refractive index of at least 1 (and at most 5) at
+    /// Checks that every medium has a finite refractive index of at least 0.9
+    /// ([`material::MIN_INDEX`]: vacuum and gases relative to air) and at most 5 at
     /// `wavelength_nm`: a model glass with an absurd Abbe number, or a catalog glass far outside
     /// the range its formula was fitted on, otherwise gives NaN focal lengths and spots.
     ///
@@ -356,10 +553,10 @@ impl Lens {
     pub fn check_indices(&self, wavelength_nm: f64) -> Result<()> {
         for (i, s) in self.surfaces.iter().enumerate() {
             let n = s.material.index(wavelength_nm);
-            if !(1.0..=5.0).contains(&n) {
+            if !(material::MIN_INDEX..=5.0).contains(&n) {
                 return Err(Error::invalid(format!(
                     "surface {i}: the medium after it ({}) has index {n} at {wavelength_nm} nm; \
-                     a usable index is finite and between 1 and 5",
+                     a usable index is finite and between 0.9 and 5",
                     s.material.json_name()
                 )));
             }

@@ -173,3 +173,94 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         total_track_mm: z[last + 1],
     })
 }
+
+/// The field of a paraxial chief ray, for [`beam_semi_diameters`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ParaxialField {
+    /// Field angle in object space, degrees.
+    AngleDeg(f64),
+    /// Object height, mm (finite objects).
+    ObjectHeightMm(f64),
+    /// Paraxial image height, mm.
+    ImageHeightMm(f64),
+}
+
+/// Paraxial beam size at every surface and at the image plane (the last entry): the marginal
+/// ray's height plus the chief ray's of `field`, in mm, as OpticStudio sizes surfaces whose
+/// semi-diameter is not given. The stop's semi-diameter sets the marginal ray.
+///
+/// ```
+/// use tolray::lens::paraxial::{beam_semi_diameters, ParaxialField};
+/// let lens = tolray::Lens::load("cooke-triplet").unwrap();
+/// let r = beam_semi_diameters(&lens, 587.5618, ParaxialField::AngleDeg(20.0)).unwrap();
+/// let stop = lens.stop_index().unwrap();
+/// assert!(r[stop] > lens.surfaces[stop].semi_aperture_mm);
+/// assert_eq!(r.len(), lens.surfaces.len() + 1);
+/// ```
+///
+/// # Errors
+/// As [`analyze`].
+pub fn beam_semi_diameters(
+    lens: &Lens,
+    wavelength_nm: f64,
+    field: ParaxialField,
+) -> Result<Vec<f64>> {
+    let p = analyze(lens, wavelength_nm)?;
+    let n: Vec<f64> = lens
+        .surfaces
+        .iter()
+        .map(|s| s.material.index(wavelength_nm))
+        .collect();
+    let image_gap = lens.image_distance_mm();
+    let with_image = |r: Ynu| {
+        let mut h = r.heights;
+        h.push(r.y_last + r.u_last * image_gap);
+        h
+    };
+    let r_ep = p.entrance_pupil_diameter_mm / 2.0;
+    let z_ep = p.entrance_pupil_z_mm;
+    let (marginal, chief) = match lens.object {
+        Object::Infinite => (
+            with_image(ynu(lens, &n, 0, r_ep, 0.0)),
+            with_image(ynu(lens, &n, 0, -z_ep, 1.0)),
+        ),
+        Object::Finite { distance_mm } => {
+            let u = r_ep / (distance_mm + z_ep);
+            let uc = -1.0 / (distance_mm + z_ep);
+            (
+                with_image(ynu(lens, &n, 0, u * distance_mm, u)),
+                // The chief ray of unit object height.
+                with_image(ynu(lens, &n, 0, 1.0 + uc * distance_mm, uc)),
+            )
+        }
+    };
+    let unit_image = *chief.last().unwrap_or(&0.0);
+    let scale = match (field, lens.object) {
+        (ParaxialField::AngleDeg(a), Object::Infinite) => a.to_radians().tan(),
+        (ParaxialField::AngleDeg(a), Object::Finite { distance_mm }) => {
+            a.to_radians().tan() * (distance_mm + z_ep)
+        }
+        (ParaxialField::ObjectHeightMm(h), Object::Finite { .. }) => h,
+        (ParaxialField::ObjectHeightMm(_), Object::Infinite) => {
+            return Err(Error::invalid(
+                "an object-height field needs an object at a finite distance",
+            ))
+        }
+        (ParaxialField::ImageHeightMm(h), _) => {
+            if unit_image.abs() < 1e-300 {
+                return Err(Error::numerical("the chief ray does not reach the image"));
+            }
+            h / unit_image
+        }
+    };
+    let out: Vec<f64> = marginal
+        .iter()
+        .zip(&chief)
+        .map(|(m, c)| m.abs() + (c * scale).abs())
+        .collect();
+    if out.iter().all(|v| v.is_finite()) {
+        Ok(out)
+    } else {
+        Err(Error::numerical("paraxial beam sizes are not finite"))
+    }
+}

@@ -1,6 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
-use super::{Lens, Material, N_ASPH};
+use super::{Aperture, ApertureShape, Lens, Material, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
 use crate::real::Real;
 
@@ -62,6 +62,103 @@ impl Adjustments {
     }
 }
 
+/// A compiled hard aperture, tested without branches: a ray at local `(x, y)` is inside when,
+/// with `(u, v) = (x - dx, y - dy)`, `u² + q v² <= r2_max`, `u² + v² >= r2_min`, `|u| <= hx` and
+/// `|v| <= hy` (unused bounds are infinite); it is stopped when `on` and inside equals
+/// `obscuration`.
+#[derive(Clone, Copy, Debug)]
+pub struct Clip<S> {
+    /// False when the surface does not clip.
+    pub on: bool,
+    /// True for an obscuration.
+    pub obscuration: bool,
+    /// Decenter, mm.
+    pub dx: S,
+    /// Decenter, mm.
+    pub dy: S,
+    /// Ellipse axis ratio squared (a²/b²; 1 for circles).
+    pub q: S,
+    /// Outer bound of `u² + q v²`, mm².
+    pub r2_max: S,
+    /// Inner bound of `u² + v²`, mm².
+    pub r2_min: S,
+    /// Half-width in x, mm.
+    pub hx: S,
+    /// Half-width in y, mm.
+    pub hy: S,
+    /// Largest radius at which a ray passes, mm (infinite without a clip or for obscurations).
+    pub reach_mm: f64,
+}
+
+impl<S: Real> Clip<S> {
+    /// Compiles `aperture` (`None`: no clipping) for a surface of semi-diameter `semi_mm`.
+    pub fn new(aperture: Option<Aperture>, semi_mm: f64) -> Clip<S> {
+        let inf = f64::INFINITY;
+        let (q, r2_max, r2_min, hx, hy) = match aperture.map(|a| a.shape) {
+            None => (1.0, inf, 0.0, inf, inf),
+            Some(ApertureShape::SemiDiameter) => (1.0, semi_mm * semi_mm, 0.0, inf, inf),
+            Some(ApertureShape::Circular { min_mm, max_mm }) => {
+                (1.0, max_mm * max_mm, min_mm * min_mm, inf, inf)
+            }
+            Some(ApertureShape::Rectangular {
+                half_x_mm,
+                half_y_mm,
+            }) => (1.0, inf, 0.0, half_x_mm, half_y_mm),
+            Some(ApertureShape::Elliptical {
+                half_x_mm,
+                half_y_mm,
+            }) => (
+                (half_x_mm / half_y_mm).powi(2),
+                half_x_mm * half_x_mm,
+                0.0,
+                inf,
+                inf,
+            ),
+        };
+        let d = aperture.map_or([0.0; 2], |a| a.decenter_mm);
+        Clip {
+            on: aperture.is_some(),
+            obscuration: aperture.is_some_and(|a| a.obscuration),
+            dx: S::cst(d[0]),
+            dy: S::cst(d[1]),
+            q: S::cst(q),
+            r2_max: S::cst(r2_max),
+            r2_min: S::cst(r2_min),
+            hx: S::cst(hx),
+            hy: S::cst(hy),
+            reach_mm: aperture.map_or(inf, |a| a.reach_mm(semi_mm)),
+        }
+    }
+
+    /// True when a ray crossing the surface at local `(x, y)` is stopped (branch-free).
+    #[inline(always)]
+    pub fn stops(&self, x: S, y: S) -> bool {
+        let (u, v) = (x - self.dx, y - self.dy);
+        let (u2, v2) = (u * u, v * v);
+        let inside = !self.r2_max.lt(u2 + self.q * v2)
+            & !(u2 + v2).lt(self.r2_min)
+            & !self.hx.lt(u.abs())
+            & !self.hy.lt(v.abs());
+        self.on & (inside == self.obscuration)
+    }
+
+    /// The same clip in another number type.
+    pub fn convert<T: Real>(&self) -> Clip<T> {
+        Clip {
+            on: self.on,
+            obscuration: self.obscuration,
+            dx: T::cst(self.dx.value()),
+            dy: T::cst(self.dy.value()),
+            q: T::cst(self.q.value()),
+            r2_max: T::cst(self.r2_max.value()),
+            r2_min: T::cst(self.r2_min.value()),
+            hx: T::cst(self.hx.value()),
+            hy: T::cst(self.hy.value()),
+            reach_mm: self.reach_mm,
+        }
+    }
+}
+
 /// One compiled surface.
 #[derive(Clone, Debug)]
 pub struct SurfaceRow<S> {
@@ -77,8 +174,10 @@ pub struct SurfaceRow<S> {
     pub asph: [S; N_ASPH],
     /// Number of leading asphere coefficients in use.
     pub n_asph: usize,
-    /// Squared clear semi-aperture, mm².
+    /// Squared semi-diameter, mm² (the surface's size; clipping is [`SurfaceRow::clip`]).
     pub ap2: S,
+    /// The hard aperture (or the stop's semi-diameter) that clips rays here.
+    pub clip: Clip<S>,
     /// True if the surface frame is rotated relative to the global frame.
     pub rotated: bool,
     /// Local-to-global rotation.
@@ -180,6 +279,7 @@ impl<S: Real> System<S> {
                 asph,
                 n_asph,
                 ap2: S::cst(s.semi_aperture_mm * s.semi_aperture_mm),
+                clip: Clip::new(s.clipping_aperture(), s.semi_aperture_mm),
                 rotated: !is_identity(&rot),
                 rot: lift_c(rot),
                 pos,
@@ -256,6 +356,7 @@ impl<S: Real> System<S> {
                     asph: r.asph.map(|a| T::cst(a.value())),
                     n_asph: r.n_asph,
                     ap2: T::cst(r.ap2.value()),
+                    clip: r.clip.convert(),
                     rotated: r.rotated,
                     rot: m3(&r.rot),
                     pos: r.pos.map_value(),

@@ -7,14 +7,19 @@
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
 //! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH` and `COORDBRK`; `CURV` (1/lens unit), `CONI`,
 //!   `PARM` (even-asphere terms r² .. r¹⁶, or the coordinate break's decenters, tilts and order),
-//!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter, used as the clear
-//!   aperture; `MEMA` when there is no `DIAM`), `STOP`, `GLAS` (a catalog name, `___BLANK` model
-//!   glasses with n_d and V_d, where V_d = 0 means a constant index);
+//!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter: the surface's
+//!   size, which clips nothing, as in OpticStudio; `MEMA` when there is no `DIAM`; without
+//!   either, the paraxial beam's size), hard apertures `CLAP`, `OBSC`, `SQAP`, `OBSQ`, `ELAP`,
+//!   `OBEL` and `FLAP` (a circle of the semi-diameter) with `OBDC` decenters, which clip,
+//!   `STOP`, `GLAS` (a catalog name, `___BLANK` model glasses with n_d and V_d, where V_d = 0
+//!   means a constant index);
 //! - the aperture `ENPD`, `FNUM`, `OBNA` or `FLOA`; fields `FTYP`, `XFLN`/`YFLN`/`FWGN` (or the
-//!   older `XFLD`/`YFLD`/`FWGT`); wavelengths `WAVM` (or `WAVL`) and `PWAV`; `NAME`; `GCAT`.
+//!   older `XFLD`/`YFLD`/`FWGT`); wavelengths `WAVM` (or `WAVL`) and `PWAV`; `NAME`; `GCAT`;
+//!   ray aiming `RAIM` (paraxial or real: [`Lens::ray_aiming`]).
 //!
 //! SURF 0 is the object; the last SURF is the image plane, whose semi-diameter is the sensor's
-//! half-diagonal. tolray sizes the aperture by the stop's semi-aperture, so an `ENPD`, `FNUM` or
+//! half-diagonal (without one, the paraxial image height of the largest field). The stop clips
+//! at its semi-diameter. tolray sizes the aperture by the stop's semi-aperture, so an `ENPD`, `FNUM` or
 //! `OBNA` aperture is turned into the stop semi-diameter that gives that paraxial entrance pupil
 //! at the primary wavelength (`FNUM` = EFL / EPD; `OBNA`: the marginal ray from the axial object
 //! point has slope tan(asin NA)); with `FLOA` (or no aperture line) the stop's `DIAM` is used.
@@ -25,7 +30,7 @@
 //! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`]. A surface turned by 90° or more,
 //! surfaces out of order along z, and a tilted image plane cannot be represented and are errors.
 //! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
-//! semi-diameter) are the construction ("dummy") surfaces of coordinate-break sequences; they do
+//! semi-diameter, no hard aperture) are the construction ("dummy") surfaces of coordinate-break sequences; they do
 //! not become tolray surfaces (OpticStudio does not clip there either).
 //!
 //! Commands that change nothing tolray models (display, optimization, tolerancing, coatings,
@@ -45,7 +50,7 @@
 
 use super::material::{GlassCatalogs, Material, LAMBDA_D_NM};
 use super::text::decode;
-use super::{Lens, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use super::{Aperture, ApertureShape, Lens, Object, Sensor, Surface, SurfaceRole, N_ASPH};
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
 use std::path::Path;
@@ -134,6 +139,13 @@ pub struct ZmxExtras {
     pub primary: usize,
     /// Glass catalogs named by `GCAT`.
     pub glass_catalogs: Vec<String>,
+    /// The file's `SURF` number of each tolray surface (dummy and coordinate-break surfaces have
+    /// no tolray surface).
+    pub surface_numbers: Vec<usize>,
+    /// Where tolray's frame origin (the vertex of its surface 0) lies in the file's frame, whose
+    /// origin is the vertex of `SURF 1`, mm: non-zero when dummy surfaces or coordinate breaks
+    /// come first.
+    pub first_vertex_mm: [f64; 3],
 }
 
 /// A lens read from a .zmx file, with the file's extras and the reader's warnings.
@@ -224,9 +236,59 @@ struct RawSurf {
     mema: Option<At<f64>>,
     stop: Option<usize>,
     glas: Option<At<Vec<String>>>,
+    /// Aperture commands (`CLAP`, `OBSC`, `SQAP`, `OBSQ`, `ELAP`, `OBEL`, `FLAP`) with their
+    /// numbers, and the aperture decenter (`OBDC`).
+    aperture: Option<At<(String, Vec<f64>)>>,
+    aperture_decenter: Option<At<[f64; 2]>>,
 }
 
 impl RawSurf {
+    /// The surface's hard aperture in mm (`None`: only a semi-diameter, which does not clip).
+    fn hard_aperture(&self, scale: f64) -> Result<Option<Aperture>> {
+        let Some(At {
+            v: (cmd, nums),
+            line,
+        }) = &self.aperture
+        else {
+            if let Some(d) = &self.aperture_decenter {
+                if d.v != [0.0; 2] {
+                    return Err(invalid(
+                        d.line,
+                        "OBDC (aperture decenter) on a surface without an aperture",
+                    ));
+                }
+            }
+            return Ok(None);
+        };
+        let n = |i: usize| nums.get(i).copied().unwrap_or(0.0) * scale;
+        let (a, b) = (n(0), n(1));
+        let shape = match cmd.as_str() {
+            "FLAP" => ApertureShape::SemiDiameter,
+            "CLAP" | "OBSC" => ApertureShape::Circular {
+                min_mm: a,
+                max_mm: b,
+            },
+            "SQAP" | "OBSQ" => ApertureShape::Rectangular {
+                half_x_mm: a,
+                half_y_mm: b,
+            },
+            _ => ApertureShape::Elliptical {
+                half_x_mm: a,
+                half_y_mm: b,
+            },
+        };
+        let ap = Aperture {
+            shape,
+            decenter_mm: self
+                .aperture_decenter
+                .as_ref()
+                .map_or([0.0; 2], |d| [d.v[0] * scale, d.v[1] * scale]),
+            obscuration: cmd.starts_with("OB"),
+        };
+        ap.validate()
+            .map_err(|e| invalid(*line, format!("{cmd}: {}", e.message)))?;
+        Ok(Some(ap))
+    }
     fn type_name(&self) -> String {
         self.ty
             .as_ref()
@@ -271,20 +333,23 @@ struct Header {
     wwgt: Option<Vec<f64>>,
     pwav: Option<At<usize>>,
     gcat: Vec<String>,
+    /// Ray aiming type: 0 off, 1 paraxial, 2 real.
+    raim: Option<At<i64>>,
 }
 
 /// Commands that change nothing tolray models: skipped without a warning.
 const SILENT: &[&str] = &[
-    "VERS", "PFIL", "LANG", "ENVD", "GFAC", "RAIM", "PUSH", "SDMA", "ROPD", "PICB", "POLS", "GLRS",
-    "GSTD", "NSCD", "COFN", "BLNK", "TOL", "TOLE", "MOFF", "CONF", "OPDX", "EFFL", "PUPD", "TCED",
-    "DMFS", "ISNA", "ZVDX", "ZVDY", "ZVCX", "ZVCY", "ZVAN", "WWGN", "WAVN", "MNCA", "MNEA", "MNCG",
-    "MNEG", "MXCA", "MXCG", "RGLA", "TRAC", "TCMM", "PMAG", "TOTR", "FIMP", "SCOL", "UDAD", "USAP",
-    "EDGE", "OMMA", "HIDE", "MIRR", "SLAB", "POPS", "COMM", "MAZH", "PZUP", "PPAR", "VPAR", "VCON",
-    "VDSZ", "COAT", "FLAP", "TCE", "PKUP", "SCTH", "CLAT", "BLAT",
+    "VERS", "PFIL", "LANG", "ENVD", "GFAC", "PUSH", "SDMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD",
+    "NSCD", "COFN", "BLNK", "TOL", "TOLE", "MOFF", "CONF", "OPDX", "EFFL", "PUPD", "TCED", "DMFS",
+    "ISNA", "ZVDX", "ZVDY", "ZVCX", "ZVCY", "ZVAN", "WWGN", "WAVN", "MNCA", "MNEA", "MNCG", "MNEG",
+    "MXCA", "MXCG", "RGLA", "TRAC", "TCMM", "PMAG", "TOTR", "FIMP", "SCOL", "UDAD", "USAP", "EDGE",
+    "OMMA", "HIDE", "MIRR", "SLAB", "POPS", "COMM", "MAZH", "PZUP", "PPAR", "VPAR", "VCON", "VDSZ",
+    "COAT", "TCE", "PKUP", "SCTH", "CLAT", "BLAT",
 ];
 
-/// Surface apertures other than the semi-diameter: skipped with a warning.
-const APERTURES: &[&str] = &["CLAP", "OBSC", "SQAP", "ELAP", "OBDC", "SPID"];
+/// Hard-aperture commands of a surface: clear and obscuring circles, rectangles and ellipses,
+/// and the floating aperture (a circle of the semi-diameter).
+const APERTURES: &[&str] = &["CLAP", "OBSC", "SQAP", "OBSQ", "ELAP", "OBEL", "FLAP"];
 
 /// Parses .zmx text, looking glass names up in `catalogs`.
 ///
@@ -444,6 +509,17 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
                 h.pwav = at(k, line);
             }
             "GCAT" => h.gcat = args.iter().map(|t| t.to_string()).collect(),
+            "RAIM" => {
+                // RAIM's second number is the ray aiming type: 0 off, 1 paraxial, 2 real.
+                let v = numbers(args, line, "RAIM")?;
+                let ty = v.get(1).copied().unwrap_or(0.0);
+                if ty == 1.0 {
+                    warnings.push(format!(
+                        "line {line}: paraxial ray aiming is done as real ray aiming (tolray aims real rays at the stop)"
+                    ));
+                }
+                h.raim = at(ty as i64, line);
+            }
             "MNUM" => {
                 if args.first().and_then(|t| t.parse::<f64>().ok()).unwrap_or(1.0) > 1.0 {
                     warnings.push(format!(
@@ -456,8 +532,27 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
                     warnings.push(format!("line {line}: {cmd} (extra surface data) ignored"));
                 }
             }
-            c if APERTURES.contains(&c) => warnings.push(format!(
-                "line {line}: {c} (a surface aperture) ignored: tolray clips at the semi-diameter (DIAM)"
+            c if APERTURES.contains(&c) => {
+                let s = need_surf(surf)?;
+                let v = numbers(args, line, c)?;
+                if let Some(prev) = &s.aperture {
+                    return Err(invalid(
+                        line,
+                        format!(
+                            "a second surface aperture ({c}; the first, {}, is at line {}): OpticStudio keeps one per surface",
+                            prev.v.0, prev.line
+                        ),
+                    ));
+                }
+                s.aperture = at((c.to_string(), v), line);
+            }
+            "OBDC" => {
+                let s = need_surf(surf)?;
+                let v = numbers(args, line, "OBDC")?;
+                s.aperture_decenter = at([v.first().copied().unwrap_or(0.0), v.get(1).copied().unwrap_or(0.0)], line);
+            }
+            "SPID" => warnings.push(format!(
+                "line {line}: SPID (spider obscuration) ignored: tolray traces circular, rectangular and elliptical apertures and obscurations only"
             )),
             c if SILENT.contains(&c) => {}
             c => unknown.push((line, c.to_string())),
@@ -510,16 +605,8 @@ fn glass(
         }
         let nd = number(arg(3).as_ref(), line, "GLAS ___BLANK n_d")?;
         let vd = number(arg(4).as_ref(), line, "GLAS ___BLANK V_d")?;
-        // Zemax treats V_d = 0 as a dispersion-free medium.
-        let m = if vd == 0.0 {
-            if !(nd >= 1.0) {
-                return Err(invalid(line, format!("model glass index {nd} is below 1")));
-            }
-            Material::Constant(nd)
-        } else {
-            Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")))?
-        };
-        return Ok(m);
+        // Zemax treats V_d = 0 as a dispersion-free medium (Material::model does too).
+        return Material::model(nd, vd).map_err(|e| e.context(format!("line {line}")));
     }
     if name.len() == 6 && name.bytes().all(|b| b.is_ascii_digit()) {
         // A six-digit glass code: n_d = 1.abc, V_d = de.f.
@@ -534,7 +621,9 @@ fn glass(
     if let Some(m) = catalogs.find_exact(name) {
         if let (Some(nd_file), Some(g)) = (num(3), m.catalog_name()) {
             let nd = m.index(LAMBDA_D_NM);
-            if nd_file > 1.0 && (nd - nd_file).abs() > 1e-3 {
+            // OpticStudio writes 1.5 / 40 where it has no data: a placeholder, not a claim.
+            let placeholder = nd_file == 1.5 && num(4) == Some(40.0);
+            if nd_file > 1.0 && !placeholder && (nd - nd_file).abs() > 1e-3 {
                 warnings.push(format!(
                     "line {line}: glass {g}: the file says n_d = {nd_file}, the catalog gives {nd:.6}"
                 ));
@@ -642,6 +731,8 @@ struct Walker {
     pending: f64,
     /// Travel from the object to the first lens surface.
     object_gap: Option<f64>,
+    /// The origin when the first lens surface was placed.
+    first_vertex: Vec3<f64>,
     /// The medium the light is in.
     medium: Material,
     last_cb_line: Option<usize>,
@@ -728,10 +819,12 @@ impl Walker {
             None => Material::Air,
         };
         let diam = s.diam.as_ref().map(|d| (d.v.0 * scale, d.v.1));
+        let aperture = s.hard_aperture(scale)?;
         let dummy = ty == "STANDARD"
             && c == 0.0
             && s.stop.is_none()
             && material == self.medium
+            && aperture.is_none()
             && !diam.is_some_and(|d| d.1);
         if !dummy {
             let axis = self.axis();
@@ -754,7 +847,10 @@ impl Walker {
             }
             match self.built.last_mut() {
                 Some(prev) => prev.surface.d_next_mm = self.pending,
-                None => self.object_gap = Some(self.pending),
+                None => {
+                    self.object_gap = Some(self.pending);
+                    self.first_vertex = self.origin;
+                }
             }
             self.pending = 0.0;
             if let Some(l) = s.stop {
@@ -766,10 +862,19 @@ impl Walker {
                 }
                 self.stop_line = Some(l);
             }
+            // The semi-diameter: DIAM, else MEMA, else a floating aperture's own value (FLAP's
+            // second number); surfaces without one get the paraxial beam's size later.
+            let flap = s
+                .aperture
+                .as_ref()
+                .filter(|a| a.v.0 == "FLAP")
+                .and_then(|a| a.v.1.get(1))
+                .map(|r| r * scale);
             let semi = diam
                 .map(|d| d.0)
                 .filter(|&d| d > 0.0)
-                .or_else(|| s.mema.as_ref().map(|m| m.v * scale));
+                .or_else(|| s.mema.as_ref().map(|m| m.v * scale).filter(|&m| m > 0.0))
+                .or(flap.filter(|&r| r > 0.0));
             let is_stop = s.stop.is_some();
             // A flat stop in air is a bare aperture (DeepLens' "Aperture").
             let role = if is_stop
@@ -794,6 +899,7 @@ impl Walker {
                     k: s.coni.as_ref().map_or(0.0, |c| c.v),
                     asph,
                     semi_aperture_mm: semi.unwrap_or(0.0),
+                    aperture,
                     d_next_mm: 0.0,
                     material: material.clone(),
                     is_stop,
@@ -810,8 +916,9 @@ impl Walker {
         self.travel(s.thickness()? * scale, line)
     }
 
-    /// The image surface closes the last gap and gives the sensor's half-diagonal.
-    fn image(&mut self, img: &RawSurf, warnings: &mut Vec<String>) -> Result<f64> {
+    /// The image surface closes the last gap and gives the sensor's half-diagonal (`None`
+    /// without a `DIAM`: the caller sizes it by the fields).
+    fn image(&mut self, img: &RawSurf, warnings: &mut Vec<String>) -> Result<Option<f64>> {
         let ty = img.type_name();
         if !matches!(ty.as_str(), "STANDARD" | "EVENASPH") {
             return Err(invalid(
@@ -859,13 +966,13 @@ impl Walker {
         };
         last.surface.d_next_mm = self.pending;
         let r_sensor = img.diam.as_ref().map_or(0.0, |d| d.v.0 * self.scale);
-        if !(r_sensor > 0.0) {
+        if r_sensor < 0.0 || !r_sensor.is_finite() {
             return Err(invalid(
                 img.diam.as_ref().map_or(img.line, |d| d.line),
-                "the image surface needs a positive semi-diameter (DIAM): tolray sizes the sensor by it",
+                format!("the image semi-diameter (DIAM) {r_sensor} mm must be positive"),
             ));
         }
-        Ok(r_sensor)
+        Ok((r_sensor > 0.0).then_some(r_sensor))
     }
 }
 
@@ -1026,6 +1133,7 @@ fn build(
         rot: Mat3::identity(),
         pending: object.unwrap_or(0.0),
         object_gap: None,
+        first_vertex: Vec3::cst(0.0, 0.0, 0.0),
         medium: Material::Air,
         last_cb_line: None,
         stop_line: None,
@@ -1047,6 +1155,7 @@ fn build(
         }
     }
     let r_sensor = walk.image(&surfs[last], &mut warnings)?;
+    let first_vertex = walk.first_vertex;
     let mut built = walk.built;
     if walk.stop_line.is_none() {
         warnings.push(format!(
@@ -1065,9 +1174,10 @@ fn build(
             Some(d) if object.is_some() => Object::Finite { distance_mm: d },
             _ => Object::Infinite,
         },
-        sensor: Sensor::from_half_diagonal(r_sensor, spec.sensor_res),
+        sensor: Sensor::from_half_diagonal(r_sensor.unwrap_or(1.0), spec.sensor_res),
         primary_wavelength_nm: spec.primary_nm,
         rgb_wavelengths_nm: spec.rgb_nm,
+        ray_aiming: h.raim.as_ref().is_some_and(|r| r.v != 0),
     };
     if let Object::Finite { distance_mm } = lens.object {
         if !(distance_mm > 0.0) {
@@ -1079,23 +1189,34 @@ fn build(
     }
 
     // Each semi-diameter, checked with its line; then the stop is sized by the aperture.
+    // Surfaces without one (no DIAM, MEMA or FLAP value) hold a placeholder until the paraxial
+    // beam sizes them below.
     let stop = lens.stop_index().unwrap_or(0);
     let aperture = h.aperture.as_ref().map(|a| a.v);
     let sized = !matches!(aperture, None | Some(ZmxAperture::FloatByStop));
+    let mut missing = Vec::new();
     for (i, b) in built.iter().enumerate() {
-        let s = &lens.surfaces[i];
+        let s = &mut lens.surfaces[i];
         let line = b.raw.diam.as_ref().map_or(b.raw.line, |d| d.line);
         if i == stop && sized {
+            if !(s.semi_aperture_mm > 0.0) {
+                s.semi_aperture_mm = 1e-3;
+            }
             continue;
         }
         if !b.has_diam || !(s.semi_aperture_mm > 0.0) {
-            return Err(invalid(
-                line,
-                format!(
-                    "SURF {} needs a positive semi-diameter (DIAM): tolray clips rays there",
-                    b.index
-                ),
-            ));
+            if i == stop {
+                return Err(invalid(
+                    line,
+                    format!(
+                        "SURF {} is the stop and the aperture floats by stop size, so it needs a positive semi-diameter (DIAM)",
+                        b.index
+                    ),
+                ));
+            }
+            s.semi_aperture_mm = 1e-3;
+            missing.push(i);
+            continue;
         }
         check_rim(s, line, b.index)?;
     }
@@ -1112,6 +1233,17 @@ fn build(
                 e.message
             ))
         })?;
+    }
+    if !missing.is_empty() || r_sensor.is_none() {
+        size_by_beam(
+            &mut lens,
+            &built,
+            &missing,
+            r_sensor.is_none(),
+            field_type,
+            &fields,
+            &mut warnings,
+        )?;
     }
     lens.validate()?;
 
@@ -1143,12 +1275,107 @@ fn build(
         wavelengths: spec.wavelengths,
         primary: spec.primary,
         glass_catalogs: h.gcat,
+        surface_numbers: built.iter().map(|b| b.index).collect(),
+        first_vertex_mm: [first_vertex.x, first_vertex.y, first_vertex.z],
     };
     Ok(ZmxLens {
         lens,
         extras,
-        warnings,
+        warnings: group_warnings(warnings),
     })
+}
+
+/// Warnings that say the same thing on several lines become one (`lines 97, 116, 135: ...`), so
+/// a glass used twenty times is reported once.
+fn group_warnings(warnings: Vec<String>) -> Vec<String> {
+    let mut out: Vec<(Vec<String>, String)> = Vec::new();
+    for w in warnings {
+        let (line, body) = match w.strip_prefix("line ").and_then(|r| r.split_once(": ")) {
+            Some((n, body)) if n.bytes().all(|b| b.is_ascii_digit()) => {
+                (Some(n.to_string()), body.to_string())
+            }
+            _ => (None, w.clone()),
+        };
+        match (line, out.iter_mut().find(|(_, b)| *b == body)) {
+            (Some(n), Some((lines, _))) if !lines.is_empty() => lines.push(n),
+            (Some(n), None) => out.push((vec![n], body)),
+            _ => out.push((Vec::new(), w)),
+        }
+    }
+    out.into_iter()
+        .map(|(lines, body)| match lines.len() {
+            0 => body,
+            1 => format!("line {}: {body}", lines[0]),
+            _ => format!("lines {}: {body}", lines.join(", ")),
+        })
+        .collect()
+}
+
+/// Sizes the surfaces in `missing` (and the sensor when `sensor`) by the paraxial beam of the
+/// file's largest field, as OpticStudio computes semi-diameters that a file does not fix. These
+/// sizes are drawn and reported; they never clip.
+fn size_by_beam(
+    lens: &mut Lens,
+    built: &[Built],
+    missing: &[usize],
+    sensor: bool,
+    field_type: ZmxFieldType,
+    fields: &[ZmxField],
+    warnings: &mut Vec<String>,
+) -> Result<()> {
+    use super::paraxial::{beam_semi_diameters, ParaxialField};
+    let max = fields.iter().map(|f| f.x.hypot(f.y)).fold(0.0, f64::max);
+    let field = match field_type {
+        ZmxFieldType::AngleDeg => ParaxialField::AngleDeg(max),
+        ZmxFieldType::ObjectHeightMm if matches!(lens.object, Object::Finite { .. }) => {
+            ParaxialField::ObjectHeightMm(max)
+        }
+        ZmxFieldType::ParaxialImageHeightMm | ZmxFieldType::RealImageHeightMm => {
+            ParaxialField::ImageHeightMm(max)
+        }
+        _ => ParaxialField::AngleDeg(0.0),
+    };
+    let r = beam_semi_diameters(lens, lens.primary_wavelength_nm, field)
+        .map_err(|e| e.context("sizing the surfaces without a semi-diameter (DIAM)"))?;
+    let mut sized = Vec::new();
+    for &i in missing {
+        let s = &mut lens.surfaces[i];
+        // Inside a conic's rim, and never zero (a beam focused on a surface).
+        let rim2 = (1.0 + s.k) * s.c * s.c;
+        let rim = if rim2 > 0.0 {
+            0.999 / rim2.sqrt()
+        } else {
+            f64::INFINITY
+        };
+        s.semi_aperture_mm = r[i].min(rim).max(1e-6);
+        sized.push(format!(
+            "SURF {} {:.4} mm",
+            built[i].index, s.semi_aperture_mm
+        ));
+    }
+    if sensor {
+        // The image height of the largest field; with only an on-axis field, the beam's size at
+        // the last surface (a sensor of the lens' own size).
+        let n = r.len();
+        let h = if max > 0.0 { r[n - 1] } else { r[n - 2] };
+        if !(h > 0.0) {
+            return Err(Error::invalid(
+                "the image surface has no semi-diameter (DIAM) and the fields give no image height to size the sensor by",
+            ));
+        }
+        lens.sensor.r_mm = h;
+        sized.push(format!("sensor half-diagonal {h:.4} mm"));
+    }
+    let line = missing
+        .first()
+        .map_or(built.last().map_or(0, |b| b.raw.line), |&i| {
+            built[i].raw.line
+        });
+    warnings.push(format!(
+        "line {line}: no semi-diameter (DIAM) given; sized to the paraxial beam of the largest field (these sizes do not clip rays): {}",
+        sized.join(", ")
+    ));
+    Ok(())
 }
 
 fn close(a: f64, b: f64) -> bool {
@@ -1458,6 +1685,10 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         }
         _ => w("FLOA".into()),
     }
+    w(format!(
+        "RAIM 0 {} 1 1 0 0 0 0 0",
+        if lens.ray_aiming { 2 } else { 0 }
+    ));
     let mut gcat: Vec<String> = extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default();
     for s in &lens.surfaces {
         let c = match &s.material {
@@ -1608,6 +1839,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             l.push(g);
         }
         l.push(format!("DIAM {} 1 0 0 1 \"\"", fmt(s.semi_aperture_mm)));
+        l.extend(aperture_lines(s));
         surf(&mut w, l);
         if moved {
             surf(&mut w, cb(-1.0, 1, s.d_next_mm));
@@ -1622,6 +1854,41 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             format!("DIAM {} 1 0 0 1 \"\"", fmt(lens.sensor.half_diagonal_mm())),
         ],
     );
+    out
+}
+
+/// The aperture lines of a surface (`FLAP` for a semi-diameter that clips, `CLAP`, `OBSC`,
+/// `SQAP`, `OBSQ`, `ELAP`, `OBEL`, and `OBDC` for a decenter).
+fn aperture_lines(s: &Surface) -> Vec<String> {
+    let Some(a) = s.aperture else {
+        return Vec::new();
+    };
+    let ob = a.obscuration;
+    let (cmd, x, y) = match a.shape {
+        ApertureShape::SemiDiameter if !ob && a.decenter_mm == [0.0; 2] => {
+            ("FLAP", 0.0, s.semi_aperture_mm)
+        }
+        ApertureShape::SemiDiameter => (if ob { "OBSC" } else { "CLAP" }, 0.0, s.semi_aperture_mm),
+        ApertureShape::Circular { min_mm, max_mm } => {
+            (if ob { "OBSC" } else { "CLAP" }, min_mm, max_mm)
+        }
+        ApertureShape::Rectangular {
+            half_x_mm,
+            half_y_mm,
+        } => (if ob { "OBSQ" } else { "SQAP" }, half_x_mm, half_y_mm),
+        ApertureShape::Elliptical {
+            half_x_mm,
+            half_y_mm,
+        } => (if ob { "OBEL" } else { "ELAP" }, half_x_mm, half_y_mm),
+    };
+    let mut out = vec![format!("{cmd} {} {} 0", fmt(x), fmt(y))];
+    if a.decenter_mm != [0.0; 2] {
+        out.push(format!(
+            "OBDC {} {}",
+            fmt(a.decenter_mm[0]),
+            fmt(a.decenter_mm[1])
+        ));
+    }
     out
 }
 

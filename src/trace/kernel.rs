@@ -310,7 +310,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             let (t, hit, nrm) = intersect::<S, KIND>(row, p, d);
             let backward = !row.virtual_ok & behind(t, p);
             let h = p + d * t;
-            let vignetted = CLIP & row.ap2.lt(h.x * h.x + h.y * h.y);
+            let vignetted = CLIP & row.clip.stops(h.x, h.y);
             // Refraction (vector Snell). The normal is flipped to face the incoming ray.
             // With the unnormalized normal N and a = -N.d = |N| cos i, the refracted direction is
             // eta d + (eta a - sqrt(k N.N)) / N.N N: one division and one square root.

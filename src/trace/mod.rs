@@ -147,6 +147,16 @@ impl<S: Real> Default for RayBatch<S> {
 }
 
 impl<S: Real> RayBatch<S> {
+    /// Gives the rays at `indices` the status `status` (a dead status keeps them out of every
+    /// later pass). Indices past the end are ignored.
+    pub fn set_status(&mut self, indices: &[usize], status: RayStatus) {
+        for &i in indices {
+            if i < self.len {
+                self.blocks[i / LANES].status[i % LANES] = status.code();
+            }
+        }
+    }
+
     /// An empty batch.
     pub fn new() -> Self {
         RayBatch {

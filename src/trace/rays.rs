@@ -288,6 +288,10 @@ pub struct RaySet {
     pub pupil: Vec<[f64; 2]>,
     /// The chief ray (through the pupil centre).
     pub chief: (Vec3<f64>, Vec3<f64>),
+    /// With ray aiming: the stop surface and the rays that cannot reach their point of the stop
+    /// (every nearby ray misses a surface before it). [`RaySet::batch`] marks them vignetted at
+    /// the stop; without aiming, empty.
+    pub unreachable: Option<(usize, Vec<usize>)>,
 }
 
 impl RaySet {
@@ -329,6 +333,7 @@ impl RaySet {
             directions: Vec::with_capacity(pts.len()),
             pupil: pts.to_vec(),
             chief: make(0.0, 0.0),
+            unreachable: None,
         };
         if aim {
             let sys = lens.compile();
@@ -339,13 +344,23 @@ impl RaySet {
                 |target: [f64; 2], guess: [f64; 2]| aim_ray(&sys, &n, stop, &make, target, guess);
             let c = aim([0.0, 0.0], [0.0, 0.0])?;
             set.chief = make(c[0], c[1]);
-            for q in pts {
+            let mut lost = Vec::new();
+            for (i, q) in pts.iter().enumerate() {
                 let guess = [c[0] + q[0] * r_ep, c[1] + q[1] * r_ep];
-                let e = aim([q[0] * r_stop, q[1] * r_stop], guess)?;
+                // A stop point no real ray reaches (those near it miss a surface first) is a
+                // vignetted ray, not a failed command; the chief ray must be aimed.
+                let e = match aim([q[0] * r_stop, q[1] * r_stop], guess) {
+                    Ok(e) => e,
+                    Err(_) => {
+                        lost.push(i);
+                        guess
+                    }
+                };
                 let (o, d) = make(e[0], e[1]);
                 set.origins.push(o);
                 set.directions.push(d);
             }
+            set.unreachable = Some((stop, lost));
         } else {
             for q in pts {
                 let (o, d) = beam.at_pupil(*q);
@@ -358,7 +373,11 @@ impl RaySet {
 
     /// The rays as a batch in number type `S` (the directions are already unit vectors).
     pub fn batch<S: Real>(&self) -> RayBatch<S> {
-        RayBatch::from_unit_rays(&self.origins, &self.directions)
+        let mut b = RayBatch::from_unit_rays(&self.origins, &self.directions);
+        if let Some((stop, lost)) = &self.unreachable {
+            b.set_status(lost, super::RayStatus::Vignetted(*stop as u32));
+        }
+        b
     }
 }
 
@@ -510,32 +529,67 @@ fn aim_ray(
         Some([p.x, p.y])
     };
     let mut e = guess;
-    for _ in 0..30 {
-        let f = at_stop(e).ok_or_else(|| {
-            Error::numerical("ray aiming: a ray missed a surface before the stop")
-        })?;
+    // The paraxial guess of a rim ray may miss a strongly curved surface before the stop: walk
+    // in from the chief ray's guess until a ray gets through.
+    let mut f = at_stop(e);
+    for k in 1..=30 {
+        if f.is_some() {
+            break;
+        }
+        let s = 0.5f64.powi(k);
+        e = [guess[0] * s, guess[1] * s];
+        f = at_stop(e);
+    }
+    let mut f = f.ok_or_else(|| {
+        Error::numerical("ray aiming: no ray near the paraxial pupil reaches the stop")
+    })?;
+    for _ in 0..40 {
         let r = [f[0] - target[0], f[1] - target[1]];
         // 0.1 nm at the stop: well above the trace's rounding (~1e-14 x 100 mm), far below any use.
         if r[0].abs().max(r[1].abs()) < 1e-10 {
             return Ok(e);
         }
-        let h = 1e-6;
-        let fx = at_stop([e[0] + h, e[1]]).ok_or_else(|| Error::numerical("ray aiming failed"))?;
-        let fy = at_stop([e[0], e[1] + h]).ok_or_else(|| Error::numerical("ray aiming failed"))?;
-        let (a, b, c, d) = (
-            (fx[0] - f[0]) / h,
-            (fy[0] - f[0]) / h,
-            (fx[1] - f[1]) / h,
-            (fy[1] - f[1]) / h,
-        );
+        // Finite differences, stepping inwards when outwards misses.
+        let diff = |i: usize| -> Option<[f64; 2]> {
+            for h in [1e-6, -1e-6] {
+                let mut q = e;
+                q[i] += h;
+                if let Some(g) = at_stop(q) {
+                    return Some([(g[0] - f[0]) / h, (g[1] - f[1]) / h]);
+                }
+            }
+            None
+        };
+        let (jx, jy) = match (diff(0), diff(1)) {
+            (Some(x), Some(y)) => (x, y),
+            _ => {
+                return Err(Error::numerical(
+                    "ray aiming: rays next to the aimed one miss",
+                ))
+            }
+        };
+        let (a, b, c, d) = (jx[0], jy[0], jx[1], jy[1]);
         let det = a * d - b * c;
         if det.abs() < 1e-300 {
             return Err(Error::numerical("ray aiming: singular pupil mapping"));
         }
-        e = [
-            e[0] - (d * r[0] - b * r[1]) / det,
-            e[1] - (a * r[1] - c * r[0]) / det,
-        ];
+        let step = [(d * r[0] - b * r[1]) / det, (a * r[1] - c * r[0]) / det];
+        // Damped: halve the Newton step while the new ray misses a surface.
+        let mut t = 1.0;
+        loop {
+            let q = [e[0] - t * step[0], e[1] - t * step[1]];
+            if let Some(g) = at_stop(q) {
+                e = q;
+                f = g;
+                break;
+            }
+            t *= 0.5;
+            if t < 1e-9 {
+                return Err(Error::numerical(
+                    "ray aiming: the stop point cannot be reached (rays miss a surface before it)",
+                ));
+            }
+        }
     }
     Err(Error::numerical("ray aiming did not converge"))
 }

@@ -107,7 +107,7 @@ pub fn trace_ray(
             return fail(RayStatus::Backward(i as u32));
         }
         let h = p + dl * t;
-        if clip && h.x * h.x + h.y * h.y > row.ap2 {
+        if clip && row.clip.stops(h.x, h.y) {
             return fail(RayStatus::Vignetted(i as u32));
         }
         let mut dn = dl;

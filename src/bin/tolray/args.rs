@@ -27,6 +27,10 @@ pub struct LensArgs {
     /// OpticStudio's 1.5 / 40 placeholder is still refused).
     #[arg(long = "glass-fallback", value_name = "refuse|file-values", default_value = "refuse", value_parser = ["refuse", "file-values"])]
     pub glass_fallback: String,
+    /// Clip rays at every surface's semi-diameter, as DeepLens does (a .zmx DIAM alone clips
+    /// nothing, as in OpticStudio; hard apertures such as CLAP and the stop always clip).
+    #[arg(long)]
+    pub clip_at_semi_diameter: bool,
 }
 
 impl LensArgs {
@@ -38,6 +42,9 @@ impl LensArgs {
         }
         if let Some(o) = &self.object {
             lens.object = Object::parse(o)?;
+        }
+        if self.clip_at_semi_diameter {
+            lens.clip_at_semi_diameters();
         }
         Ok(lens)
     }
@@ -78,9 +85,13 @@ pub struct RayArgs {
     /// Seed for random pupil sampling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Aim rays at the real stop instead of the paraxial entrance pupil.
-    #[arg(long)]
+    /// Aim rays at the real stop instead of the paraxial entrance pupil (default: as the lens
+    /// says; a .zmx file's RAIM).
+    #[arg(long, conflicts_with = "no_aim")]
     pub aim: bool,
+    /// Aim rays at the paraxial entrance pupil even where the lens asks for ray aiming.
+    #[arg(long)]
+    pub no_aim: bool,
     /// Ignore clear apertures and the stop.
     #[arg(long)]
     pub no_apertures: bool,
@@ -90,7 +101,7 @@ impl RayArgs {
     pub fn options(&self, lens: &Lens) -> anyhow::Result<SpotOptions> {
         let fields = parse_fields(&self.fields)?;
         let mut pupil = Pupil::parse(&self.pupil, self.seed)?;
-        pupil.aim = self.aim;
+        pupil.aim = self.aim || (lens.ray_aiming && !self.no_aim);
         Ok(SpotOptions {
             fields,
             wavelengths_nm: parse_wavelengths(&self.wavelengths, lens)?,
