@@ -754,7 +754,7 @@ pub fn layout_figure(
             outlines.push(vec![(zs, r), (zs, r + 0.15 * ymax)]);
             outlines.push(vec![(zs, -r), (zs, -r - 0.15 * ymax)]);
         }
-        if s.role == SurfaceRole::Refractive {
+        if s.role != SurfaceRole::Aperture {
             outlines.push(profile(i));
         }
         // Element edges: join this surface to the next through the glass.

@@ -66,7 +66,86 @@ fn lenses() -> Vec<(String, Lens)> {
         .map(|n| (n.to_string(), Lens::load(n).unwrap()))
         .collect();
     v.push(("asphere".into(), asphere_lens()));
+    v.push(("cassegrain".into(), cassegrain()));
     v
+}
+
+/// A two-mirror telescope (tests/data/cassegrain.json): reflections, negative gaps after the
+/// primary, conic mirrors.
+fn cassegrain() -> Lens {
+    Lens::load(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/cassegrain.json"
+    ))
+    .unwrap()
+}
+
+/// Mirrors against closed forms: a parabolic primary focuses every ray parallel to its axis at
+/// its focus (z = R/2 in front of it, wherever the ray hits), and the Cassegrain images an axial
+/// point perfectly; each reflected direction obeys the law of reflection.
+#[test]
+fn mirrors_reflect_to_their_closed_forms() {
+    let mut lens = cassegrain();
+    // The primary alone, image plane at its focus (200 mm in front of it, toward -z).
+    lens.surfaces.truncate(1);
+    lens.surfaces[0].d_next_mm = -200.0;
+    let sys = lens.compile();
+    let mut b = RayBatch::<f64>::new();
+    let pts: Vec<(f64, f64)> = (0..400)
+        .map(|k| {
+            (
+                -45.0 + 90.0 * (k % 20) as f64 / 19.0,
+                -45.0 + 90.0 * (k / 20) as f64 / 19.0,
+            )
+        })
+        .filter(|(x, y)| x * x + y * y < 49.0 * 49.0)
+        .collect();
+    for &(x, y) in &pts {
+        b.push(Vec3::new(x, y, -10.0), Vec3::new(0.0, 0.0, 1.0));
+    }
+    trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+    for (i, &(x, y)) in pts.iter().enumerate() {
+        let r = b.get(i);
+        assert!(r.status.is_alive(), "{x} {y}: {:?}", r.status);
+        assert!(
+            r.o.x.abs() < 1e-12 && r.o.y.abs() < 1e-12,
+            "{x} {y}: {:?}",
+            r.o
+        );
+        assert!((r.o.z + 200.0).abs() < 1e-12);
+        // The reflected ray points at the focus from the hit on the sag z = c ρ² / 2 = -ρ²/800.
+        let hit = Vec3::new(x, y, -(x * x + y * y) / 800.0);
+        let want = (Vec3::new(0.0, 0.0, -200.0) - hit).normalized();
+        assert!(
+            (r.d - want).norm() < 1e-13,
+            "{x} {y}: {:?} vs {want:?}",
+            r.d
+        );
+        // OPL from z = -10 to the focus is the same for every ray (Fermat): 10 + 200.
+        assert!((r.opl - 210.0).abs() < 1e-10, "{x} {y}: OPL {}", r.opl);
+    }
+    // The full Cassegrain: perfect on axis (its primary and secondary are the classical conics).
+    let lens = cassegrain();
+    let p = lens.paraxial(LAMBDA_D_NM).unwrap();
+    assert!(
+        (p.efl_mm - 800.0).abs() < 1e-9 && (p.bfd_mm - 200.0).abs() < 1e-9,
+        "{p:?}"
+    );
+    let mut b = RayBatch::<f64>::new();
+    for &(x, y) in &pts {
+        b.push(Vec3::new(x, y, -10.0), Vec3::new(0.0, 0.0, 1.0));
+    }
+    trace(
+        &lens.compile(),
+        LAMBDA_D_NM,
+        &mut b,
+        TraceOptions { apertures: false },
+    );
+    for i in 0..pts.len() {
+        let r = b.get(i);
+        assert!(r.o.x.abs() < 1e-10 && r.o.y.abs() < 1e-10, "{:?}", r.o);
+        assert!((r.o.z - 50.0).abs() < 1e-12);
+    }
 }
 
 #[test]

@@ -126,6 +126,23 @@ def material_desc(m):
     return type(m).__name__ + (":" + str(getattr(m, "name", "")) if getattr(m, "name", None) else "")
 
 
+def raw_glas(path, i):
+    return glas_lines(path).get(int(i), "")
+
+
+class TolrayModelGlass(IdealMaterial):
+    """tolray's model glass: n = A + B / λ², exact n_d at 587.5618 nm and V_d from F and C."""
+
+    def __init__(self, nd, vd):
+        super().__init__(n=nd)
+        inv2 = lambda l: 1.0 / (l * l)
+        self.b = (nd - 1.0) / vd / (inv2(0.4861327) - inv2(0.6562725))
+        self.a = nd - self.b * inv2(0.5875618)
+
+    def _calculate_n(self, wavelength, **kwargs):
+        return self.a + self.b / be.asarray(wavelength) ** 2
+
+
 class ZemaxMiscSilica(IdealMaterial):
     """Fused silica as Zemax's MISC catalog writes it (F_SILICA and SILICA): Malitson's
     Sellmeier terms with the C coefficients squared and rounded as in MISC.AGF. optiland's own
@@ -157,6 +174,12 @@ def load_optic(path, feat):
         if isinstance(m, AbbeMaterial) and s.get("abbe") in (0.0, None) and s.get("index"):
             s["material"] = IdealMaterial(n=s["index"])
             patches.append(f"surface {i}: model glass nd={s['index']!r} Vd=0 -> IdealMaterial")
+        elif isinstance(m, AbbeMaterial) and raw_glas(path, i).upper().startswith("GLAS ___BLANK"):
+            # Patch 5: a model glass (n_d, V_d) follows tolray's dispersion law (exact n_d and
+            # V_d; OpticStudio's own model-glass law is not public), so that both tracers see
+            # the same indices; the comparison is of the reading and the tracing.
+            s["material"] = TolrayModelGlass(s["index"], s["abbe"])
+            patches.append(f"surface {i}: model glass nd={s['index']!r} Vd={s['abbe']!r} -> tolray's Cauchy law")
     # Patch 3: F_SILICA / SILICA as Zemax MISC.AGF defines them (optiland 0.6.3 does not know
     # F_SILICA and reads SILICA as its own SiO2 page); see ZemaxMiscSilica.
     # (falls back to AbbeMaterial(0, 0) -> NaN).  Use optiland's 'fused silica'
@@ -186,6 +209,11 @@ def load_optic(path, feat):
                            f"{os.path.relpath(getattr(m, 'filename', '') or '-', GLASS_DB)})")
     with contextlib.redirect_stdout(buf):
         op = ZemaxToOpticConverter(model).convert()
+    # Patch 6: optiland stops its asphere Newton iteration at a 1e-10 mm sag residual, which
+    # leaves ray positions 1e-8 mm off after four aspheric mirrors; iterate to round-off.
+    for srf in op.surface_group.surfaces:
+        if hasattr(srf.geometry, "tol"):
+            srf.geometry.tol = 1e-15
     # Patch 2: FLOA.  optiland passes the stop's DIAM (a Zemax SEMI-diameter)
     # as the stop *diameter*; double it so EPD has Zemax semantics.
     raw_epd = None

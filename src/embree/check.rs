@@ -415,7 +415,12 @@ impl Stepper<'_> {
                     n.normalized()
                 }
             };
-            match refract(q.dl, nrm, n1, n2) {
+            let bent = if row.reflect {
+                Some(q.dl - nrm * (2.0 * q.dl.dot(nrm)))
+            } else {
+                refract(q.dl, nrm, n1, n2)
+            };
+            match bent {
                 Some(v) => dn = v,
                 None => {
                     s.status = RayStatus::Tir(i);
@@ -526,7 +531,12 @@ fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> 
                 if row.refract {
                     let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
                     let n1 = if i == 0 { 1.0 } else { n[i - 1] };
-                    match refract(dl, nrm, n1, n[i]) {
+                    let bent = if row.reflect {
+                        Some(dl - nrm * (2.0 * dl.dot(nrm)))
+                    } else {
+                        refract(dl, nrm, n1, n[i])
+                    };
+                    match bent {
                         Some(v) => dn = v,
                         None => break,
                     }

@@ -142,9 +142,11 @@ fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
             half_x_mm: need("half_x")?,
             half_y_mm: need("half_y")?,
         },
-        other => return Err(Error::invalid(format!(
+        other => {
+            return Err(Error::invalid(format!(
             "{at}unknown type \"{other}\" (none, semi_diameter, circular, rectangular, elliptical)"
-        ))),
+        )))
+        }
     };
     let obscuration = match a.get("obscuration") {
         None => false,
@@ -332,15 +334,16 @@ fn surface_from(
 ) -> Result<(Surface, Option<f64>)> {
     let ty = s.get("type").and_then(Value::as_str).ok_or_else(|| {
         Error::invalid(format!(
-            "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop or Plane)"
+            "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop, Plane or Mirror)"
         ))
     })?;
     let role = match ty {
         "Spheric" | "Aspheric" | "Plane" => SurfaceRole::Refractive,
         "Aperture" | "Stop" => SurfaceRole::Aperture,
+        "Mirror" => SurfaceRole::Mirror,
         other => {
             return Err(Error::invalid(format!(
-                "{at}unsupported surface type \"{other}\" (tolray traces Spheric, Aspheric, Aperture, Stop and Plane)"
+                "{at}unsupported surface type \"{other}\" (tolray traces Spheric, Aspheric, Aperture, Stop, Plane and Mirror)"
             )))
         }
     };
@@ -489,17 +492,18 @@ pub fn to_value(lens: &Lens) -> Value {
                 SurfaceRole::Aperture => "Aperture",
                 SurfaceRole::Refractive if s.k != 0.0 || s.is_aspheric() => "Aspheric",
                 SurfaceRole::Refractive => "Spheric",
+                SurfaceRole::Mirror => "Mirror",
             };
             m.insert("type".into(), json!(ty));
             m.insert("r".into(), json!(s.semi_aperture_mm));
-            if s.role == SurfaceRole::Refractive {
+            if s.role != SurfaceRole::Aperture {
                 m.insert("(c)".into(), json!(s.c));
                 m.insert(
                     "roc".into(),
                     json!(if s.c == 0.0 { 0.0 } else { 1.0 / s.c }),
                 );
             }
-            if ty == "Aspheric" {
+            if ty == "Aspheric" || ty == "Mirror" {
                 m.insert("k".into(), json!(s.k));
                 m.insert("ai".into(), json!(s.asph.to_vec()));
                 m.insert("use_ai2".into(), json!(true));
@@ -512,7 +516,7 @@ pub fn to_value(lens: &Lens) -> Value {
             if let Some(a) = aperture_value(s.aperture.as_ref()) {
                 m.insert("aperture".into(), a);
             }
-            if s.is_stop && s.role == SurfaceRole::Refractive {
+            if s.is_stop && s.role != SurfaceRole::Aperture {
                 m.insert("is_aperture".into(), json!(true));
             }
             Value::Object(m)

@@ -37,6 +37,10 @@ pub enum SurfaceRole {
     Refractive,
     /// A flat aperture (DeepLens "Aperture"/"Stop"): it clips rays but does not refract.
     Aperture,
+    /// A mirror: rays reflect and travel back along the axis, so the gaps after it are negative
+    /// (as OpticStudio writes them) until the next mirror; its `material` is the medium the
+    /// reflected light travels in (the one before it).
+    Mirror,
 }
 
 /// The shape of a hard aperture, in the surface's own frame (sizes in mm).
@@ -424,7 +428,28 @@ impl Lens {
         n
     }
 
-    /// True if surface `i` bends rays: every refracting surface, and a bare aperture that
+    /// The direction of travel along z before each surface and, last, before the image plane:
+    /// +1 from the object, flipped by each mirror. A gap must have the sign of the travel after
+    /// its surface (OpticStudio's negative thicknesses after a mirror).
+    pub fn travel_directions(&self) -> Vec<f64> {
+        let mut dir = 1.0;
+        let mut out = Vec::with_capacity(self.surfaces.len() + 1);
+        for s in &self.surfaces {
+            out.push(dir);
+            if s.role == SurfaceRole::Mirror {
+                dir = -dir;
+            }
+        }
+        out.push(dir);
+        out
+    }
+
+    /// True if surface `i` is a mirror.
+    pub fn reflects(&self, i: usize) -> bool {
+        self.surfaces[i].role == SurfaceRole::Mirror
+    }
+
+    /// True if surface `i` bends rays: every refracting surface and mirror, and a bare aperture that
     /// separates two different media (a flat interface, as OpticStudio treats a stop surface
     /// with a glass; it was once passed straight through, which changed the optics).
     pub fn refracts(&self, i: usize) -> bool {
@@ -432,7 +457,7 @@ impl Lens {
         let before = i
             .checked_sub(1)
             .map_or(&Material::Air, |j| &self.surfaces[j].material);
-        s.role == SurfaceRole::Refractive || s.material != *before
+        s.role != SurfaceRole::Aperture || s.material != *before
     }
 
     /// Axial vertex positions of every surface and, last, of the image plane, mm (first vertex at 0).
@@ -466,6 +491,7 @@ impl Lens {
                 "more than one surface is marked as the aperture stop",
             ));
         }
+        let dirs = self.travel_directions();
         for (i, s) in self.surfaces.iter().enumerate() {
             let at = |m: String| Error::invalid(format!("surface {i}: {m}"));
             let finite = [s.c, s.k, s.semi_aperture_mm, s.d_next_mm]
@@ -493,11 +519,26 @@ impl Lens {
                     s.semi_aperture_mm
                 )));
             }
-            if s.d_next_mm < 0.0 {
-                return Err(at(format!(
-                    "gap to the next surface {} mm is negative",
-                    s.d_next_mm
-                )));
+            if s.d_next_mm * dirs[i + 1] < 0.0 {
+                return Err(at(if dirs[i + 1] > 0.0 {
+                    format!("gap to the next surface {} mm is negative", s.d_next_mm)
+                } else {
+                    format!(
+                        "gap to the next surface {} mm is positive after an odd number of mirrors (light travels toward -z there)",
+                        s.d_next_mm
+                    )
+                }));
+            }
+            if s.role == SurfaceRole::Mirror {
+                let before = i
+                    .checked_sub(1)
+                    .map_or(&Material::Air, |j| &self.surfaces[j].material);
+                if s.material != *before {
+                    return Err(at(
+                        "a mirror's medium must be the one before it (the light travels back in it)"
+                            .into(),
+                    ));
+                }
             }
             let rim = (1.0 + s.k) * s.c * s.c * s.semi_aperture_mm * s.semi_aperture_mm;
             if rim > 1.0 {
@@ -568,13 +609,15 @@ impl Lens {
     /// surfaces whose sags cross inside their common clear aperture (negative edge thickness).
     pub fn warnings(&self) -> Vec<String> {
         let mut out = Vec::new();
+        let dirs = self.travel_directions();
         for i in 0..self.surfaces.len().saturating_sub(1) {
             let (a, b) = (&self.surfaces[i], &self.surfaces[i + 1]);
             let r = a.semi_aperture_mm.min(b.semi_aperture_mm);
             for j in (0..=32).rev() {
                 let rho = r * j as f64 / 32.0;
                 if let (Some(za), Some(zb)) = (a.sag(rho), b.sag(rho)) {
-                    let gap = a.d_next_mm + zb - za;
+                    // Along the light's path (toward -z after an odd number of mirrors).
+                    let gap = (a.d_next_mm + zb - za) * dirs[i + 1];
                     if gap < -1e-9 {
                         out.push(format!(
                             "surfaces {i} and {} cross inside their clear apertures: at height {rho:.3} mm the gap is {gap:.4} mm (clear semi-apertures may be too large)",

@@ -47,6 +47,9 @@ struct Ynu {
 
 /// Traces a paraxial ray that arrives at the vertex plane of surface `start` (before refracting
 /// there) with height `y0` and slope `u0`; heights of surfaces before `start` are left 0.
+///
+/// `n` holds the signed indices of [`signed_indices`]: a mirror is a refraction into `-n`, and
+/// the gaps after it are negative, so the y-nu equations hold unchanged through mirrors.
 fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
     let (mut y, mut u) = (y0, u0);
     let mut heights = vec![0.0; lens.surfaces.len()];
@@ -79,17 +82,15 @@ fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
 pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     lens.validate()?;
     lens.check_indices(wavelength_nm)?;
-    let n: Vec<f64> = lens
-        .surfaces
-        .iter()
-        .map(|s| s.material.index(wavelength_nm))
-        .collect();
+    let n = signed_indices(lens, wavelength_nm);
+    let n_last = n.last().copied().unwrap_or(1.0);
     let last = lens.surfaces.len() - 1;
     let parallel = ynu(lens, &n, 0, 1.0, 0.0);
     if parallel.u_last.abs() < 1e-14 {
         return Err(Error::numerical("the lens is afocal (no focal length)"));
     }
-    let efl = -1.0 / parallel.u_last;
+    // The power -n' u' of a unit-height parallel ray (n' = -1 after an odd number of mirrors).
+    let efl = -1.0 / (n_last * parallel.u_last);
     let bfd = -parallel.y_last / parallel.u_last;
     let axial = match lens.object {
         Object::Infinite => None,
@@ -139,7 +140,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         Object::Finite { distance_mm } => {
             let u0 = enp_r / (enp_z + distance_mm);
             let r = ynu(lens, &n, 0, u0 * distance_mm, u0);
-            (1.0 / (2.0 * r.u_last.abs()), u0 / r.u_last)
+            (1.0 / (2.0 * r.u_last.abs()), u0 / (n_last * r.u_last))
         }
     };
     for (what, v) in [
@@ -174,6 +175,17 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     })
 }
 
+/// Indices after each surface at `wavelength_nm`, negated while the light travels toward -z
+/// (after an odd number of mirrors).
+fn signed_indices(lens: &Lens, wavelength_nm: f64) -> Vec<f64> {
+    let dirs = lens.travel_directions();
+    lens.surfaces
+        .iter()
+        .enumerate()
+        .map(|(i, s)| s.material.index(wavelength_nm) * dirs[i + 1])
+        .collect()
+}
+
 /// The field of a paraxial chief ray, for [`beam_semi_diameters`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ParaxialField {
@@ -206,11 +218,7 @@ pub fn beam_semi_diameters(
     field: ParaxialField,
 ) -> Result<Vec<f64>> {
     let p = analyze(lens, wavelength_nm)?;
-    let n: Vec<f64> = lens
-        .surfaces
-        .iter()
-        .map(|s| s.material.index(wavelength_nm))
-        .collect();
+    let n = signed_indices(lens, wavelength_nm);
     let image_gap = lens.image_distance_mm();
     let with_image = |r: Ynu| {
         let mut h = r.heights;

@@ -166,6 +166,8 @@ pub struct SurfaceRow<S> {
     pub kind: SurfaceKind,
     /// False for bare apertures (rays pass unrefracted).
     pub refract: bool,
+    /// True for a mirror: rays reflect instead of refracting.
+    pub reflect: bool,
     /// Curvature (with any offset), 1/mm.
     pub c: S,
     /// 1 + conic constant.
@@ -184,8 +186,9 @@ pub struct SurfaceRow<S> {
     pub rot: Mat3<S>,
     /// Vertex position in the global frame, mm.
     pub pos: Vec3<S>,
-    /// True when the gap before this surface is negative: the lens asks for virtual propagation
-    /// (as Zemax allows negative thicknesses), so an intersection behind the ray is accepted.
+    /// True when the gap before this surface runs against the direction of travel (negative
+    /// before any mirror, positive after one): the lens asks for virtual propagation (as Zemax
+    /// allows), so an intersection behind the ray is accepted.
     /// Otherwise a ray that would have to travel backwards to reach the surface stops with
     /// [`crate::trace::RayStatus::Backward`].
     pub virtual_ok: bool,
@@ -200,7 +203,8 @@ pub struct System<S> {
     pub image: Rigid<S>,
     /// True if the image plane is rotated.
     pub image_rotated: bool,
-    /// True when the last gap is negative (a virtual image plane; see [`SurfaceRow::virtual_ok`]).
+    /// True when the last gap runs against the travel (a virtual image plane; see
+    /// [`SurfaceRow::virtual_ok`]).
     pub image_virtual: bool,
     /// Medium after each surface.
     pub materials: Vec<Material>,
@@ -239,6 +243,7 @@ impl<S: Real> System<S> {
     /// (identity for values, a seeded dual number for gradients).
     pub fn compile(lens: &Lens, adj: &Adjustments, lift: &dyn Fn(Param, S) -> S) -> System<S> {
         let mut z = S::cst(0.0);
+        let dirs = lens.travel_directions();
         let mut rows = Vec::with_capacity(lens.surfaces.len());
         for (i, s) in lens.surfaces.iter().enumerate() {
             let r0 = rotation_to(s.vec_local);
@@ -274,6 +279,7 @@ impl<S: Real> System<S> {
             rows.push(SurfaceRow {
                 kind,
                 refract: lens.refracts(i),
+                reflect: lens.reflects(i),
                 c,
                 k1: S::cst(1.0) + k,
                 asph,
@@ -283,7 +289,7 @@ impl<S: Real> System<S> {
                 rotated: !is_identity(&rot),
                 rot: lift_c(rot),
                 pos,
-                virtual_ok: i > 0 && lens.surfaces[i - 1].d_next_mm < 0.0,
+                virtual_ok: i > 0 && lens.surfaces[i - 1].d_next_mm * dirs[i] < 0.0,
             });
             z += lift(Param::Gap(i), S::cst(s.d_next_mm));
         }
@@ -302,7 +308,10 @@ impl<S: Real> System<S> {
             rows,
             image,
             image_rotated: !is_identity(&m.rotation),
-            image_virtual: lens.surfaces.last().is_some_and(|s| s.d_next_mm < 0.0),
+            image_virtual: lens
+                .surfaces
+                .last()
+                .is_some_and(|s| s.d_next_mm * dirs[dirs.len() - 1] < 0.0),
             materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
             model_glass: lens
                 .surfaces
@@ -351,6 +360,7 @@ impl<S: Real> System<S> {
                 .map(|r| SurfaceRow {
                     kind: r.kind,
                     refract: r.refract,
+                    reflect: r.reflect,
                     c: T::cst(r.c.value()),
                     k1: T::cst(r.k1.value()),
                     asph: r.asph.map(|a| T::cst(a.value())),

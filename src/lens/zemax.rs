@@ -146,6 +146,9 @@ pub struct ZmxExtras {
     /// origin is the vertex of `SURF 1`, mm: non-zero when dummy surfaces or coordinate breaks
     /// come first.
     pub first_vertex_mm: [f64; 3],
+    /// The image surface's lateral decenter in tolray's frame, mm (tolray's image plane stays
+    /// on the axis: subtract this from spot positions for the file's image coordinates).
+    pub image_decenter_mm: [f64; 2],
 }
 
 /// A lens read from a .zmx file, with the file's extras and the reader's warnings.
@@ -590,9 +593,10 @@ fn glass(
     let upper = name.to_ascii_uppercase();
     let num = |k: usize| args.get(k).and_then(|t| t.parse::<f64>().ok());
     if upper == "MIRROR" {
+        // Lens surfaces read MIRROR themselves (Walker::surface); the object cannot be one.
         return Err(invalid(
             line,
-            "GLAS MIRROR: tolray traces refractive lenses only (no mirrors)",
+            "GLAS MIRROR: the object surface cannot be a mirror",
         ));
     }
     if upper == "___BLANK" {
@@ -733,6 +737,8 @@ struct Walker {
     object_gap: Option<f64>,
     /// The origin when the first lens surface was placed.
     first_vertex: Vec3<f64>,
+    /// Direction of travel along the axis: +1, flipped by each mirror.
+    dir: f64,
     /// The medium the light is in.
     medium: Material,
     last_cb_line: Option<usize>,
@@ -814,13 +820,20 @@ impl Walker {
                 warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
             }
         }
+        let mirror = s.glas.as_ref().is_some_and(|g| {
+            g.v.first()
+                .is_some_and(|n| n.eq_ignore_ascii_case("MIRROR"))
+        });
+        // A mirror sends the light back through the medium it came in.
         let material = match &s.glas {
+            _ if mirror => self.medium.clone(),
             Some(g) => glass(&g.v, g.line, catalogs, warnings)?,
             None => Material::Air,
         };
         let diam = s.diam.as_ref().map(|d| (d.v.0 * scale, d.v.1));
         let aperture = s.hard_aperture(scale)?;
         let dummy = ty == "STANDARD"
+            && !mirror
             && c == 0.0
             && s.stop.is_none()
             && material == self.medium
@@ -836,12 +849,12 @@ impl Walker {
                     ),
                 ));
             }
-            if self.pending < 0.0 {
+            if self.pending * self.dir < 0.0 {
                 return Err(invalid(
                     s.line,
                     format!(
-                        "SURF {k} lies {} mm before the previous surface along z; tolray needs the surfaces in order along the axis",
-                        -self.pending
+                        "SURF {k} lies {} mm before the previous surface along the light's path; tolray needs the surfaces in order along the axis (thicknesses are negative after a mirror)",
+                        self.pending.abs()
                     ),
                 ));
             }
@@ -877,7 +890,9 @@ impl Walker {
                 .or(flap.filter(|&r| r > 0.0));
             let is_stop = s.stop.is_some();
             // A flat stop in air is a bare aperture (DeepLens' "Aperture").
-            let role = if is_stop
+            let role = if mirror {
+                SurfaceRole::Mirror
+            } else if is_stop
                 && ty == "STANDARD"
                 && c == 0.0
                 && self.medium.is_air()
@@ -910,6 +925,9 @@ impl Walker {
                 index: k,
                 has_diam: semi.is_some(),
             });
+            if mirror {
+                self.dir = -self.dir;
+            }
         }
         self.medium = material;
         let line = s.disz.as_ref().map_or(s.line, |d| d.line);
@@ -950,12 +968,12 @@ impl Walker {
                 img.line, self.origin.x, self.origin.y
             ));
         }
-        if self.pending < 0.0 {
+        if self.pending * self.dir < 0.0 {
             return Err(invalid(
                 img.line,
                 format!(
-                    "the image surface lies {} mm before the last lens surface",
-                    -self.pending
+                    "the image surface lies {} mm before the last lens surface along the light's path",
+                    self.pending.abs()
                 ),
             ));
         }
@@ -1134,6 +1152,7 @@ fn build(
         pending: object.unwrap_or(0.0),
         object_gap: None,
         first_vertex: Vec3::cst(0.0, 0.0, 0.0),
+        dir: 1.0,
         medium: Material::Air,
         last_cb_line: None,
         stop_line: None,
@@ -1156,6 +1175,10 @@ fn build(
     }
     let r_sensor = walk.image(&surfs[last], &mut warnings)?;
     let first_vertex = walk.first_vertex;
+    let image_decenter = [
+        walk.origin.x - first_vertex.x,
+        walk.origin.y - first_vertex.y,
+    ];
     let mut built = walk.built;
     if walk.stop_line.is_none() {
         warnings.push(format!(
@@ -1277,6 +1300,7 @@ fn build(
         glass_catalogs: h.gcat,
         surface_numbers: built.iter().map(|b| b.index).collect(),
         first_vertex_mm: [first_vertex.x, first_vertex.y, first_vertex.z],
+        image_decenter_mm: image_decenter,
     };
     Ok(ZmxLens {
         lens,
@@ -1835,7 +1859,9 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             "DISZ {}",
             fmt(if moved { 0.0 } else { s.d_next_mm })
         ));
-        if let Some(g) = glas_line(&s.material) {
+        if s.role == SurfaceRole::Mirror {
+            l.push("GLAS MIRROR".into());
+        } else if let Some(g) = glas_line(&s.material) {
             l.push(g);
         }
         l.push(format!("DIAM {} 1 0 0 1 \"\"", fmt(s.semi_aperture_mm)));

@@ -284,7 +284,9 @@ fn intersect<S: Real, const KIND: u8>(
 
 /// One surface for every lane of a group of blocks, from `src` into `dst`. `KIND`, `ROT`
 /// (rotated frame) and `CLIP` (apertures on) are compile-time so that the lane loop has no control
-/// flow left and vectorizes. A plane surface is a bare aperture: it clips but never refracts.
+/// flow left and vectorizes. A plane surface is a bare aperture: it clips but never refracts. A
+/// mirror is a runtime select (a compile-time flag doubled the kernel's instances and the build
+/// time of every dual-number width).
 #[inline(always)]
 fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     row: &SurfaceRow<S>,
@@ -298,6 +300,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     let zero = S::cst(0.0);
     // A stack copy, which LLVM can see is not aliased by `dst` (see the module documentation).
     let row = &row.clone();
+    let mirror = row.reflect;
     for (s, b) in src.iter().zip(dst.iter_mut()) {
         for l in 0..LANES {
             let (o, d0) = load(s, l);
@@ -325,9 +328,17 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
                 S::pick(flip, -nrm.z, nrm.z),
             );
             let k = one - eta * eta * (one - a * a * inv_nn);
-            let tir = (KIND != PLANE) & k.lt(zero);
+            let tir = (KIND != PLANE) & !mirror & k.lt(zero);
             let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
-            let dr = if KIND != PLANE { d * eta + nrm * g } else { d };
+            let dr = if KIND != PLANE {
+                // A mirror reflects: d + 2 (a / N.N) N, with N facing the incoming ray; the
+                // select keeps the lane loop free of branches.
+                let refl = S::cst(2.0) * a * inv_nn;
+                let (gm, em) = (S::pick(mirror, refl, g), S::pick(mirror, one, eta));
+                d * em + nrm * gm
+            } else {
+                d
+            };
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))
             } else {

@@ -1,6 +1,7 @@
 //! A plain scalar `f64` reference tracer, one ray at a time, written independently of the fast
 //! kernel: every surface is intersected by Newton's method on its sag function (started at the
-//! vertex plane), and refraction uses the tangential-component form of Snell's law. Tests prove
+//! vertex plane), refraction uses the tangential-component form of Snell's law, and reflection
+//! reverses the normal component. Tests prove
 //! that the kernel agrees with it.
 
 use super::RayStatus;
@@ -111,7 +112,11 @@ pub fn trace_ray(
             return fail(RayStatus::Vignetted(i as u32));
         }
         let mut dn = dl;
-        if row.refract {
+        if row.reflect {
+            // The law of reflection: the normal component reverses.
+            let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
+            dn = dl - nrm * (2.0 * dl.dot(nrm));
+        } else if row.refract {
             let n1 = if i == 0 { 1.0 } else { n[i - 1] };
             // Unit normal along +z-ish, then Snell on the tangential component.
             let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();

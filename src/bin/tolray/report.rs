@@ -67,6 +67,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
     for (i, sf) in lens.surfaces.iter().enumerate() {
         let ty = match (sf.role, sf.is_stop, sf.is_aspheric()) {
             (tolray::lens::SurfaceRole::Aperture, _, _) => "stop",
+            (tolray::lens::SurfaceRole::Mirror, _, _) => "mirror",
             (_, _, true) => "asphere",
             (_, true, _) => "sphere/stop",
             _ => "sphere",
