@@ -430,6 +430,9 @@ def rayoptics_reference(path):
 
 
 def main():
+    # ray-optics writes zmx_read_lens.log into the working directory: keep it out of the repo.
+    import tempfile
+    os.chdir(tempfile.mkdtemp(prefix="zmxref-"))
     out = []
     for source, path, rel in corpus():
         feat = scan(path)
