@@ -58,6 +58,12 @@ fn round_trip_is_exact() {
     l.surfaces[0].asph[1] = 1.5e-6;
     l.surfaces[3].material = tolray::lens::Material::parse("N-SF5").unwrap();
     assert_eq!(from_str(&to_string(&l)).unwrap(), l);
+    // Found by examples/fuzz.rs: a curvature whose radius overflows (5e-324 /mm) was written as
+    // "roc": null, and tolray refused the file it wrote.
+    for c in [5e-324, -1e-310, 1e-300] {
+        l.surfaces[0].c = c;
+        assert_eq!(from_str(&to_string(&l)).unwrap(), l, "c = {c:e}");
+    }
 }
 
 #[test]

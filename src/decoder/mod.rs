@@ -140,6 +140,38 @@ impl Decoder {
         })
     }
 
+    /// Number of parameters of a decoder of this shape, without building it; `None` for a shape
+    /// [`Decoder::new`] refuses or whose count overflows.
+    ///
+    /// # Examples
+    /// ```
+    /// use tolray::decoder::{Decoder, DecoderKind};
+    /// // 8x8 tiles of RGB 51x51 PSF estimates plus two log weights each.
+    /// assert_eq!(Decoder::param_count(DecoderKind::Wiener, 8, 51, 8), Some(64 * 3 * (51 * 51 + 2)));
+    /// assert_eq!(Decoder::param_count(DecoderKind::Unet, 8, 51, 0), None);
+    /// ```
+    pub fn param_count(
+        kind: DecoderKind,
+        grid: usize,
+        ks: usize,
+        unet_width: usize,
+    ) -> Option<usize> {
+        let mut n = 0usize;
+        if kind.has_wiener() {
+            if grid == 0 || ks % 2 == 0 {
+                return None;
+            }
+            n = grid
+                .checked_mul(grid)?
+                .checked_mul(3)?
+                .checked_mul(ks.checked_mul(ks)?.checked_add(2)?)?;
+        }
+        if kind.has_unet() {
+            n = n.checked_add(unet::param_count(Self::unet_config(unet_width))?)?;
+        }
+        Some(n)
+    }
+
     fn unet_config(width: usize) -> unet::UnetConfig {
         unet::UnetConfig {
             in_channels: UNET_IN,
@@ -163,6 +195,17 @@ impl Decoder {
                 "decoder parameters: {} values (finite) expected, got {}",
                 self.params.len(),
                 p.len()
+            )));
+        }
+        // U-Net weights are held in f32: a value past its range would be infinite there.
+        if let Some(i) = p[self.n_wiener..]
+            .iter()
+            .position(|v| v.abs() > f32::MAX as f64)
+        {
+            return Err(Error::argument(format!(
+                "decoder parameter {}: {:e} is outside the range of the U-Net's f32 weights",
+                self.n_wiener + i,
+                p[self.n_wiener + i]
             )));
         }
         self.params.copy_from_slice(p);
@@ -230,8 +273,25 @@ impl Decoder {
     /// Decodes every crop (forward only).
     ///
     /// # Errors
-    /// Mismatched crops; U-Net sizes not divisible by 8.
+    /// Mismatched crops; U-Net sizes not divisible by 8; [`crate::ErrorKind::Numerical`] if an
+    /// output pixel is not finite (parameters that overflow, as a damaged `decoder.bin` can hold).
     pub fn decode_batch(&self, crops: &[Crop]) -> Result<Vec<Vec<f32>>> {
+        let out = self.decode_batch_unchecked(crops)?;
+        if let Some((j, _)) = out
+            .iter()
+            .enumerate()
+            .find(|(_, o)| o.iter().any(|v| !v.is_finite()))
+        {
+            return Err(Error::numerical(format!(
+                "the decoder's output for crop {j} (tile {}) is not finite: its parameters \
+                 overflow",
+                crops[j].tile
+            )));
+        }
+        Ok(out)
+    }
+
+    fn decode_batch_unchecked(&self, crops: &[Crop]) -> Result<Vec<Vec<f32>>> {
         let (w, h) = self.check(crops)?;
         let wiener = self.kind.has_wiener().then(|| self.wiener());
         let base: Vec<Vec<f32>> = crops
@@ -394,5 +454,66 @@ impl Decoder {
             dparams,
             dy,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::deep::study::decoder_from_bytes;
+
+    fn bytes(kind: &str, grid: u64, ks: u64, width: u64, n: u64, params: &[f64]) -> Vec<u8> {
+        let h = format!(
+            r#"{{"kind":"{kind}","grid":{grid},"ks":{ks},"unet_width":{width},"n_params":{n}}}"#
+        );
+        let mut b = b"TOLRDEC1".to_vec();
+        b.extend_from_slice(&(h.len() as u32).to_le_bytes());
+        b.extend_from_slice(h.as_bytes());
+        for v in params {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b
+    }
+
+    /// Found by examples/fuzz.rs: the header's sizes were trusted before the parameter count
+    /// was compared, so a damaged file could ask for gigabytes (grid 64, kernel 255) or overflow
+    /// the U-Net's channel count; and parameters that overflow decoded to infinite pixels.
+    #[test]
+    fn damaged_decoder_files_are_refused_and_overflow_is_an_error() {
+        let n = Decoder::param_count(DecoderKind::Wiener, 1, 3, 1).unwrap();
+        assert_eq!(n, 3 * (9 + 2));
+        let ok = vec![0.1; n];
+        assert!(decoder_from_bytes(&bytes("wiener", 1, 3, 1, n as u64, &ok), "d").is_ok());
+        for (kind, grid, ks, width) in [
+            ("wiener", 64, 255, 1),
+            ("wiener-unet", 1, 3, 1 << 40),
+            ("unet", 1, 3, u64::MAX),
+            ("wiener", 2, 3, 1),
+        ] {
+            let e = decoder_from_bytes(&bytes(kind, grid, ks, width, n as u64, &ok), "d.bin")
+                .unwrap_err();
+            assert!(e.message.starts_with("d.bin: "), "{}", e.message);
+            assert!(e.message.contains("parameters, but"), "{}", e.message);
+        }
+        // Finite parameters whose filter is not finite: an error, not NaN pixels.
+        let mut big = vec![0.0; n];
+        big[27..].fill(-1000.0); // λ = μ = 0 and a zero PSF estimate: 0/0
+        let d = decoder_from_bytes(&bytes("wiener", 1, 3, 1, n as u64, &big), "d").unwrap();
+        let x = vec![0.5f32; 3 * 16 * 16];
+        let crop = Crop {
+            tile: 0,
+            y: x.clone(),
+            x,
+            w: 16,
+            h: 16,
+        };
+        let e = d.decode_batch(&[crop]).unwrap_err();
+        assert_eq!(e.kind, crate::ErrorKind::Numerical, "{}", e.message);
+        // U-Net weights past f32's range are refused when read.
+        let nu = Decoder::param_count(DecoderKind::Unet, 1, 3, 1).unwrap();
+        let mut w = vec![0.0; nu];
+        w[0] = 1e39;
+        let e = decoder_from_bytes(&bytes("unet", 1, 3, 1, nu as u64, &w), "d").unwrap_err();
+        assert!(e.message.contains("f32"), "{}", e.message);
     }
 }

@@ -299,21 +299,61 @@ fn up_backward(dout: &[f32], c: usize, h: usize, w: usize, dinp: &mut [f32]) {
     }
 }
 
+/// Widest U-Net accepted (first-level channels): width 256 at 3 levels is ~250 M parameters.
+pub const MAX_WIDTH: usize = 256;
+
+/// The convolutions of a U-Net of shape `cfg`, in parameter order: (inputs, outputs, kernel
+/// side).
+fn layers(cfg: UnetConfig) -> Vec<(usize, usize, usize)> {
+    let ch = |l: usize| cfg.width << l;
+    let mut out = Vec::new();
+    let mut cin = cfg.in_channels;
+    for l in 0..=cfg.levels {
+        out.push((cin, ch(l), 3));
+        out.push((ch(l), ch(l), 3));
+        cin = ch(l);
+    }
+    for l in (0..cfg.levels).rev() {
+        out.push((ch(l + 1) + ch(l), ch(l), 3));
+        out.push((ch(l), ch(l), 3));
+    }
+    out.push((cfg.width, 3, 1));
+    out
+}
+
+/// Number of parameters of a U-Net of shape `cfg`, without building it; `None` for a shape
+/// [`Unet::new`] refuses.
+pub fn param_count(cfg: UnetConfig) -> Option<usize> {
+    check_config(cfg).ok()?;
+    Some(layers(cfg).iter().map(|&(i, o, k)| o * i * k * k + o).sum())
+}
+
+fn check_config(cfg: UnetConfig) -> Result<()> {
+    if cfg.width == 0
+        || cfg.width > MAX_WIDTH
+        || cfg.in_channels == 0
+        || cfg.in_channels > 64
+        || cfg.levels > 6
+    {
+        return Err(Error::argument(format!(
+            "U-Net {cfg:?}: width must be 1 to {MAX_WIDTH}, inputs 1 to 64, at most 6 levels"
+        )));
+    }
+    Ok(())
+}
+
 impl Unet {
     /// A network of shape `cfg` with He-initialised weights from `seed`, zero biases and a zero
     /// output layer.
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for a zero width or input, or more than 6 levels.
+    /// [`crate::ErrorKind::Argument`] for a width outside 1 to [`MAX_WIDTH`], inputs outside 1 to
+    /// 64, or more than 6 levels.
     pub fn new(cfg: UnetConfig, seed: u64) -> Result<Unet> {
-        if cfg.width == 0 || cfg.in_channels == 0 || cfg.levels > 6 {
-            return Err(Error::argument(format!(
-                "U-Net {cfg:?}: width and inputs must be positive, at most 6 levels"
-            )));
-        }
+        check_config(cfg)?;
         let mut convs = Vec::new();
         let mut n = 0;
-        let mut add = |cin: usize, cout: usize, k: usize| {
+        for (cin, cout, k) in layers(cfg) {
             let c = Conv {
                 cin,
                 cout,
@@ -323,19 +363,7 @@ impl Unet {
             };
             n = c.b + cout;
             convs.push(c);
-        };
-        let ch = |l: usize| cfg.width << l;
-        let mut cin = cfg.in_channels;
-        for l in 0..=cfg.levels {
-            add(cin, ch(l), 3);
-            add(ch(l), ch(l), 3);
-            cin = ch(l);
         }
-        for l in (0..cfg.levels).rev() {
-            add(ch(l + 1) + ch(l), ch(l), 3);
-            add(ch(l), ch(l), 3);
-        }
-        add(cfg.width, 3, 1);
         let mut params = vec![0f32; n];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let last = convs.len() - 1;

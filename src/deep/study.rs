@@ -109,13 +109,31 @@ pub fn save_decoder(d: &Decoder, path: &Path) -> Result<()> {
 /// [`ErrorKind::Io`], or [`ErrorKind::Parse`] naming the path and what is wrong.
 pub fn load_decoder(path: &Path) -> Result<Decoder> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let bad = |m: &str| Error::new(ErrorKind::Parse, format!("{}: {m}", path.display()));
+    decoder_from_bytes(&bytes, &path.display().to_string())
+}
+
+/// Reads the bytes of a `decoder.bin` ([`save_decoder`]'s format); `name` (a path) prefixes
+/// errors. The header's sizes are checked against the parameter count before anything is
+/// allocated, so a damaged file cannot ask for more memory than it holds.
+///
+/// # Errors
+/// [`ErrorKind::Parse`] naming `name` and what is wrong (magic, header, sizes, non-finite
+/// parameters).
+///
+/// # Examples
+/// ```
+/// use tolray::deep::study::decoder_from_bytes;
+/// let e = decoder_from_bytes(b"TOLRDEC1\x02\0\0\0{}", "d.bin").unwrap_err();
+/// assert!(e.message.starts_with("d.bin: kind"), "{}", e.message);
+/// ```
+pub fn decoder_from_bytes(bytes: &[u8], name: &str) -> Result<Decoder> {
+    let bad = |m: &str| Error::new(ErrorKind::Parse, format!("{name}: {m}"));
     if bytes.len() < 12 || &bytes[..8] != b"TOLRDEC1" {
         return Err(bad("not a tolray decoder (no TOLRDEC1 magic)"));
     }
     let hl = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
     let header = bytes
-        .get(12..12 + hl)
+        .get(12..12usize.saturating_add(hl))
         .ok_or_else(|| bad("truncated header"))?;
     let h: serde_json::Value =
         serde_json::from_slice(header).map_err(|e| bad(&format!("header: {e}")))?;
@@ -124,23 +142,34 @@ pub fn load_decoder(path: &Path) -> Result<Decoder> {
             .and_then(|v| v.as_u64())
             .ok_or_else(|| bad(&format!("header lacks {k}")))
     };
-    let kind = serde_json::from_value(h["kind"].clone()).map_err(|e| bad(&format!("kind: {e}")))?;
+    let kind: crate::decoder::DecoderKind =
+        serde_json::from_value(h["kind"].clone()).map_err(|e| bad(&format!("kind: {e}")))?;
     let (grid, ks, width, n) = (
-        get("grid")? as usize,
-        get("ks")? as usize,
-        get("unet_width")? as usize,
-        get("n_params")? as usize,
+        get("grid")?,
+        get("ks")?,
+        get("unet_width")?,
+        get("n_params")?,
     );
     let data = &bytes[12 + hl..];
-    if data.len() != 8 * n {
+    if data.len() as u64 != n.saturating_mul(8) {
         return Err(bad(&format!(
             "{} parameter bytes, {} expected",
             data.len(),
-            8 * n
+            n.saturating_mul(8)
         )));
     }
     if !(1..=64).contains(&grid) || ks % 2 == 0 || !(3..=255).contains(&ks) {
         return Err(bad(&format!("grid {grid} or kernel {ks} out of range")));
+    }
+    let (grid, ks) = (grid as usize, ks as usize);
+    let width = usize::try_from(width).unwrap_or(usize::MAX);
+    let expected = Decoder::param_count(kind, grid, ks, width);
+    if expected != Some(n as usize) {
+        return Err(bad(&format!(
+            "{n} parameters, but a {kind:?} decoder of grid {grid}, kernel {ks} and U-Net width \
+             {width} has {}",
+            expected.map_or("too many".into(), |e| e.to_string())
+        )));
     }
     let ks2 = ks * ks;
     let mut d = Decoder::new(
@@ -152,13 +181,12 @@ pub fn load_decoder(path: &Path) -> Result<Decoder> {
         width,
         0,
     )
-    .map_err(|e| e.context(path.display()))?;
+    .map_err(|e| e.context(name))?;
     let params: Vec<f64> = data
         .chunks_exact(8)
         .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
         .collect();
-    d.set_params(&params)
-        .map_err(|e| e.context(path.display()))?;
+    d.set_params(&params).map_err(|e| e.context(name))?;
     Ok(d)
 }
 

@@ -49,6 +49,29 @@ impl AgfGlass {
     }
 }
 
+/// The first of 65 wavelengths spread over the glass' range (within the wavelengths tolray
+/// traces; 0.38–0.78 µm when the catalog gives no range) where its formula gives no usable index
+/// (not finite, or outside [`MIN_INDEX`](super::material::MIN_INDEX) to 5), as (µm, index).
+pub fn broken_in_range(g: &AgfGlass) -> Option<(f64, f64)> {
+    let (lo_nm, hi_nm) = super::material::WAVELENGTH_RANGE_NM;
+    let (lo, hi) = if g.range_um.1.is_finite() {
+        (
+            g.range_um.0.max(lo_nm * 1e-3),
+            g.range_um.1.min(hi_nm * 1e-3),
+        )
+    } else {
+        (0.38, 0.78)
+    };
+    if !(lo <= hi) {
+        return None;
+    }
+    (0..=64).find_map(|k| {
+        let um = lo + (hi - lo) * k as f64 / 64.0;
+        let n = g.dispersion.index(um);
+        (!(n.is_finite() && (super::material::MIN_INDEX..=5.0).contains(&n))).then_some((um, n))
+    })
+}
+
 /// A glass catalog read from an AGF file.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct AgfCatalog {
@@ -211,7 +234,13 @@ impl AgfCatalog {
                     p.line, glass.name, glass.formula, glass.vd
                 ));
             }
-            if glasses
+            if let Some((um, n)) = broken_in_range(&glass) {
+                warnings.push(format!(
+                    "line {}: glass {}: formula {} gives n = {n} at {um:.4} µm, inside its range \
+                     {}–{} µm; the glass is skipped (check the coefficients)",
+                    p.line, glass.name, glass.formula, glass.range_um.0, glass.range_um.1
+                ));
+            } else if glasses
                 .iter()
                 .any(|g| g.name.eq_ignore_ascii_case(&glass.name))
             {
@@ -430,5 +459,24 @@ mod tests {
             e.message
         );
         assert!(AgfCatalog::from_str("CC nothing\n", "T").is_err());
+    }
+
+    /// Found by the fuzzer (examples/fuzz.rs): a mutated coefficient gave N-BK7 a NaN index
+    /// inside its LD range, and the glass was kept (a `tolray glass` of it printed NaN).
+    #[test]
+    fn a_glass_whose_formula_fails_inside_its_range_is_skipped_with_a_warning() {
+        let text = "NM GOOD 2 0 1.5168 64.17 0 1\nCD 1.03961212 6.00069867E-003 \
+                    2.31792344E-001 2.00179144E-002 1.01046945 1.03560653E+002\nLD 0.3 2.5\n\
+                    NM BAD 2 0 1.5168 64.17 0 1\nCD 1.03961212 6.00069867E-003 \
+                    2.31792344E-001 1.2 1.01046945 1.03560653E+002\nLD 0.3 2.5\n";
+        let (c, w) = AgfCatalog::from_str(text, "T").unwrap();
+        assert_eq!(c.glasses.len(), 1, "{w:?}");
+        assert_eq!(c.glasses[0].name, "GOOD");
+        assert!(broken_in_range(&c.glasses[0]).is_none());
+        assert!(
+            w.iter()
+                .any(|m| m.starts_with("line 4: glass BAD") && m.contains("skipped")),
+            "{w:?}"
+        );
     }
 }

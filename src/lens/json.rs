@@ -497,11 +497,15 @@ pub fn to_value(lens: &Lens) -> Value {
             m.insert("type".into(), json!(ty));
             m.insert("r".into(), json!(s.semi_aperture_mm));
             if s.role != SurfaceRole::Aperture {
-                m.insert("(c)".into(), json!(s.c));
-                m.insert(
-                    "roc".into(),
-                    json!(if s.c == 0.0 { 0.0 } else { 1.0 / s.c }),
-                );
+                let roc = if s.c == 0.0 { 0.0 } else { 1.0 / s.c };
+                if roc.is_finite() {
+                    m.insert("(c)".into(), json!(s.c));
+                    m.insert("roc".into(), json!(roc));
+                } else {
+                    // A curvature so small that its radius overflows (below ~5.6e-309 /mm):
+                    // written as the curvature the reader takes as it is.
+                    m.insert("c".into(), json!(s.c));
+                }
             }
             if ty == "Aspheric" || ty == "Mirror" {
                 m.insert("k".into(), json!(s.k));

@@ -173,7 +173,10 @@ impl PupilPattern {
     pub fn max_points(&self) -> usize {
         match *self {
             PupilPattern::Grid(n) => n.saturating_mul(n),
-            PupilPattern::Hex(r) => r.saturating_mul(r.saturating_add(1)).saturating_mul(3) + 1,
+            PupilPattern::Hex(r) => r
+                .saturating_mul(r.saturating_add(1))
+                .saturating_mul(3)
+                .saturating_add(1),
             PupilPattern::Random { n, .. } => n,
         }
     }
@@ -592,4 +595,25 @@ fn aim_ray(
         }
     }
     Err(Error::numerical("ray aiming did not converge"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Found by the fuzzer (examples/fuzz.rs): `hex:4294967296` overflowed the count to 0 in
+    /// release builds, passed the check and generated rings for minutes.
+    #[test]
+    fn huge_pupil_patterns_are_refused_not_wrapped() {
+        for s in [
+            "hex:4294967296",
+            "hex:18446744073709551615",
+            "grid:4294967296",
+            "hex:1182",
+        ] {
+            let e = Pupil::parse(s, 0).unwrap_err();
+            assert!(e.message.contains("at most"), "{s}: {}", e.message);
+        }
+        assert!(Pupil::parse("hex:1181", 0).is_ok());
+    }
 }
