@@ -6,10 +6,21 @@
 
 use std::env;
 
+/// The C ABI version (must equal `tolray::ffi::TOLRAY_ABI_VERSION`).
+const ABI_VERSION: u32 = 1;
+
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     let target = env::var("TARGET").unwrap_or_default();
     println!("cargo:rustc-env=TOLRAY_TARGET={target}");
+    // The shared library's SONAME carries the ABI version (`TOLRAY_ABI_VERSION` in
+    // src/ffi/mod.rs; tests/capi.rs checks that they agree): programs linked against
+    // libtolray.so record `libtolray.so.1` and keep working across compatible updates, and an
+    // incompatible library (ABI 2) is a different file. scripts/install-c.sh installs
+    // libtolray.so.1 with the libtolray.so link for the linker.
+    if target.contains("linux") {
+        println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,libtolray.so.{ABI_VERSION}");
+    }
     if env::var_os("CARGO_FEATURE_EMBREE").is_some() {
         embree::configure(&target);
     }

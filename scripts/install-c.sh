@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs tolray for C and C++ users under PREFIX:
 #   PREFIX/include/tolray.h
-#   PREFIX/lib/libtolray.so, PREFIX/lib/libtolray.a
+#   PREFIX/lib/libtolray.so.1 (SONAME libtolray.so.1, the ABI version), the link
+#   PREFIX/lib/libtolray.so -> libtolray.so.1 for the linker, PREFIX/lib/libtolray.a
 #   PREFIX/lib/pkgconfig/tolray.pc (shared) and tolray-static.pc (static)
 #   PREFIX/lib/cmake/tolray/ (find_package(tolray) -> tolray::tolray, tolray::tolray_static)
 #
@@ -26,13 +27,20 @@ mkdir -p "$prefix"
 prefix="$(cd "$prefix" && pwd)"
 mkdir -p "$prefix/include" "$prefix/lib/pkgconfig" "$prefix/lib/cmake/tolray"
 install -m 644 "$root/include/tolray.h" "$prefix/include/"
-install -m 755 "$libdir/libtolray.so" "$prefix/lib/"
+# The shared library is installed under its SONAME (the ABI version, set by build.rs), with the
+# unversioned name as a link for `-ltolray`.
+abi="$(sed -n 's/^#define TOLRAY_ABI_VERSION \([0-9]*\)$/\1/p' "$root/include/tolray.h")"
+[ -n "$abi" ] || { echo "install-c.sh: TOLRAY_ABI_VERSION not found in include/tolray.h" >&2; exit 1; }
+soname="libtolray.so.$abi"
+rm -f "$prefix/lib/libtolray.so" "$prefix/lib/$soname"
+install -m 755 "$libdir/libtolray.so" "$prefix/lib/$soname"
+ln -s "$soname" "$prefix/lib/libtolray.so"
 install -m 644 "$libdir/libtolray.a" "$prefix/lib/"
 # The installed libraries carry no debug information (measured: libtolray.a 113 MB -> 37 MB,
 # libtolray.so 40 MB -> 4.8 MB); TOLRAY_KEEP_DEBUG=1 keeps it. Symbols stay: C users link by them.
 if [ -z "${TOLRAY_KEEP_DEBUG:-}" ]; then
     if command -v strip >/dev/null 2>&1; then
-        strip --strip-debug "$prefix/lib/libtolray.so" "$prefix/lib/libtolray.a"
+        strip --strip-debug "$prefix/lib/$soname" "$prefix/lib/libtolray.a"
     else
         echo "install-c.sh: strip not found; the libraries keep their debug information" >&2
     fi
@@ -65,20 +73,20 @@ Cflags: -I\${includedir}
 Libs: \${libdir}/libtolray.a $static_libs
 PC
 
-cat > "$prefix/lib/cmake/tolray/tolrayConfig.cmake" <<'CMAKE'
+cat > "$prefix/lib/cmake/tolray/tolrayConfig.cmake" <<CMAKE
 # tolray's CMake package: find_package(tolray) defines tolray::tolray (shared library) and
 # tolray::tolray_static (static library), both carrying the include directory.
-get_filename_component(_tolray_prefix "${CMAKE_CURRENT_LIST_DIR}/../../.." ABSOLUTE)
+get_filename_component(_tolray_prefix "\${CMAKE_CURRENT_LIST_DIR}/../../.." ABSOLUTE)
 if(NOT TARGET tolray::tolray)
   add_library(tolray::tolray SHARED IMPORTED)
   set_target_properties(tolray::tolray PROPERTIES
-    IMPORTED_LOCATION "${_tolray_prefix}/lib/libtolray.so"
-    IMPORTED_NO_SONAME TRUE
-    INTERFACE_INCLUDE_DIRECTORIES "${_tolray_prefix}/include")
+    IMPORTED_LOCATION "\${_tolray_prefix}/lib/$soname"
+    IMPORTED_SONAME "$soname"
+    INTERFACE_INCLUDE_DIRECTORIES "\${_tolray_prefix}/include")
   add_library(tolray::tolray_static STATIC IMPORTED)
   set_target_properties(tolray::tolray_static PROPERTIES
-    IMPORTED_LOCATION "${_tolray_prefix}/lib/libtolray.a"
-    INTERFACE_INCLUDE_DIRECTORIES "${_tolray_prefix}/include"
+    IMPORTED_LOCATION "\${_tolray_prefix}/lib/libtolray.a"
+    INTERFACE_INCLUDE_DIRECTORIES "\${_tolray_prefix}/include"
     INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl")
 endif()
 unset(_tolray_prefix)

@@ -83,6 +83,59 @@ fn lib_dir() -> PathBuf {
     );
 }
 
+/// A directory holding `libtolray.so.1` (the SONAME a program linked against the build's
+/// library records, as an installed library is named) and `libtolray.so`, both links to the
+/// build's library.
+fn soname_dir() -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("solib");
+    std::fs::create_dir_all(&dir).unwrap();
+    let target = lib_dir().join("libtolray.so");
+    let soname = format!("libtolray.so.{}", tolray::ffi::TOLRAY_ABI_VERSION);
+    for name in ["libtolray.so", soname.as_str()] {
+        let link = dir.join(name);
+        if std::fs::read_link(&link).ok().as_deref() != Some(target.as_path()) {
+            // Tests run in parallel: write the link under a private name, then rename it over.
+            let tmp = dir.join(format!("{name}.{:?}", std::thread::current().id()));
+            let _ = std::fs::remove_file(&tmp);
+            std::os::unix::fs::symlink(&target, &tmp).unwrap();
+            std::fs::rename(&tmp, &link).unwrap();
+        }
+    }
+    dir
+}
+
+/// The dynamic-section entries of an ELF file of `tag` (`SONAME`, `NEEDED`), by `readelf -d`.
+fn elf_dynamic(path: &Path, tag: &str) -> Vec<String> {
+    let out = Command::new("readelf")
+        .arg("-d")
+        .arg(path)
+        .output()
+        .expect("readelf (binutils, which the C compiler needs) runs");
+    assert!(out.status.success(), "readelf -d {}", path.display());
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter(|l| l.contains(&format!("({tag})")))
+        .filter_map(|l| Some(l.split('[').nth(1)?.trim_end_matches(']').to_string()))
+        .collect()
+}
+
+/// The shared library's SONAME is `libtolray.so.<ABI version>` (issue 15): programs record it,
+/// and the installed library carries that name with `libtolray.so` linking to it.
+#[test]
+fn the_shared_library_is_named_by_its_abi_version() {
+    let soname = format!("libtolray.so.{}", tolray::ffi::TOLRAY_ABI_VERSION);
+    assert_eq!(
+        elf_dynamic(&lib_dir().join("libtolray.so"), "SONAME"),
+        std::slice::from_ref(&soname)
+    );
+    let exe = build("capi_test.c", Link::Dynamic, "-soname");
+    assert!(
+        elf_dynamic(&exe, "NEEDED").contains(&soname),
+        "{:?}",
+        elf_dynamic(&exe, "NEEDED")
+    );
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Link {
     Static,
@@ -136,6 +189,7 @@ fn build(source: &str, link: Link, tag: &str) -> PathBuf {
             ]);
         }
         Link::Dynamic => {
+            let lib = soname_dir();
             cmd.arg(format!("-L{}", lib.display()))
                 .arg("-ltolray")
                 .arg(format!("-Wl,-rpath,{}", lib.display()))
@@ -433,6 +487,16 @@ fn install_script_serves_pkg_config_and_cmake_users() {
             .env_remove("TOLRAY_KEEP_DEBUG"),
         "install-c.sh",
     );
+    // The shared library is installed under its SONAME, with the linker's name linking to it.
+    let soname = format!("libtolray.so.{}", tolray::ffi::TOLRAY_ABI_VERSION);
+    assert_eq!(
+        std::fs::read_link(prefix.join("lib/libtolray.so")).unwrap(),
+        Path::new(&soname)
+    );
+    assert_eq!(
+        elf_dynamic(&prefix.join("lib").join(&soname), "SONAME"),
+        std::slice::from_ref(&soname)
+    );
     // The installed libraries are stripped of debug information (the build's carry it: the
     // release profile keeps line tables), so they are much smaller than the build's.
     if Command::new("strip").arg("--version").output().is_ok() {
@@ -458,6 +522,9 @@ fn install_script_serves_pkg_config_and_cmake_users() {
             make.arg("STATIC=1");
         }
         ok(&mut make, "make examples/c");
+        if !static_link {
+            assert!(elf_dynamic(&ex.join("spot"), "NEEDED").contains(&soname));
+        }
         let out = ok(&mut Command::new(ex.join("spot")), "examples/c/spot");
         assert!(
             out.contains("cooke-triplet") && out.lines().count() == 7,
