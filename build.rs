@@ -40,7 +40,9 @@ fn main() {
 ///
 /// It then adds the directory to the link search path and, unless it is a system directory,
 /// to the rpath of every target of this package (library, binary, tests, examples), so that
-/// `cargo test`, `cargo run` and the built binary run with no environment variable. When nothing
+/// `cargo test`, `cargo run` and the built binary run with no environment variable; `$ORIGIN`
+/// and `$ORIGIN/../lib` come first in that rpath, so a copy of the binary finds the libraries
+/// that `scripts/bundle-embree.sh` puts beside it or in its `../lib`. When nothing
 /// works, the build fails with one message listing the fixes.
 mod embree {
     use std::env;
@@ -78,6 +80,10 @@ mod embree {
         if let Some(dir) = &dir {
             println!("cargo:rustc-link-search=native={}", dir.display());
             if !SYSTEM_DIRS.iter().any(|s| Path::new(s) == dir.as_path()) {
+                // First the binary's own directory and ../lib, so that an installed copy is
+                // relocatable (scripts/bundle-embree.sh copies the libraries there), then the
+                // directory found, so that the build tree runs as it is.
+                println!("cargo:rustc-link-arg=-Wl,-rpath,$ORIGIN:$ORIGIN/../lib");
                 println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
             }
         }

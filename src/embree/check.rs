@@ -154,6 +154,10 @@ impl Rays {
     }
 }
 
+/// A surface's check is sharp when its f32 allowance is at most this fraction of its chord
+/// bound ([`SurfaceCheck::sharp`]).
+pub const SHARP_FRACTION: f64 = 0.25;
+
 /// Per-surface result of a case.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SurfaceCheck {
@@ -188,6 +192,12 @@ pub struct SurfaceCheck {
     pub max_f32_error_mm: f64,
     /// Largest f32 allowance `ε32` used, mm.
     pub max_f32_allowance_mm: f64,
+    /// Whether the check is sharp here: the f32 allowances (hits and mesh) are at most a
+    /// quarter of the chord bound, so a deviation of half the bound more than asserted fails
+    /// (`--bound-scale 0.5` fails wherever the mesh comes near its bound). Not sharp on a flat
+    /// surface (bound 0: only rounding is checked) or where the bound is so tight, or the
+    /// surface so large, that Embree's f32 rounding is comparable to it.
+    pub sharp: bool,
     /// Rays that Embree and the analytic surface put on different sides of the clear aperture's
     /// rim (allowed: their hits are within the bound).
     pub rim_flips: usize,
@@ -507,6 +517,36 @@ impl SurfaceAcc {
     }
 }
 
+/// Radius of the disk meshed for a surface whose traced rays reach out to `used` mm: a margin
+/// beyond the rays, within the aperture's reach.
+fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
+    (1.02 * used + 0.05).min(row.clip.reach_mm)
+}
+
+/// Refuses, before anything is meshed, a chord bound that some surface of `sys` cannot be
+/// meshed to (too many triangles), as [`check_system`] would after meshing the surfaces before
+/// it.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
+pub fn check_feasible(sys: &System<f64>, rays: &Rays, opts: &CheckOptions) -> Result<()> {
+    let indices: Vec<Vec<f64>> = rays
+        .bundles
+        .iter()
+        .map(|b| sys.indices(b.wavelength_nm))
+        .collect();
+    let used = used_radii(sys, rays, &indices);
+    for (i, row) in sys.rows.iter().enumerate() {
+        Mesh::plan(row, i, mesh_disk(used[i], row), opts.chord_mm).map_err(|e| {
+            Error::argument(format!(
+                "--chord {:e} mm cannot be checked: {}",
+                opts.chord_mm, e.message
+            ))
+        })?;
+    }
+    Ok(())
+}
+
 /// Largest radius (local frame, mm) at which the analytic trace of `rays` meets each surface,
 /// counting the surface where a ray is vignetted.
 fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> {
@@ -600,7 +640,7 @@ pub fn check_system(
     let used = used_radii(sys, rays, &indices);
     for (i, row) in sys.rows.iter().enumerate() {
         let t_build = Instant::now();
-        let disk = (1.02 * used[i] + 0.05).min(row.clip.reach_mm);
+        let disk = mesh_disk(used[i], row);
         let mesh = Mesh::with_radius(row, i, disk, opts.chord_mm, opts.frame)?;
         let scene = Scene::new(
             device,
@@ -661,6 +701,7 @@ pub fn check_system(
             max_surface_distance_mm: acc.max_surface,
             max_f32_error_mm: acc.max_f32,
             max_f32_allowance_mm: acc.max_eps,
+            sharp: acc.max_eps.max(mesh_eps) <= SHARP_FRACTION * mesh.chord_bound_mm,
             rim_flips: acc.rim_flips,
             disk_mm: mesh.disk_mm,
             semi_aperture_mm: row.ap2.sqrt(),
@@ -839,6 +880,10 @@ pub struct SurfaceSummary {
     pub max_bound_ratio: f64,
     /// Largest f32 error, mm.
     pub max_f32_error_mm: f64,
+    /// Largest f32 allowance, mm.
+    pub max_f32_allowance_mm: f64,
+    /// Sharp in every case ([`SurfaceCheck::sharp`]).
+    pub sharp: bool,
     /// Hits compared.
     pub hits: usize,
     /// Rim flips.
@@ -924,9 +969,11 @@ pub fn validate(
     }
     opts.spec.validate(lens)?;
     let rays = Rays::generate(lens, c)?;
+    let nominal_sys = lens.compile();
+    check_feasible(&nominal_sys, &rays, c)?;
     let mut cases = Vec::with_capacity(opts.trials + 1);
     let mut nominal =
-        check_system(device, &lens.compile(), &rays, c).map_err(|e| e.context("nominal lens"))?;
+        check_system(device, &nominal_sys, &rays, c).map_err(|e| e.context("nominal lens"))?;
     nominal.trial = None;
     cases.push(nominal);
     progress();
@@ -971,6 +1018,8 @@ fn summarize(cases: &[CaseReport]) -> ValidationSummary {
                 rms_hit_distance_mm: (ss / hits.max(1) as f64).sqrt(),
                 max_bound_ratio: fmax(&|s| s.max_bound_ratio),
                 max_f32_error_mm: fmax(&|s| s.max_f32_error_mm),
+                max_f32_allowance_mm: fmax(&|s| s.max_f32_allowance_mm),
+                sharp: it().all(|s| s.sharp),
                 hits,
                 rim_flips: it().map(|s| s.rim_flips).sum(),
                 leaks: it().map(|s| s.leaks).sum(),

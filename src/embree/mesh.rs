@@ -234,6 +234,30 @@ fn max_enclosing_radius(counts: &[usize], radius: f64) -> f64 {
     rmax
 }
 
+/// The layout of a mesh before it is built ([`Mesh::plan`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// Radius of the tessellated disk, mm.
+    pub disk_mm: f64,
+    /// Points per ring, innermost first.
+    pub counts: Vec<usize>,
+    /// Radius of the outermost ring, mm.
+    pub radius: f64,
+    /// Largest second directional derivative of the sag over the disk, 1/mm.
+    pub m: f64,
+    /// Largest slope of the sag.
+    pub slope: f64,
+    /// The chord bound the layout reaches, mm.
+    pub bound: f64,
+}
+
+impl Plan {
+    /// Number of triangles.
+    pub fn triangles(&self) -> usize {
+        2 * self.counts.iter().sum::<usize>()
+    }
+}
+
 impl Mesh {
     /// Tessellates surface `surface` (`row`, compiled in `f64`, possibly perturbed) so that the
     /// mesh is within `chord_mm` of the surface, in `frame`.
@@ -259,60 +283,14 @@ impl Mesh {
         chord_mm: f64,
         frame: Frame,
     ) -> Result<Mesh> {
-        if !(chord_mm > 0.0 && chord_mm.is_finite()) {
-            return Err(Error::argument(format!(
-                "chord bound {chord_mm} mm: must be positive"
-            )));
-        }
-        let rim2 = row.k1 * row.c * row.c;
-        let rim = if rim2 > 0.0 {
-            (1.0 - 1e-12) / rim2.sqrt()
-        } else {
-            f64::INFINITY
-        };
-        let a = radius_mm.min(row.clip.reach_mm).min(rim);
-        if !(a > 0.0 && a.is_finite()) {
-            return Err(Error::argument(format!(
-                "surface {surface}: a disk of radius {a} mm cannot be tessellated"
-            )));
-        }
-        let flat = row.kind == SurfaceKind::Plane
-            || (row.c == 0.0 && row.asph[..row.n_asph].iter().all(|&x| x == 0.0));
-        // Curvature over a generous disk first, to size the spacing.
-        let (m0, _) = curvature_bounds(row, a * 1.05, surface).or_else(|_| {
-            curvature_bounds(row, a, surface) // a conic rim just outside the aperture
-        })?;
-        let mut s = if flat || m0 == 0.0 {
-            a / 4.0
-        } else {
-            2.0 * (chord_mm / m0).sqrt() * 0.98
-        };
-        s = s.min(a / 4.0);
-        let (mut counts, mut radius, mut m, mut slope, mut bound);
-        let mut tries = 0;
-        loop {
-            (counts, radius) = layout(a, s);
-            let tri: usize = 2 * counts.iter().sum::<usize>();
-            if tri > MAX_TRIANGLES {
-                return Err(Error::argument(format!(
-                    "surface {surface}: a chord bound of {chord_mm:e} mm needs about {tri} \
-                     triangles (more than {MAX_TRIANGLES}); choose a larger bound"
-                )));
-            }
-            (m, slope) = curvature_bounds(row, radius, surface)?;
-            let r = max_enclosing_radius(&counts, radius);
-            bound = 0.5 * m * r * r;
-            tries += 1;
-            if bound <= chord_mm || tries > 20 {
-                break;
-            }
-            s *= 0.97 * (chord_mm / bound).sqrt();
-        }
-        if bound > chord_mm {
-            return Err(Error::numerical(format!(
-                "surface {surface}: could not reach a chord bound of {chord_mm:e} mm"
-            )));
-        }
+        let Plan {
+            disk_mm: a,
+            counts,
+            radius,
+            m,
+            slope,
+            bound,
+        } = Mesh::plan(row, surface, radius_mm, chord_mm)?;
         let rings = counts.len();
         let dr = radius / rings as f64;
         let mut first = vec![0usize, 1];
@@ -398,6 +376,82 @@ impl Mesh {
             chord_bound_mm: bound,
             requested_mm: chord_mm,
             z_range_mm: [z_lo, z_hi],
+        })
+    }
+
+    /// The ring layout [`Mesh::with_radius`] would build, without building it: the triangle
+    /// count ([`Plan::triangles`]) and the bound it reaches. Costs a few curvature samplings, so
+    /// a whole check can refuse an infeasible chord bound before meshing anything.
+    ///
+    /// # Errors
+    /// As [`Mesh::with_radius`].
+    pub fn plan(
+        row: &SurfaceRow<f64>,
+        surface: usize,
+        radius_mm: f64,
+        chord_mm: f64,
+    ) -> Result<Plan> {
+        if !(chord_mm > 0.0 && chord_mm.is_finite()) {
+            return Err(Error::argument(format!(
+                "chord bound {chord_mm} mm: must be positive"
+            )));
+        }
+        let rim2 = row.k1 * row.c * row.c;
+        let rim = if rim2 > 0.0 {
+            (1.0 - 1e-12) / rim2.sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let a = radius_mm.min(row.clip.reach_mm).min(rim);
+        if !(a > 0.0 && a.is_finite()) {
+            return Err(Error::argument(format!(
+                "surface {surface}: a disk of radius {a} mm cannot be tessellated"
+            )));
+        }
+        let flat = row.kind == SurfaceKind::Plane
+            || (row.c == 0.0 && row.asph[..row.n_asph].iter().all(|&x| x == 0.0));
+        // Curvature over a generous disk first, to size the spacing.
+        let (m0, _) = curvature_bounds(row, a * 1.05, surface).or_else(|_| {
+            curvature_bounds(row, a, surface) // a conic rim just outside the aperture
+        })?;
+        let mut s = if flat || m0 == 0.0 {
+            a / 4.0
+        } else {
+            2.0 * (chord_mm / m0).sqrt() * 0.98
+        };
+        s = s.min(a / 4.0);
+        let (mut counts, mut radius, mut m, mut slope, mut bound);
+        let mut tries = 0;
+        loop {
+            (counts, radius) = layout(a, s);
+            let tri: usize = 2 * counts.iter().sum::<usize>();
+            if tri > MAX_TRIANGLES {
+                return Err(Error::argument(format!(
+                    "surface {surface}: a chord bound of {chord_mm:e} mm needs about {tri} \
+                     triangles (more than {MAX_TRIANGLES}); choose a larger bound"
+                )));
+            }
+            (m, slope) = curvature_bounds(row, radius, surface)?;
+            let r = max_enclosing_radius(&counts, radius);
+            bound = 0.5 * m * r * r;
+            tries += 1;
+            if bound <= chord_mm || tries > 20 {
+                break;
+            }
+            s *= 0.97 * (chord_mm / bound).sqrt();
+        }
+        if bound > chord_mm {
+            return Err(Error::numerical(format!(
+                "surface {surface}: could not reach a chord bound of {chord_mm:e} mm"
+            )));
+        }
+        Ok(Plan {
+            disk_mm: a,
+            counts,
+            radius,
+            m,
+            slope,
+            bound,
         })
     }
 

@@ -192,7 +192,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
     for x in &s.surfaces {
         let _ = writeln!(
             t,
-            "{:>4} {:>15} {:>9} {:>10.3e} {:>10.3e} {:>10.3e} {:>10.3e} {:>9.3} {:>9.1e} {:>6}",
+            "{:>4} {:>15} {:>9} {:>10.3e} {:>10.3e} {:>10.3e} {:>10.3e} {:>9.3} {:>9.1e} {:>6}{}",
             x.surface,
             format!("{:.2}/{:.2}", x.disk_mm, x.semi_aperture_mm),
             x.triangles,
@@ -202,7 +202,31 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
             x.rms_hit_distance_mm,
             x.max_bound_ratio,
             x.max_f32_error_mm,
-            x.leaks + x.uncovered
+            x.leaks + x.uncovered,
+            if x.sharp { "" } else { " *" }
+        );
+    }
+    let blunt: Vec<String> = s
+        .surfaces
+        .iter()
+        .filter(|x| !x.sharp)
+        .map(|x| x.surface.to_string())
+        .collect();
+    if !blunt.is_empty() {
+        let _ = writeln!(
+            t,
+            "* not sharp on surface{} {}: Embree's f32 rounding allowance (up to {:.1e} mm) is more \
+             than {:.0} % of the chord bound there (or the surface is flat, bound 0), so a deviation \
+             somewhat beyond the bound can pass; a larger --chord, or a smaller surface, makes it \
+             sharp",
+            if blunt.len() > 1 { "s" } else { "" },
+            blunt.join(", "),
+            s.surfaces
+                .iter()
+                .filter(|x| !x.sharp)
+                .map(|x| x.max_f32_allowance_mm)
+                .fold(0.0, f64::max),
+            100.0 * tolray::embree::check::SHARP_FRACTION
         );
     }
     let _ = writeln!(
