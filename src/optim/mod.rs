@@ -220,17 +220,28 @@ pub fn spot_size<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
     }
     cx *= inv;
     cy *= inv;
+    // A distance of exactly 0 (a ray on the centroid, or a perfect point image) is the tip of
+    // the cone |x|: its derivative is not defined and sqrt's chain rule would give 0 · ∞ = NaN.
+    // It contributes 0 with derivative 0 there, a subgradient of the loss (the one that makes
+    // a perfect focus a stationary point).
+    let root = |x: S| {
+        if x.value() == 0.0 {
+            S::cst(0.0)
+        } else {
+            x.sqrt()
+        }
+    };
     let mut acc = S::cst(0.0);
     for p in pts {
         let d2 = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
         acc += match measure {
-            SpotMeasure::Mean => d2.sqrt(),
+            SpotMeasure::Mean => root(d2),
             SpotMeasure::Rms => d2,
         };
     }
     match measure {
         SpotMeasure::Mean => acc * inv,
-        SpotMeasure::Rms => (acc * inv).sqrt(),
+        SpotMeasure::Rms => root(acc * inv),
     }
 }
 
@@ -393,6 +404,40 @@ impl Objective for PsfLoss {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A perfect point image, or a ray exactly on the centroid, gives finite (zero-slope)
+    /// derivatives for both measures, not NaN (header review: the Mean loss had none for a
+    /// perfect point spot); elsewhere the dual derivative equals central differences.
+    #[test]
+    fn spot_size_has_a_derivative_at_a_perfect_focus() {
+        type D = crate::real::Dual<f64, 1>;
+        for m in [SpotMeasure::Mean, SpotMeasure::Rms] {
+            let pts = [[D::var(0.5, 0), D::constant(0.2)]; 4];
+            let s = spot_size(&pts, m);
+            assert_eq!(s.value(), 0.0);
+            assert_eq!(s.eps[0], 0.0, "{m:?}");
+            // Three rays symmetric about the centroid, one on it (distance 0).
+            let at = |x: D| {
+                let pts = [
+                    [D::constant(-1.0), D::constant(0.0)],
+                    [D::constant(1.0), D::constant(0.0)],
+                    [D::constant(0.0), x],
+                    [D::constant(0.0), -x],
+                    [D::constant(0.0), D::constant(0.0)],
+                ];
+                spot_size(&pts, m)
+            };
+            let g = at(D::var(0.3, 0));
+            let h = 1e-6;
+            let fd =
+                (at(D::constant(0.3 + h)).value() - at(D::constant(0.3 - h)).value()) / (2.0 * h);
+            assert!(
+                g.eps[0].is_finite() && (g.eps[0] - fd).abs() < 1e-8,
+                "{m:?}: {} vs {fd}",
+                g.eps[0]
+            );
+        }
+    }
 
     /// RMS radius about the centroid of rays propagated by `delta` along z.
     fn direct_rms(rays: &[[f64; 4]], delta: f64) -> f64 {
