@@ -167,6 +167,21 @@ fn errors_and_exit_codes() {
     let (code, _, err) = tolray(&["spot", "lens1", "--fields", "abc"]);
     assert_eq!(code, 2, "a bad flag value is a usage error");
     assert!(err.contains("field \"abc\""), "{err}");
+    // A field beyond the lens' coverage is a row of its own, not the end of the analysis
+    // (issue 14: every field failed when one had no ray at the image): the others print, the
+    // failed ones are named, and the exit code says a requested result is missing.
+    let (code, out, err) = tolray(&["spot", "lens1", "--fields", "0,1,80deg"]);
+    assert_eq!(code, 1, "{out}\n{err}");
+    assert!(
+        err.contains("no spot: field 80.000deg at ") && err.contains("no ray reached the image"),
+        "{err}"
+    );
+    assert!(err.contains("1 of 3 spot rows have no result"), "{err}");
+    assert_eq!(
+        out.lines().count(),
+        3,
+        "a header and the two fields with spots: {out}"
+    );
 }
 
 #[test]

@@ -2,4 +2,6 @@
 
 pub mod spot;
 
-pub use spot::{spot_diagram, spot_stats, SpotOptions, SpotResult, SpotStats};
+pub use spot::{
+    spot_diagram, spot_diagram_rows, spot_stats, SpotFailure, SpotOptions, SpotResult, SpotStats,
+};

@@ -91,6 +91,18 @@ pub struct SpotResult {
     pub points: Vec<[f64; 2]>,
 }
 
+/// A row of a spot analysis that has no result: no ray of that field and wavelength reached the
+/// image, or its rays could not be generated (e.g. ray aiming found no ray through the stop).
+#[derive(Clone, Debug, Serialize)]
+pub struct SpotFailure {
+    /// Field.
+    pub field: Field,
+    /// Wavelength, nm; `None` for the polychromatic row (missing when any wavelength failed).
+    pub wavelength_nm: Option<f64>,
+    /// What went wrong.
+    pub reason: String,
+}
+
 /// Traces `sys` (a compiled, possibly perturbed form of `lens`) for every field and wavelength of
 /// `opts` with the fast `f64` kernel. Per field, one result per wavelength, then the
 /// polychromatic result when there is more than one wavelength.
@@ -99,8 +111,48 @@ pub struct SpotResult {
 ///
 /// # Errors
 /// Paraxial or ray-generation errors, and [`crate::ErrorKind::Numerical`] when no ray of a field
-/// reaches the image plane.
+/// reaches the image plane (the first such row; [`spot_diagram_rows`] reports every row).
 pub fn spot_diagram(lens: &Lens, sys: &System<f64>, opts: &SpotOptions) -> Result<Vec<SpotResult>> {
+    let (results, failures) = spot_diagram_rows(lens, sys, opts)?;
+    if let Some(f) = failures.first() {
+        return Err(Error::numerical(f.reason.clone()));
+    }
+    Ok(results)
+}
+
+/// As [`spot_diagram`], but a field and wavelength with no result (no ray reaches the image, or
+/// no ray can be aimed through the stop) is a [`SpotFailure`] row instead of an error for the
+/// whole analysis, so the other fields are still reported (a field beyond the lens' coverage
+/// does not hide the rest). The polychromatic row of a field is left out, as a failure, when any
+/// of its wavelengths failed.
+///
+/// # Errors
+/// Paraxial errors, arguments (no field or wavelength, a pupil that is too large), and ray
+/// generation errors other than numerical ones.
+///
+/// # Examples
+/// ```
+/// use tolray::analysis::{spot_diagram_rows, SpotOptions};
+/// use tolray::trace::{Field, Pupil, TraceOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("lens1")?;
+/// let opts = SpotOptions {
+///     fields: vec![Field::fraction(0.0), Field::angle(80.0)], // 80°: far beyond lens1's field
+///     wavelengths_nm: vec![587.5618],
+///     pupil: Pupil::grid(16),
+///     trace: TraceOptions { apertures: true },
+/// };
+/// let (rows, failures) = spot_diagram_rows(&lens, &lens.compile(), &opts)?;
+/// assert_eq!(rows.len(), 1);
+/// assert_eq!(failures.len(), 1);
+/// assert!(failures[0].reason.contains("no ray reached the image"));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn spot_diagram_rows(
+    lens: &Lens,
+    sys: &System<f64>,
+    opts: &SpotOptions,
+) -> Result<(Vec<SpotResult>, Vec<SpotFailure>)> {
     if opts.wavelengths_nm.is_empty() || opts.fields.is_empty() {
         return Err(Error::argument(
             "spot analysis needs at least one field and one wavelength",
@@ -108,12 +160,28 @@ pub fn spot_diagram(lens: &Lens, sys: &System<f64>, opts: &SpotOptions) -> Resul
     }
     let para = lens.paraxial(opts.wavelengths_nm[0])?;
     let mut out = Vec::new();
+    let mut failures = Vec::new();
     for &field in &opts.fields {
         let mut all = Vec::new();
         let mut launched = 0;
         let mut chief0 = None;
+        let mut complete = true;
         for (w, &wl) in opts.wavelengths_nm.iter().enumerate() {
-            let set = RaySet::generate(lens, &para, field, &opts.pupil, wl)?;
+            let what = format!("field {} at {wl} nm", field.label());
+            let fail = |e: Error| SpotFailure {
+                field,
+                wavelength_nm: Some(wl),
+                reason: e.context(&what).message,
+            };
+            let set = match RaySet::generate(lens, &para, field, &opts.pupil, wl) {
+                Ok(set) => set,
+                Err(e) if e.kind == crate::ErrorKind::Numerical => {
+                    failures.push(fail(e));
+                    complete = false;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             let mut batch = set.batch::<f64>();
             let (co, cd) = set.chief;
             batch.push(co, cd);
@@ -133,8 +201,14 @@ pub fn spot_diagram(lens: &Lens, sys: &System<f64>, opts: &SpotOptions) -> Resul
             if w == 0 {
                 chief0 = chief;
             }
-            let stats = spot_stats(&points, n, chief)
-                .map_err(|e| e.context(format!("field {} at {wl} nm", field.label())))?;
+            let stats = match spot_stats(&points, n, chief) {
+                Ok(s) => s,
+                Err(e) => {
+                    failures.push(fail(e));
+                    complete = false;
+                    continue;
+                }
+            };
             all.extend_from_slice(&points);
             launched += n;
             out.push(SpotResult {
@@ -146,6 +220,17 @@ pub fn spot_diagram(lens: &Lens, sys: &System<f64>, opts: &SpotOptions) -> Resul
             });
         }
         if opts.wavelengths_nm.len() > 1 {
+            if !complete {
+                failures.push(SpotFailure {
+                    field,
+                    wavelength_nm: None,
+                    reason: format!(
+                        "field {}: no polychromatic spot, a wavelength has no ray at the image",
+                        field.label()
+                    ),
+                });
+                continue;
+            }
             let stats = spot_stats(&all, launched, chief0)?;
             out.push(SpotResult {
                 field,
@@ -156,7 +241,7 @@ pub fn spot_diagram(lens: &Lens, sys: &System<f64>, opts: &SpotOptions) -> Resul
             });
         }
     }
-    Ok(out)
+    Ok((out, failures))
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@ use crate::args::{perturbed_system, LensArgs, RayArgs};
 use crate::report::{emit, emit_line, spot_table};
 use clap::Args;
 use std::path::PathBuf;
-use tolray::analysis::spot_diagram;
+use tolray::analysis::spot_diagram_rows;
 use tolray::figures;
 
 /// Arguments of `tolray spot`.
@@ -30,7 +30,19 @@ pub fn run(a: SpotArgs) -> anyhow::Result<()> {
     let l = a.lens.load()?;
     let opts = a.rays.options(&l)?;
     let sys = perturbed_system(&l, a.perturb.as_deref())?;
-    let results = spot_diagram(&l, &sys, &opts)?;
+    // A field with no ray at the image is a row of its own (reported, and the command fails at
+    // the end), not a reason to hide the fields that have spots.
+    let (results, failures) = spot_diagram_rows(&l, &sys, &opts)?;
+    if results.is_empty() {
+        anyhow::bail!(
+            "no field has a spot: {}",
+            failures
+                .iter()
+                .map(|f| f.reason.as_str())
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
     if a.json {
         emit_line(&serde_json::to_string_pretty(&results)?.to_string());
     } else {
@@ -42,6 +54,16 @@ pub fn run(a: SpotArgs) -> anyhow::Result<()> {
             &p,
         )?;
         eprintln!("wrote {}", p.display());
+    }
+    if !failures.is_empty() {
+        for f in &failures {
+            eprintln!("no spot: {}", f.reason);
+        }
+        anyhow::bail!(
+            "{} of {} spot rows have no result (listed above); the other rows are printed",
+            failures.len(),
+            failures.len() + results.len()
+        );
     }
     Ok(())
 }
