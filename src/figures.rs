@@ -682,12 +682,14 @@ pub fn layout_figure(
 ) -> Result<Figure> {
     let z = lens.vertex_z_mm();
     let track = *z.last().unwrap_or(&1.0);
-    let ymax = lens
-        .surfaces
-        .iter()
-        .map(|s| s.semi_aperture_mm)
-        .fold(lens.sensor.half_diagonal_mm(), f64::max);
-    let zmin = -0.08 * track;
+    let mut ray_height = vec![0.0f64; lens.surfaces.len()];
+    // The axial extent of every vertex and the image (a mirror system folds back: a
+    // Cassegrain's secondary lies before its primary, at negative z).
+    let z_lo = z.iter().copied().fold(0.0f64, f64::min);
+    let z_hi = z.iter().copied().fold(0.0f64, f64::max);
+    let span = (z_hi - z_lo).max(1e-3);
+    let zmin = z_lo - 0.08 * span;
+    let zmax = z_hi + 0.04 * span;
     let n = sys.indices(wavelength_nm);
     let mut rays = Vec::new();
     let mut legend = Vec::new();
@@ -724,21 +726,49 @@ pub fn layout_figure(
                 }
                 crate::Object::Infinite => (o0 + Vec3::new(0.0, py, 0.0), d0),
             };
-            let mut pts = vec![(o.z.max(zmin), o.y + d.y * ((o.z.max(zmin) - o.z) / d.z))];
+            // Rays from infinity enter at the left edge; from a finite object, at the object
+            // point or the left edge, whichever is nearer.
+            let z0 = match lens.object {
+                crate::Object::Infinite => zmin,
+                crate::Object::Finite { .. } => o.z.max(zmin),
+            };
+            let mut pts = vec![(z0, o.y + d.y * ((z0 - o.z) / d.z))];
             for i in 0..=lens.surfaces.len() {
                 let upto = (i < lens.surfaces.len()).then_some(i);
                 let r = trace_ray(sys, &n, o, d, true, upto);
                 if !r.status.is_alive() {
                     break;
                 }
+                if let Some(i) = upto {
+                    ray_height[i] = ray_height[i].max(r.o.y.abs());
+                }
                 pts.push((r.o.z, r.o.y));
             }
             rays.push((colour, pts));
         }
     }
+    // Surfaces are drawn to their semi-diameter, unless it is far larger than the rays use
+    // (files that set it to the sphere's rim: the triplet's 435 mm on a 50 mm lens), where they
+    // are drawn to 1.15 times the traced height so the lens stays readable.
+    let drawn: Vec<f64> = lens
+        .surfaces
+        .iter()
+        .zip(&ray_height)
+        .map(|(s, &h)| {
+            if h > 0.0 && s.semi_aperture_mm > 2.0 * h {
+                1.15 * h
+            } else {
+                s.semi_aperture_mm
+            }
+        })
+        .collect();
+    let ymax = drawn
+        .iter()
+        .copied()
+        .fold(lens.sensor.half_diagonal_mm(), f64::max);
     let profile = |i: usize| -> Vec<(f64, f64)> {
         let s = &lens.surfaces[i];
-        let r = s.semi_aperture_mm;
+        let r = drawn[i];
         (0..=80)
             .filter_map(|j| {
                 let y = -r + 2.0 * r * j as f64 / 80.0;
@@ -749,7 +779,7 @@ pub fn layout_figure(
     let mut outlines = Vec::new();
     for (i, s) in lens.surfaces.iter().enumerate() {
         if s.role == SurfaceRole::Aperture || s.is_stop {
-            let r = s.semi_aperture_mm;
+            let r = drawn[i];
             let zs = z[i] + s.sag(r).unwrap_or(0.0);
             outlines.push(vec![(zs, r), (zs, r + 0.15 * ymax)]);
             outlines.push(vec![(zs, -r), (zs, -r - 0.15 * ymax)]);
@@ -783,7 +813,7 @@ pub fn layout_figure(
             para.fnum
         ),
         kind: Kind::Layout {
-            x: zmin..track * 1.04,
+            x: zmin..zmax,
             y: -ymax * 1.12..ymax * 1.12,
             rays,
             fields: legend,
