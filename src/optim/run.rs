@@ -314,7 +314,12 @@ impl TrainReport {
 }
 
 /// Numbers to three decimals, separated by spaces (as the CLI's tables print them).
-fn fmt_list(v: &[f64]) -> String {
+/// Numbers to 3 decimals, space-separated (the reports' per-field lists; the CLI uses it too).
+///
+/// ```
+/// assert_eq!(tolray::optim::train::fmt_list(&[1.0, 2.34567]), "1.000 2.346");
+/// ```
+pub fn fmt_list(v: &[f64]) -> String {
     v.iter()
         .map(|x| format!("{x:.3}"))
         .collect::<Vec<_>>()

@@ -130,13 +130,7 @@ pub fn spot_table(results: &[SpotResult]) -> String {
     s
 }
 
-/// Numbers to three decimals, separated by spaces.
-pub fn fmt_list(v: &[f64]) -> String {
-    v.iter()
-        .map(|x| format!("{x:.3}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
+pub use tolray::optim::train::fmt_list;
 
 /// A row of RMS spot statistics (mean, std, min, max, yields) named `name`.
 pub fn stats_row(name: &str, s: &Stats) -> String {
