@@ -398,6 +398,28 @@ fn training_resumes_exactly_and_reports() {
 #[test]
 fn convert_between_zmx_and_json() {
     let fixture = |n: &str| format!("{}/tests/data/zemax/{n}", env!("CARGO_MANIFEST_DIR"));
+    // A .zmx file's field points are the default fields of `spot` and `layout` (issue 14): the
+    // triplet file's YFLN 0, 10, 14, 20 (degrees), not fractions 0, 0.5, 0.7, 1.
+    let triplet = fixture("cooke-triplet.zmx");
+    let (code, out, err) = tolray(&["spot", &triplet, "--pupil", "grid:8"]);
+    assert_eq!(code, 0, "{err}");
+    let fields: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(
+        fields,
+        ["0.000deg", "10.000deg", "14.000deg", "20.000deg"],
+        "{out}"
+    );
+    let (code, out, _) = tolray(&["spot", &triplet, "--pupil", "grid:8", "--fields", "0.5"]);
+    assert_eq!(code, 0);
+    assert_eq!(
+        out.lines().count(),
+        2,
+        "--fields overrides the file's: {out}"
+    );
     let dir = tmp("convert");
     std::fs::create_dir_all(&dir).unwrap();
     let p = |n: &str| dir.join(n).to_str().unwrap().to_string();

@@ -123,6 +123,40 @@ pub struct ZmxWavelength {
     pub weight: f64,
 }
 
+impl ZmxExtras {
+    /// The file's field points as tolray fields, for commands to use when the user names none:
+    /// angle fields as angles, object heights as heights (finite objects only). `None` for the
+    /// image-height and other field types (tolray has no such field), or a file without fields.
+    ///
+    /// # Examples
+    /// ```
+    /// use tolray::lens::material::GlassCatalogs;
+    /// use tolray::lens::zemax;
+    /// let text = std::fs::read_to_string(concat!(
+    ///     env!("CARGO_MANIFEST_DIR"),
+    ///     "/tests/data/zemax/cooke-triplet.zmx"
+    /// ))?;
+    /// let z = zemax::from_str(&text, &GlassCatalogs::builtin())?;
+    /// let fields = z.extras.tolray_fields(&z.lens).unwrap();
+    /// assert_eq!(fields.len(), z.extras.fields.len());
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn tolray_fields(&self, lens: &Lens) -> Option<Vec<crate::trace::Field>> {
+        use crate::trace::Field;
+        if self.fields.is_empty() {
+            return None;
+        }
+        let to = |f: &ZmxField| match self.field_type {
+            ZmxFieldType::AngleDeg => Some(Field::AngleDeg { x: f.x, y: f.y }),
+            ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
+                Some(Field::HeightMm { x: f.x, y: f.y })
+            }
+            _ => None,
+        };
+        self.fields.iter().map(to).collect()
+    }
+}
+
 /// What a .zmx file holds beyond the [`Lens`]: kept so that a file read and written again keeps
 /// its fields, wavelengths and aperture type.
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use clap::Args;
 use std::path::{Path, PathBuf};
 use tolray::analysis::SpotOptions;
 use tolray::lens::material::{self, LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
-use tolray::lens::GlassCatalogs;
+use tolray::lens::{zemax, GlassCatalogs};
 use tolray::psf::{PsfCentre, PsfOptions};
 use tolray::tolerance::{McOptions, Perturbation, ToleranceSpec};
 use tolray::trace::{Field, Pupil, TraceOptions};
@@ -35,8 +35,22 @@ pub struct LensArgs {
 
 impl LensArgs {
     pub fn load(&self) -> anyhow::Result<Lens> {
+        Ok(self.load_with_fields()?.0)
+    }
+
+    /// The lens and, for a .zmx file, its field points (the default fields of the commands
+    /// that trace fields when `--fields` is not given).
+    pub fn load_with_fields(&self) -> anyhow::Result<(Lens, Option<Vec<Field>>)> {
         let catalogs = load_catalogs(&self.glass_catalog, &self.glass_fallback)?;
-        let (mut lens, warnings) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
+        let path = std::path::Path::new(&self.lens);
+        let (mut lens, warnings, file_fields) = if zemax::is_zmx_path(path) && path.exists() {
+            let z = zemax::read_file(path, &catalogs)?;
+            let fields = z.extras.tolray_fields(&z.lens);
+            (z.lens, z.warnings, fields)
+        } else {
+            let (l, w) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
+            (l, w, None)
+        };
         for w in warnings {
             eprintln!("warning: {w}");
         }
@@ -46,7 +60,23 @@ impl LensArgs {
         if self.clip_at_semi_diameter {
             lens.clip_at_semi_diameters();
         }
-        Ok(lens)
+        // A field given as an object height needs the file's finite object.
+        let file_fields =
+            file_fields.filter(|_| self.object.is_none() || lens.object != Object::Infinite);
+        Ok((lens, file_fields))
+    }
+}
+
+/// The fields of `--fields`, or when it is not given, the lens file's fields, else `default`.
+pub fn fields_or(
+    given: &Option<Vec<String>>,
+    file: Option<Vec<Field>>,
+    default: &str,
+) -> tolray::Result<Vec<Field>> {
+    match (given, file) {
+        (Some(g), _) => parse_fields(g),
+        (None, Some(f)) => Ok(f),
+        (None, None) => parse_fields(&default.split(',').map(String::from).collect::<Vec<_>>()),
     }
 }
 
@@ -73,9 +103,10 @@ pub fn load_catalogs(paths: &[PathBuf], fallback: &str) -> anyhow::Result<GlassC
 
 #[derive(Args)]
 pub struct RayArgs {
-    /// Fields: fraction of the full field (0.7), angle (5deg) or object height (2.5mm); x:y pairs allowed.
-    #[arg(long, value_delimiter = ',', default_value = "0,0.5,0.7,1")]
-    pub fields: Vec<String>,
+    /// Fields: fraction of the full field (0.7), angle (5deg) or object height (2.5mm); x:y pairs
+    /// allowed [default: a .zmx file's fields, else 0,0.5,0.7,1].
+    #[arg(long, value_delimiter = ',')]
+    pub fields: Option<Vec<String>>,
     /// Wavelengths in nm, or d, F, C, rgb (the lens' RGB wavelengths).
     #[arg(long, value_delimiter = ',', default_value = "d")]
     pub wavelengths: Vec<String>,
@@ -98,8 +129,14 @@ pub struct RayArgs {
 }
 
 impl RayArgs {
-    pub fn options(&self, lens: &Lens) -> anyhow::Result<SpotOptions> {
-        let fields = parse_fields(&self.fields)?;
+    /// The analysis options; `file_fields` (a .zmx file's) are the fields when `--fields` is not
+    /// given.
+    pub fn options(
+        &self,
+        lens: &Lens,
+        file_fields: Option<Vec<Field>>,
+    ) -> anyhow::Result<SpotOptions> {
+        let fields = fields_or(&self.fields, file_fields, "0,0.5,0.7,1")?;
         let mut pupil = Pupil::parse(&self.pupil, self.seed)?;
         pupil.aim = self.aim || (lens.ray_aiming && !self.no_aim);
         Ok(SpotOptions {

@@ -27,8 +27,8 @@ pub struct SpotArgs {
 
 /// Runs `tolray spot`.
 pub fn run(a: SpotArgs) -> anyhow::Result<()> {
-    let l = a.lens.load()?;
-    let opts = a.rays.options(&l)?;
+    let (l, file_fields) = a.lens.load_with_fields()?;
+    let opts = a.rays.options(&l, file_fields)?;
     let sys = perturbed_system(&l, a.perturb.as_deref())?;
     // A field with no ray at the image is a row of its own (reported, and the command fails at
     // the end), not a reason to hide the fields that have spots.
