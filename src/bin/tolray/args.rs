@@ -212,9 +212,10 @@ pub fn perturbed_system(
 /// The rays of the Monte Carlo commands (`tolerance`, `sensitivity`, `validate`).
 #[derive(Args)]
 pub struct RaySampleArgs {
-    /// Fields (fractions, 5deg angles or 2.5mm heights).
-    #[arg(long, value_delimiter = ',', default_value = "0,0.7,1")]
-    pub fields: Vec<String>,
+    /// Fields (fractions, 5deg angles or 2.5mm heights) [default: a .zmx file's fields, else
+    /// 0,0.7,1].
+    #[arg(long, value_delimiter = ',')]
+    pub fields: Option<Vec<String>>,
     /// Wavelengths in nm, or d, F, C, rgb.
     #[arg(long, value_delimiter = ',', default_value = "d")]
     pub wavelengths: Vec<String>,
@@ -224,10 +225,16 @@ pub struct RaySampleArgs {
 }
 
 impl RaySampleArgs {
-    /// The fields, wavelengths (nm) and pupil.
-    pub fn parse(&self, lens: &Lens, seed: u64) -> anyhow::Result<(Vec<Field>, Vec<f64>, Pupil)> {
+    /// The fields (`file_fields`, a .zmx file's, when `--fields` is not given), wavelengths (nm)
+    /// and pupil.
+    pub fn parse(
+        &self,
+        lens: &Lens,
+        seed: u64,
+        file_fields: Option<Vec<Field>>,
+    ) -> anyhow::Result<(Vec<Field>, Vec<f64>, Pupil)> {
         Ok((
-            parse_fields(&self.fields)?,
+            fields_or(&self.fields, file_fields, "0,0.7,1")?,
             parse_wavelengths(&self.wavelengths, lens)?,
             Pupil::parse(&self.pupil, seed)?,
         ))
@@ -251,7 +258,13 @@ pub struct TolArgs {
 }
 
 impl TolArgs {
-    pub fn options(&self, lens: &Lens, trials: usize, seed: u64) -> anyhow::Result<McOptions> {
+    pub fn options(
+        &self,
+        lens: &Lens,
+        trials: usize,
+        seed: u64,
+        file_fields: Option<Vec<Field>>,
+    ) -> anyhow::Result<McOptions> {
         let spec = match &self.spec {
             Some(p) => ToleranceSpec::read(p)?,
             None => ToleranceSpec::default(),
@@ -263,7 +276,7 @@ impl TolArgs {
                     .map_or("default spec".into(), |p| p.display().to_string()),
             )
         })?;
-        let (fields, wavelengths_nm, pupil) = self.rays.parse(lens, seed)?;
+        let (fields, wavelengths_nm, pupil) = self.rays.parse(lens, seed, file_fields)?;
         Ok(McOptions {
             spec,
             trials,

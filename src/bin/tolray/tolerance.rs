@@ -47,8 +47,8 @@ pub fn run(a: ToleranceArgs) -> anyhow::Result<()> {
         png,
         save_pattern,
     } = a;
-    let l = lens.load()?;
-    let opts = tol.options(&l, trials, seed)?;
+    let (l, file_fields) = lens.load_with_fields()?;
+    let opts = tol.options(&l, trials, seed, file_fields)?;
     let shard = shard.as_deref().map(parse_shard).transpose()?;
     eprintln!(
         "tolerance spec (pivot at each element's {:?} vertex):\n{}",
@@ -106,8 +106,8 @@ pub fn run_sensitivity(a: SensitivityArgs) -> anyhow::Result<()> {
         json,
         top,
     } = a;
-    let l = lens.load()?;
-    let opts = tol.options(&l, 0, 0)?;
+    let (l, file_fields) = lens.load_with_fields()?;
+    let opts = tol.options(&l, 0, 0, file_fields)?;
     let (nominal, rows) = sensitivity(&l, &opts)?;
     let fields: Vec<String> = opts.fields.iter().map(|f| f.label()).collect();
     emit(&format!("Sensitivity of RMS spot (µm) to each operand alone at -max / +max; nominal per field {}: {}\n", fields.join(", "), fmt_list(&nominal)));

@@ -64,7 +64,7 @@ pub fn run(_args: ValidateArgs) -> anyhow::Result<()> {
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     let (lens, args) = (&args.lens, &args);
     use tolray::embree::{validate, CheckOptions, Device, Frame, ValidateOptions};
-    let l = lens.load()?;
+    let (l, file_fields) = lens.load_with_fields()?;
     let spec = match &args.tolerance_spec {
         Some(p) => ToleranceSpec::read(p)?,
         None => ToleranceSpec::default(),
@@ -88,7 +88,7 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
             args.spot_bound_um
         );
     }
-    let (fields, wavelengths_nm, pupil) = args.rays.parse(&l, args.seed)?;
+    let (fields, wavelengths_nm, pupil) = args.rays.parse(&l, args.seed, file_fields)?;
     let opts = ValidateOptions {
         check: CheckOptions {
             chord_mm: args.chord,
