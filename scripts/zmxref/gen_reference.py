@@ -74,6 +74,17 @@ CORPUS = os.environ.get("ZMXREF_CORPUS") or os.path.normpath(
     os.path.join(HERE, "..", "..", "tests", "data", "zemax", "real"))
 
 
+
+def json_finite(o):
+    """JSON has no inf / nan: they are written as strings."""
+    if isinstance(o, dict):
+        return {k: json_finite(v) for k, v in o.items()}
+    if isinstance(o, list):
+        return [json_finite(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return str(o)
+    return o
+
 def corpus():
     out = []
     for d in sorted(glob.glob(os.path.join(CORPUS, "*"))):
@@ -452,16 +463,8 @@ def main():
                 entry["rayoptics_refused"] = f"{type(e2).__name__}: {e2}"[:400]
                 print("   rayoptics refused:", str(e2)[:200])
         out.append(entry)
-    def finite(o):  # JSON has no inf / nan: written as strings
-        if isinstance(o, dict):
-            return {k: finite(v) for k, v in o.items()}
-        if isinstance(o, list):
-            return [finite(v) for v in o]
-        if isinstance(o, float) and not math.isfinite(o):
-            return str(o)
-        return o
     with open(os.path.join(CORPUS, "reference.json"), "w") as fh:
-        json.dump(finite(out), fh, indent=1, default=repr, allow_nan=False)
+        json.dump(json_finite(out), fh, indent=1, default=repr, allow_nan=False)
 
 
 if __name__ == "__main__":

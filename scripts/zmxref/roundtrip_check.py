@@ -230,16 +230,8 @@ def main():
             "summary": count,
         }
 
-        def finite(o):
-            if isinstance(o, dict):
-                return {k: finite(v) for k, v in o.items()}
-            if isinstance(o, list):
-                return [finite(v) for v in o]
-            if isinstance(o, float) and not math.isfinite(o):
-                return str(o)
-            return o
         with open(json_path, "w") as fh:
-            json.dump(finite({"header": header, "files": results}), fh, indent=1, default=repr,
+            json.dump(gr.json_finite({"header": header, "files": results}), fh, indent=1, default=repr,
                       allow_nan=False)
             fh.write("\n")
 
