@@ -133,14 +133,15 @@ pub fn spot_table(results: &[SpotResult]) -> String {
 pub use tolray::optim::train::fmt_list;
 
 /// A row of RMS spot statistics (mean, std, min, max, yields) named `name`.
-pub fn stats_row(name: &str, s: &Stats) -> String {
+/// `width` is the name column's width (the header's too).
+pub fn stats_row(name: &str, s: &Stats, width: usize) -> String {
     let y: Vec<String> = s
         .yield_below
         .iter()
         .map(|r| format!("{:.3}", r[1]))
         .collect();
     format!(
-        "{name:>14} {:>10.3} {:>10.3} {:>10.3} {:>10.3}   {}\n",
+        "{name:<width$} {:>10.3} {:>10.3} {:>10.3} {:>10.3}   {}\n",
         s.mean,
         s.std,
         s.min,
@@ -183,11 +184,25 @@ pub fn tolerance_text(r: &McReport) -> String {
         ));
         return s;
     };
-    s.push_str(&format!("\nRMS spot (µm)    {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n", "mean", "std", "min", "max"));
-    for (f, st) in o.fields.iter().zip(&sm.per_field) {
-        s.push_str(&stats_row(&format!("field {}", f.label()), st));
+    let names: Vec<String> = o
+        .fields
+        .iter()
+        .map(|f| format!("field {}", f.label()))
+        .collect();
+    let w = names
+        .iter()
+        .map(|n| n.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(14);
+    s.push_str(&format!(
+        "\n{:<w$} {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have RMS below\n",
+        "RMS spot (µm)", "mean", "std", "min", "max"
+    ));
+    for (name, st) in names.iter().zip(&sm.per_field) {
+        s.push_str(&stats_row(name, st, w));
     }
-    s.push_str(&stats_row("field mean", &sm.mean_over_fields));
+    s.push_str(&stats_row("field mean", &sm.mean_over_fields, w));
     if let Some(fs) = &sm.focus_shift_mm {
         s.push_str(&format!(
             "refocus (mm): mean {:.4}, std {:.4}, min {:.4}, max {:.4} (nominal {:.4})\n",
