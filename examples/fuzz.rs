@@ -628,7 +628,7 @@ fn targets() -> Result<Vec<Target>, String> {
             })
             .collect();
         let d = Decoder::new(kind, grid, ks, &psfs, 0.01, width, 3).map_err(|e| e.to_string())?;
-        decoders.push(decoder_bytes(&d));
+        decoders.push(tolray::deep::study::decoder_to_bytes(&d));
     }
     for (name, seeds) in [("lens-json", &lens_json), ("zmx", &zmx), ("agf", &agf)] {
         if seeds.is_empty() {
@@ -677,17 +677,6 @@ fn targets() -> Result<Vec<Target>, String> {
             run: run_decoder,
         },
     ])
-}
-
-/// `decoder.bin` bytes, as `save_decoder` writes them.
-fn decoder_bytes(d: &Decoder) -> Vec<u8> {
-    let dir = std::env::temp_dir().join(format!("tolray-fuzz-{}", std::process::id()));
-    let _ = std::fs::create_dir_all(&dir);
-    let p = dir.join("decoder.bin");
-    tolray::deep::study::save_decoder(d, &p).expect("writing a decoder");
-    let b = std::fs::read(&p).expect("reading it back");
-    let _ = std::fs::remove_dir_all(&dir);
-    b
 }
 
 macro_rules! finite {

@@ -88,6 +88,22 @@ pub enum Start<'a> {
 /// # Errors
 /// I/O errors naming the path.
 pub fn save_decoder(d: &Decoder, path: &Path) -> Result<()> {
+    write_atomic(path, &decoder_to_bytes(d))
+}
+
+/// The bytes [`save_decoder`] writes (read back by [`decoder_from_bytes`]).
+///
+/// # Examples
+/// ```
+/// use tolray::decoder::{Decoder, DecoderKind};
+/// use tolray::deep::study::{decoder_from_bytes, decoder_to_bytes};
+/// let psfs = vec![1.0 / 9.0; 3 * 9];
+/// let d = Decoder::new(DecoderKind::Wiener, 1, 3, &psfs, 0.01, 1, 0)?;
+/// let back = decoder_from_bytes(&decoder_to_bytes(&d), "d.bin")?;
+/// assert_eq!(back.params(), d.params());
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn decoder_to_bytes(d: &Decoder) -> Vec<u8> {
     let header = serde_json::json!({
         "kind": d.kind, "grid": d.grid, "ks": d.ks, "unet_width": d.unet_width,
         "n_params": d.params().len(), "dtype": "f64le",
@@ -100,7 +116,7 @@ pub fn save_decoder(d: &Decoder, path: &Path) -> Result<()> {
     for v in d.params() {
         bytes.extend_from_slice(&v.to_le_bytes());
     }
-    write_atomic(path, &bytes)
+    bytes
 }
 
 /// Reads a decoder written by [`save_decoder`].

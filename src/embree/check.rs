@@ -517,6 +517,14 @@ impl SurfaceAcc {
     }
 }
 
+/// The refractive indices after each surface at each bundle's wavelength.
+fn bundle_indices(sys: &System<f64>, rays: &Rays) -> Vec<Vec<f64>> {
+    rays.bundles
+        .iter()
+        .map(|b| sys.indices(b.wavelength_nm))
+        .collect()
+}
+
 /// Radius of the disk meshed for a surface whose traced rays reach out to `used` mm: a margin
 /// beyond the rays, within the aperture's reach.
 fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
@@ -530,11 +538,7 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 /// # Errors
 /// [`crate::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
 pub fn check_feasible(sys: &System<f64>, rays: &Rays, opts: &CheckOptions) -> Result<()> {
-    let indices: Vec<Vec<f64>> = rays
-        .bundles
-        .iter()
-        .map(|b| sys.indices(b.wavelength_nm))
-        .collect();
+    let indices = bundle_indices(sys, rays);
     let used = used_radii(sys, rays, &indices);
     for (i, row) in sys.rows.iter().enumerate() {
         Mesh::plan(row, i, mesh_disk(used[i], row), opts.chord_mm).map_err(|e| {
@@ -608,11 +612,7 @@ pub fn check_system(
     opts: &CheckOptions,
 ) -> Result<CaseReport> {
     let nb = rays.bundles.len();
-    let indices: Vec<Vec<f64>> = rays
-        .bundles
-        .iter()
-        .map(|b| sys.indices(b.wavelength_nm))
-        .collect();
+    let indices = bundle_indices(sys, rays);
     let start = |b: &Bundle| -> Vec<RayState> {
         b.origins
             .iter()
