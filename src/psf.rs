@@ -7,12 +7,14 @@
 //! centroid).
 
 use crate::error::{Error, Result};
+use crate::lens::paraxial::LaunchOptics;
 use crate::lens::{Lens, System};
 use crate::math::Vec3;
 use crate::real::Real;
 use crate::trace::rays::Beam;
 use crate::trace::{
-    trace_serial, Block, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable, LANES,
+    trace_serial, Block, Field, LaunchSource, Pupil, RayBatch, RaySet, TraceOptions, Traceable,
+    LANES,
 };
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
@@ -165,11 +167,15 @@ impl<S: Real> Splat<S> {
     }
 }
 
-/// Rays for PSFs, generated once from the nominal lens.
+/// Rays for PSFs, generated once from the design lens (aimed at its paraxial entrance pupil at
+/// its primary wavelength); [`psf_of_launched`] launches them again with a gradient's seeded
+/// variables.
 #[derive(Clone, Debug)]
 pub struct PsfRays {
     /// (field, wavelength, rays) per PSF.
     pub sets: Vec<(Field, f64, RaySet)>,
+    /// The design the rays were launched from.
+    pub launch: LaunchSource,
 }
 
 impl PsfRays {
@@ -187,7 +193,10 @@ impl PsfRays {
                 Ok((f, wl, set))
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(PsfRays { sets })
+        Ok(PsfRays {
+            sets,
+            launch: LaunchSource::new(lens, &para),
+        })
     }
 }
 
@@ -200,9 +209,21 @@ pub fn psf_of<S: Traceable>(
     opts: &PsfOptions,
     trace: TraceOptions,
 ) -> (Vec<S>, Option<[S; 2]>) {
+    psf_of_launched(sys, rays, k, None, opts, trace)
+}
+
+/// As [`psf_of`], with the rays launched from `optics` (from [`LaunchSource::optics`] of
+/// `rays.launch`; `None` traces the stored rays).
+pub fn psf_of_launched<S: Traceable>(
+    sys: &System<S>,
+    rays: &PsfRays,
+    k: usize,
+    optics: Option<&LaunchOptics<S>>,
+    opts: &PsfOptions,
+    trace: TraceOptions,
+) -> (Vec<S>, Option<[S; 2]>) {
     let (_, wl, set) = &rays.sets[k];
-    let mut b: RayBatch<S> = set.batch();
-    b.push(set.chief.0, set.chief.1);
+    let mut b: RayBatch<S> = set.launched_batch(&rays.launch.lens, optics, true);
     psf_of_batch(sys, *wl, &mut b, opts, trace)
 }
 
@@ -365,12 +386,23 @@ fn transform2(m: &mut [Complex<f64>], n: usize, f: &std::sync::Arc<dyn rustfft::
 /// (|shift| <= ks/2, zero padding) of their cross-correlation, in [0, 1]. `ideal` is a constant;
 /// derivatives flow through `psf` at the best shift.
 pub fn psf_similarity<S: Real>(ideal: &[f64], psf: &[S], ks: usize) -> S {
+    let ideal: Vec<S> = ideal.iter().map(|&a| S::cst(a)).collect();
+    psf_similarity_of(&ideal, psf, ks)
+}
+
+/// As [`psf_similarity`], with derivatives flowing through both PSFs (a reference that moves
+/// with the design); the best shift, found on the values, is held.
+pub fn psf_similarity_of<S: Real>(ideal: &[S], psf: &[S], ks: usize) -> S {
     let values: Vec<f64> = psf.iter().map(|v| v.value()).collect();
-    let na = ideal.iter().map(|x| x * x).sum::<f64>().sqrt();
-    if na == 0.0 || values.iter().all(|&v| v == 0.0) {
+    let reference: Vec<f64> = ideal.iter().map(|v| v.value()).collect();
+    let mut na2 = S::cst(0.0);
+    for a in ideal {
+        na2 += *a * *a;
+    }
+    if na2.value() == 0.0 || values.iter().all(|&v| v == 0.0) {
         return S::cst(0.0);
     }
-    let (dx, dy) = best_shift(ideal, &values, ks);
+    let (dx, dy) = best_shift(&reference, &values, ks);
     let mut dot = S::cst(0.0);
     let mut nb2 = S::cst(0.0);
     for p in psf {
@@ -381,13 +413,13 @@ pub fn psf_similarity<S: Real>(ideal: &[f64], psf: &[S], ks: usize) -> S {
             let (i2, j2) = (i + dx, j + dy);
             if i2 >= 0 && j2 >= 0 && i2 < ks as isize && j2 < ks as isize {
                 let a = ideal[(j * ks as isize + i) as usize];
-                if a != 0.0 {
-                    dot += psf[(j2 * ks as isize + i2) as usize] * S::cst(a);
+                if a.value() != 0.0 || !a.is_constant() {
+                    dot += psf[(j2 * ks as isize + i2) as usize] * a;
                 }
             }
         }
     }
-    dot / (nb2.sqrt() * S::cst(na))
+    dot / (nb2.sqrt() * na2.sqrt())
 }
 
 /// Checks PSF options.

@@ -330,8 +330,11 @@ mod rust_side {
         let mut opts = PsfOptions::for_lens(&lens);
         opts.ks = 15;
         opts.pupil.pattern = PupilPattern::Random { n: 2048, seed: 0 };
-        let rays = PsfRays::new(&lens, &[(Field::fraction(0.7), D)], &opts.pupil).unwrap();
-        let loss = PsfLoss::new(rays, &lens.compile(), opts, TraceOptions::default());
+        let loss = PsfLoss {
+            rays: PsfRays::new(&lens, &[(Field::fraction(0.7), D)], &opts.pupil).unwrap(),
+            opts,
+            trace: TraceOptions::default(),
+        };
         let (l, adj, _) = perturbed();
         gradient::<_, 8>(&loss, &l, &adj, &vars()[..1]).unwrap()
     }

@@ -83,6 +83,9 @@ fn lens_gradient_matches_central_differences_of_the_batch_loss() {
             let f = |dx: f64| {
                 let mut l = lens.clone();
                 set_param(&mut l, v, x0 + dx).unwrap();
+                // The batch as the step at design `l` draws it: the same crops, patterns and
+                // pupil samples, its rays launched from `l`.
+                let batch = draw_batch(&cfg, &l, phase, 3).unwrap();
                 eval_batch(&cfg, &batch, &l, &st.design.decoder, None)
                     .unwrap()
                     .loss
@@ -100,19 +103,29 @@ fn lens_gradient_matches_central_differences_of_the_batch_loss() {
             };
             let stencil =
                 |h: f64| (-f(2.0 * h) + 8.0 * f(h) - 8.0 * f(-h) + f(-2.0 * h)) / (12.0 * h);
-            // With refocus the loss is smooth on a wider scale (the refocus averages hundreds
-            // of rays) while f32 rounding dominates below 1e-7; measured for Curvature(0):
-            // least-squares slopes over ±1e-8, ±1e-7, ±1e-6 of -2.616, -2.715, -2.712 against the
-            // dual -2.7106. (With apertures on, a ray crossing an aperture edge jumps the refocus,
-            // and differences scattered by 5 %: the refocus bundles trace as the config says.)
-            let fd = if refocus { stencil(5e-7) } else { stencil(h) };
+            // With refocus, and rays launched again at each step, single differences scatter by
+            // a few percent (curvature 0: 11.2 to 12.5 over steps of 2e-8 to 5e-7 mm⁻¹, against
+            // the dual 11.75): the f32 rendering's rounding below 1e-7, rays changing pixel
+            // above it. Their median is compared, to 5 %; the chain itself (refocus, launch,
+            // reference PSFs) is checked to 1e-6 in f64 by
+            // `the_refocused_crop_objective_is_exact_in_f64`.
+            let (fd, tol) = if refocus {
+                let mut st: Vec<f64> = [2e-8, 3e-8, 5e-8, 7e-8, 1e-7, 1.5e-7, 2e-7, 3e-7, 5e-7]
+                    .iter()
+                    .map(|&h| stencil(h))
+                    .collect();
+                st.sort_by(f64::total_cmp);
+                (st[4], 5e-2)
+            } else {
+                (stencil(h), tol)
+            };
             if refocus && matches!(v, Param::Gap(_)) {
-                // A refocused unit does not see where the design puts its sensor: the loss is
-                // flat in the image distance, and the gradient must say so (holding the refocus
-                // fixed gave the full uncompensated derivative here).
+                // A refocused unit does not see where the design puts its sensor; only the
+                // similarity's reference (the design's own PSFs, at its sensor) does: the
+                // derivative is small, and checked in f64 by the test named above.
                 let scale = e.dlens[0].abs();
                 assert!(
-                    e.dlens[k].abs() < 1e-4 * scale && fd.abs() < 1e-2 * scale,
+                    e.dlens[k].abs() < 1e-2 * scale && fd.abs() < 1e-2 * scale,
                     "{v:?} with refocus: dual {} FD {fd} (curvature derivative {scale})",
                     e.dlens[k]
                 );
@@ -385,6 +398,8 @@ fn the_refocus_derivative_is_exact() {
         let at = |d: f64| {
             let mut l = lens.clone();
             set_param(&mut l, p, x + d).unwrap();
+            // The refocus as evaluated at design `l`: its bundles launched from `l`.
+            let f = FocusObjective::new(&l, true).unwrap();
             let (ul, ua) = unit_lens(&l, &pattern, None).unwrap();
             value(&f, &ul, &ua)
         };
@@ -417,7 +432,6 @@ fn the_vjp_seam_is_exact_in_f64() {
         .iter()
         .map(|&w| (field, w))
         .collect();
-    let rays = PsfRays::new(&lens, &pairs, &psf.pupil).unwrap();
     let n = 51 * 51;
     let g: Vec<Vec<f64>> = (0..3)
         .map(|c| {
@@ -427,24 +441,20 @@ fn the_vjp_seam_is_exact_in_f64() {
         })
         .collect();
     let trace = TraceOptions { apertures: false };
-    let obj = PatternObjective {
-        spot: Bundles::new(
-            &lens,
-            &[field],
-            &lens.rgb_wavelengths_nm,
-            &Pupil::grid(4),
-            trace,
-        )
-        .unwrap(),
-        psf_rays: rays,
+    // The objective at a design: its rays launched from that design, the similarity's reference
+    // its own PSFs.
+    let make = |l: &Lens| PatternObjective {
+        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4), trace).unwrap(),
+        psf_rays: PsfRays::new(l, &pairs, &psf.pupil).unwrap(),
         psf,
-        ideal: Vec::new(),
-        image_grad: g,
+        similarity: true,
+        image_grad: g.clone(),
         weight: 0.25,
         lambda_spot: 0.1,
-        lambda_psf: 0.0,
+        lambda_psf: 0.05,
         trace,
     };
+    let obj = make(&lens);
     let adj = tolray::lens::Adjustments::none(lens.surfaces.len());
     let vars = [
         Param::Curvature(0),
@@ -458,9 +468,14 @@ fn the_vjp_seam_is_exact_in_f64() {
         let f = |dx: f64| {
             let mut l = lens.clone();
             set_param(&mut l, v, x0 + dx).unwrap();
-            value(&obj, &l, &adj)
+            value(&make(&l), &l, &adj)
         };
-        let mut h = 1e-7;
+        // Gaps move the loss little: a step of 1e-7 mm drowns in the rounding of the launch,
+        // which is recomputed at each step.
+        let mut h = match v {
+            Param::Curvature(_) => 1e-7,
+            _ => 1e-5,
+        };
         let mut ok = false;
         let mut fd = f64::NAN;
         for _ in 0..12 {
@@ -598,4 +613,82 @@ fn refocused_training_keeps_the_design_at_its_best_focus() {
         d.abs() < 1e-9,
         "after a step the design is {d} mm from its best focus"
     );
+}
+
+/// The lens gradient of a refocused crop, in f64 where no rendering rounds: the crop objective
+/// (spot and similarity terms) of a unit refocused to its best focus, with the rays launched
+/// from the design and the similarity's reference the design's own PSFs, all moving with the
+/// design, against central differences of the loss rebuilt at each step. The chain rule of
+/// `eval_batch` (the derivative with the refocus held, plus the refocus' own derivative times
+/// the unit's sensor-shift derivative) is exact.
+#[test]
+fn the_refocused_crop_objective_is_exact_in_f64() {
+    use tolray::deep::{psf_options, PatternObjective};
+    use tolray::optim::{gradient, gradient_with_unit, value, Bundles};
+    use tolray::psf::{grid_fields, PsfRays};
+    use tolray::trace::{Pupil, TraceOptions};
+    let mut lens = focused_lens1();
+    let last = lens.surfaces.len() - 1;
+    let none = Adjustments::none(last + 1);
+    lens.surfaces[last].d_next_mm +=
+        value(&FocusObjective::new(&lens, false).unwrap(), &lens, &none);
+    let psf = psf_options(&lens, 51, 64, 9);
+    let field = grid_fields(&lens, 8)[10];
+    let pairs: Vec<_> = lens
+        .rgb_wavelengths_nm
+        .iter()
+        .map(|&w| (field, w))
+        .collect();
+    let trace = TraceOptions { apertures: false };
+    let pattern = tolray::tolerance::ToleranceSpec::default()
+        .sample(&lens, 3, 7)
+        .unwrap();
+    let make = |l: &Lens| PatternObjective {
+        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4), trace).unwrap(),
+        psf_rays: PsfRays::new(l, &pairs, &psf.pupil).unwrap(),
+        psf,
+        similarity: true,
+        image_grad: vec![vec![0.0; 51 * 51]; 3],
+        weight: 0.25,
+        lambda_spot: 0.1,
+        lambda_psf: 0.05,
+        trace,
+    };
+    // The unit of design `l`, refocused as training refocuses it.
+    let unit = |l: &Lens| {
+        let f = FocusObjective::new(l, false).unwrap();
+        let (ul, ua) = unit_lens(l, &pattern, None).unwrap();
+        let d = value(&f, &ul, &ua);
+        (f, ul, ua, unit_lens(l, &pattern, Some(d)).unwrap())
+    };
+    let vars = [Param::Curvature(0), Param::Curvature(5), Param::Gap(last)];
+    let (f, ul, ua, (pl, pa)) = unit(&lens);
+    let g = gradient_with_unit::<_, 8>(&make(&lens), &pl, &pa, &vars, Param::Gap(last))
+        .unwrap()
+        .1;
+    let dd = gradient::<_, 8>(&f, &ul, &ua, &vars).unwrap().1;
+    for (k, &v) in vars.iter().enumerate() {
+        let total = g[k] + g[vars.len()] * dd[k];
+        let x0 = param_value(&lens, v).unwrap();
+        let at = |dx: f64| {
+            let mut l = lens.clone();
+            set_param(&mut l, v, x0 + dx).unwrap();
+            let (_, _, _, (pl, pa)) = unit(&l);
+            value(&make(&l), &pl, &pa)
+        };
+        // Halved until no ray changes pixel within the stencil (the 2nd- and 4th-order
+        // differences agree).
+        let mut h = 1e-7;
+        let mut fd = f64::NAN;
+        for _ in 0..8 {
+            let d2 = (at(h) - at(-h)) / (2.0 * h);
+            fd = (-at(2.0 * h) + 8.0 * at(h) - 8.0 * at(-h) + at(-2.0 * h)) / (12.0 * h);
+            if (d2 - fd).abs() <= 1e-6 * fd.abs() {
+                break;
+            }
+            h *= 0.5;
+        }
+        let rel = (total - fd).abs() / fd.abs();
+        assert!(rel < 1e-6, "{v:?}: dual {total} vs FD {fd} (rel {rel:e})");
+    }
 }

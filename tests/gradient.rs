@@ -48,15 +48,42 @@ fn asphere_lens() -> Lens {
     l
 }
 
-/// Fourth-order central difference (error O(h⁴)).
-fn central_diff<O: Objective>(obj: &O, lens: &Lens, adj: &Adjustments, p: Param, h: f64) -> f64 {
+/// Sixth-order central difference (error O(h⁶)) of the objective as an optimizer evaluates it
+/// when `p` moves by `h`: `make` builds it from the stepped design (its rays launched from that
+/// design), which is traced with `adj`.
+fn central_diff<O: Objective>(
+    make: &dyn Fn(&Lens) -> O,
+    lens: &Lens,
+    adj: &Adjustments,
+    p: Param,
+    h: f64,
+) -> f64 {
     let x0 = param_value(lens, p).unwrap();
     let f = |dx: f64| {
         let mut l = lens.clone();
         set_param(&mut l, p, x0 + dx).unwrap();
-        value(obj, &l, adj)
+        value(&make(&l), &l, adj)
     };
-    (-f(2.0 * h) + 8.0 * f(h) - 8.0 * f(-h) + f(-2.0 * h)) / (12.0 * h)
+    let d4 = |h: f64| (-f(2.0 * h) + 8.0 * f(h) - 8.0 * f(-h) + f(-2.0 * h)) / (12.0 * h);
+    // Richardson's extrapolation removes the h⁴ term, so that steps can stay well above the
+    // rounding of re-launched rays.
+    (16.0 * d4(0.5 * h) - d4(h)) / 15.0
+}
+
+/// The spot loss of `fields` at the d and F lines through an `n x n` pupil grid, its rays
+/// launched from `lens`.
+fn spot_loss(lens: &Lens, fields: &[Field], n: usize, measure: SpotMeasure) -> SpotLoss {
+    SpotLoss {
+        bundles: Bundles::new(
+            lens,
+            fields,
+            &[LAMBDA_D_NM, 486.1327],
+            &Pupil::grid(n),
+            TraceOptions { apertures: false },
+        )
+        .unwrap(),
+        measure,
+    }
 }
 
 fn step(lens: &Lens, p: Param) -> f64 {
@@ -67,7 +94,9 @@ fn step(lens: &Lens, p: Param) -> f64 {
         Param::Curvature(_) => 1e-7,
         Param::Conic(_) => 1e-6 * v.max(1.0),
         Param::Asphere(_, j) => 1e-5 * v.max(1e-12 / 10f64.powi(j as i32)),
-        Param::Gap(_) => 1e-5 * v.max(1.0),
+        // Gaps: the launch (entrance pupil, field angle) moves with them too, and re-launching
+        // at each step adds rounding a smaller step would magnify.
+        Param::Gap(_) => 1e-4 * v.max(1.0),
         Param::GlassNd(_) => 1e-7,
         Param::GlassVd(_) => 1e-4,
     }
@@ -80,21 +109,11 @@ fn check(name: &str, lens: &Lens, perturbed: bool) {
     } else {
         Adjustments::none(lens.surfaces.len())
     };
-    let fields = [0.0, 0.7, 1.0].map(Field::fraction);
     // Two wavelengths, so that Abbe-number derivatives are not zero.
-    let bundles = Bundles::new(
-        lens,
-        &fields,
-        &[LAMBDA_D_NM, 486.1327],
-        &Pupil::grid(8),
-        TraceOptions { apertures: false },
-    )
-    .unwrap();
+    let fields = [0.0, 0.7, 1.0].map(Field::fraction);
     for measure in [SpotMeasure::Mean, SpotMeasure::Rms] {
-        let obj = SpotLoss {
-            bundles: bundles.clone(),
-            measure,
-        };
+        let make = |l: &Lens| spot_loss(l, &fields, 8, measure);
+        let obj = make(lens);
         let vars = all_vars(lens);
         let (v, g) = gradient::<_, 8>(&obj, lens, &adj, &vars).unwrap();
         assert!(
@@ -102,10 +121,13 @@ fn check(name: &str, lens: &Lens, perturbed: bool) {
             "value part of the dual pass equals the f64 value"
         );
         for (k, &p) in vars.iter().enumerate() {
-            let fd = central_diff(&obj, lens, &adj, p, step(lens, p));
+            let fd = central_diff(&make, lens, &adj, p, step(lens, p));
             let rel = (g[k] - fd).abs() / fd.abs().max(1e-9);
+            // Re-launching at each step rounds the launch afresh: the loss jitters by ~5e-13 from
+            // one step to the next (measured on the triplet; frozen rays were smooth), so a small
+            // derivative is checked to that floor over the step (1e-8 at 1e-4 mm) instead.
             assert!(
-                rel < 1e-6,
+                rel < 1e-6 || (g[k] - fd).abs() < 1e-8,
                 "{name} perturbed={perturbed} {measure:?} {p:?}: dual {} vs FD {fd} (rel {rel:e})",
                 g[k]
             );
@@ -172,8 +194,9 @@ fn passes_of_different_width_agree() {
     }
 }
 
-/// PSF-similarity loss of a perturbed lens against the nominal PSFs: exact gradient against a
-/// central difference. The bilinear splat is smooth while no ray changes pixel, so the step is
+/// PSF-similarity loss of a perturbed lens against the design's own PSFs: exact gradient (the
+/// launch and the reference moving with the design) against a central difference of the loss
+/// rebuilt at each step. The bilinear splat is smooth while no ray changes pixel, so the step is
 /// halved until every ray keeps its pixel between x - 2h and x + 2h (checked through the loss's
 /// own piecewise-quadratic behaviour: the 2nd- and 4th-order differences must agree).
 #[test]
@@ -191,9 +214,13 @@ fn psf_similarity_loss_gradient_matches_finite_differences() {
             (Field::fraction(0.0), LAMBDA_D_NM),
             (Field::fraction(0.7), 486.1327),
         ];
-        let rays = PsfRays::new(&lens, &pairs, &opts.pupil).unwrap();
-        let nominal = lens.compile();
-        let loss = PsfLoss::new(rays, &nominal, opts, TraceOptions { apertures: false });
+        // The loss as evaluated at a design: rays launched from it, its own PSFs the reference.
+        let make = |l: &Lens| PsfLoss {
+            rays: PsfRays::new(l, &pairs, &opts.pupil).unwrap(),
+            opts,
+            trace: TraceOptions { apertures: false },
+        };
+        let loss = make(&lens);
         let pattern = ToleranceSpec::default().sample(&lens, 3, 0).unwrap();
         let (plens, adj) = pattern.apply(&lens).unwrap();
         let vars = vec![
@@ -205,11 +232,17 @@ fn psf_similarity_loss_gradient_matches_finite_differences() {
         let (v, g) = gradient::<_, 8>(&loss, &plens, &adj, &vars).unwrap();
         assert!(v > 0.0 && v < 1.0, "{name}: loss {v}");
         for (k, &p) in vars.iter().enumerate() {
-            let x0 = param_value(&plens, p).unwrap();
+            // The design and the unit step together; the pattern's motions are constants (as
+            // the gradient holds them: a tilt's pivot does not follow the design's gaps).
+            let (x0, u0) = (
+                param_value(&lens, p).unwrap(),
+                param_value(&plens, p).unwrap(),
+            );
             let f = |dx: f64| {
-                let mut l = plens.clone();
+                let (mut l, mut u) = (lens.clone(), plens.clone());
                 set_param(&mut l, p, x0 + dx).unwrap();
-                value(&loss, &l, &adj)
+                set_param(&mut u, p, u0 + dx).unwrap();
+                value(&make(&l), &u, &adj)
             };
             let mut h = if matches!(p, Param::Curvature(_)) {
                 1e-7
@@ -248,18 +281,9 @@ fn zero_asphere_terms_have_their_derivative() {
     ];
     for (name, lens, surf, terms) in cases {
         let adj = Adjustments::none(lens.surfaces.len());
-        let bundles = Bundles::new(
-            &lens,
-            &[0.0, 1.0].map(Field::fraction),
-            &[LAMBDA_D_NM],
-            &Pupil::grid(8),
-            TraceOptions { apertures: false },
-        )
-        .unwrap();
-        let obj = SpotLoss {
-            bundles,
-            measure: SpotMeasure::Rms,
-        };
+        let fields = [0.0, 1.0].map(Field::fraction);
+        let make = |l: &Lens| spot_loss(l, &fields, 8, SpotMeasure::Rms);
+        let obj = make(&lens);
         let vars: Vec<Param> = terms.map(|j| Param::Asphere(surf, j)).collect();
         let (_, g) = gradient::<_, 8>(&obj, &lens, &adj, &vars).unwrap();
         let r = lens.surfaces[surf].semi_aperture_mm;
@@ -269,7 +293,7 @@ fn zero_asphere_terms_have_their_derivative() {
             };
             // A step that moves the sag at the rim by 1e-6 mm.
             let h = 1e-6 / r.powi(2 * (j as i32 + 1));
-            let fd = central_diff(&obj, &lens, &adj, p, h);
+            let fd = central_diff(&make, &lens, &adj, p, h);
             assert!(
                 fd.abs() > 0.0,
                 "{name} {p:?}: the term does change the loss"
@@ -282,4 +306,84 @@ fn zero_asphere_terms_have_their_derivative() {
             );
         }
     }
+}
+
+/// Defect 3 of issue 15: the gradient is the derivative of the loss as an optimizer evaluates it,
+/// with its rays launched from the design being stepped (the paraxial entrance pupil and the
+/// field angle of a fraction of the field move with the design). On lens2 the launch is worth
+/// percents of the derivative (here 2.5 % of it in the front curvature, 4.8 % in the first gap;
+/// the issue measured 1.7 % and 3.4 % in its setup); held launches are now only aimed ones, as
+/// documented, and a parameter can be moved in the traced unit alone.
+#[test]
+fn the_gradient_includes_the_launch() {
+    use tolray::optim::gradient_with_unit;
+    let lens = Lens::load("lens2").unwrap();
+    let adj = Adjustments::none(lens.surfaces.len());
+    let fields = [0.0, 0.7, 1.0].map(Field::fraction);
+    let make = |l: &Lens| spot_loss(l, &fields, 8, SpotMeasure::Mean);
+    let obj = make(&lens);
+    let vars = [Param::Curvature(0), Param::Gap(1), Param::Curvature(3)];
+    let (_, g) = gradient::<_, 8>(&obj, &lens, &adj, &vars).unwrap();
+    for (k, &p) in vars.iter().enumerate() {
+        let h = step(&lens, p);
+        let exact = central_diff(&make, &lens, &adj, p, h);
+        let frozen = central_diff(&|_: &Lens| obj.clone(), &lens, &adj, p, h);
+        let rel = (g[k] - exact).abs() / exact.abs();
+        assert!(
+            rel < 1e-6,
+            "{p:?}: dual {} vs FD {exact} (rel {rel:e})",
+            g[k]
+        );
+        let launch = (frozen - exact).abs() / exact.abs();
+        eprintln!(
+            "{p:?}: the launch is {:.2} % of the derivative",
+            100.0 * launch
+        );
+        assert!(launch > 1e-3, "{p:?}: the launch term is {launch:e} of it");
+    }
+    // Aimed rays keep their launch: the gradient is that of the stored rays.
+    let mut aimed = Pupil::grid(6);
+    aimed.aim = true;
+    let bundles = Bundles::new(
+        &lens,
+        &fields,
+        &[LAMBDA_D_NM],
+        &aimed,
+        TraceOptions { apertures: false },
+    )
+    .unwrap();
+    let held = SpotLoss {
+        bundles,
+        measure: SpotMeasure::Rms,
+    };
+    let (_, ga) = gradient::<_, 8>(&held, &lens, &adj, &vars).unwrap();
+    for (k, &p) in vars.iter().enumerate() {
+        let fd = central_diff(&|_: &Lens| held.clone(), &lens, &adj, p, step(&lens, p));
+        assert!(
+            (ga[k] - fd).abs() < 1e-6 * fd.abs(),
+            "aimed {p:?}: dual {} vs FD {fd}",
+            ga[k]
+        );
+    }
+    // A unit-only parameter moves the traced lens, not the launch: its derivative is that of
+    // the stored rays, and the design's variables keep theirs.
+    let last = Param::Gap(lens.surfaces.len() - 1);
+    let (_, gu) = gradient_with_unit::<_, 8>(&obj, &lens, &adj, &vars, Param::Gap(1)).unwrap();
+    assert_eq!(gu.len(), vars.len() + 1);
+    assert_eq!(&gu[..vars.len()], &g[..]);
+    let fd = central_diff(
+        &|_: &Lens| obj.clone(),
+        &lens,
+        &adj,
+        Param::Gap(1),
+        step(&lens, Param::Gap(1)),
+    );
+    assert!(
+        (gu[3] - fd).abs() < 1e-6 * fd.abs(),
+        "unit Gap(1): dual {} vs FD {fd}",
+        gu[3]
+    );
+    // The image distance does not move the launch: design and unit derivatives agree.
+    let (_, gl) = gradient_with_unit::<_, 8>(&obj, &lens, &adj, &[last], last).unwrap();
+    assert!((gl[0] - gl[1]).abs() <= 1e-12 * gl[0].abs(), "{gl:?}");
 }

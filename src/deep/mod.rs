@@ -26,9 +26,13 @@ use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
 use crate::optim::GRAD_WIDTH;
 use crate::optim::{
-    bundle_spot, gradient, param_value, set_param, Bundles, FocusMoments, Objective, SpotMeasure,
+    bundle_spot, gradient, gradient_with_unit, param_value, set_param, Bundles, FocusMoments,
+    Objective, SpotMeasure,
 };
-use crate::psf::{grid_fields, psf_of, psf_similarity, PsfCentre, PsfOptions, PsfRays};
+use crate::psf::{
+    grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
+    PsfRays,
+};
 use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -442,7 +446,8 @@ fn nominal_psf_map(lens: &Lens, cfg: &TrainConfig, spp: usize) -> Result<Vec<f32
 /// The lens objective of one training crop's pattern: the spot and PSF-similarity terms (weighted
 /// by `weight`, the batch mean) plus the image term `<dL/dPSF, PSF(θ)>`, whose dual-number
 /// derivative is the image loss' gradient through this crop's PSF (a vector-Jacobian product
-/// from the forward-mode Jacobian).
+/// from the forward-mode Jacobian). The rays are launched from the design, and the similarity's
+/// reference is the design's own PSF: both move with the design in gradients.
 pub struct PatternObjective {
     /// Spot bundles at the crop's field (one per wavelength).
     pub spot: Bundles,
@@ -450,8 +455,8 @@ pub struct PatternObjective {
     pub psf_rays: PsfRays,
     /// PSF settings.
     pub psf: PsfOptions,
-    /// Nominal-design PSFs for the similarity term (empty in the nominal phase).
-    pub ideal: Vec<Vec<f64>>,
+    /// Whether the similarity term is on (tolerance phases; off in the nominal phase).
+    pub similarity: bool,
     /// dL/dPSF per channel (`ks²` each).
     pub image_grad: Vec<Vec<f64>>,
     /// Weight of the spot and similarity terms (1 / batch size).
@@ -465,18 +470,25 @@ pub struct PatternObjective {
 }
 
 impl Objective for PatternObjective {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let optics = self.spot.optics(lift);
         let mut spot = S::cst(0.0);
         for k in 0..self.spot.sets.len() {
-            spot += bundle_spot(&self.spot.sensor_points(sys, k), SpotMeasure::Mean);
+            let pts = self.spot.launched_sensor_points(sys, optics.as_ref(), k);
+            spot += bundle_spot(&pts, SpotMeasure::Mean);
         }
         let mut total =
             spot * S::cst(self.weight * self.lambda_spot / self.spot.sets.len().max(1) as f64);
+        let optics = self.psf_rays.launch.optics(lift);
+        let design = self.similarity.then(|| self.psf_rays.launch.design(lift));
+        let at = |s: &System<S>, k: usize| {
+            psf_of_launched(s, &self.psf_rays, k, optics.as_ref(), &self.psf, self.trace).0
+        };
         let mut sim = S::cst(0.0);
         for k in 0..self.psf_rays.sets.len() {
-            let (p, _) = psf_of(sys, &self.psf_rays, k, &self.psf, self.trace);
-            if let Some(ideal) = self.ideal.get(k) {
-                sim += psf_similarity(ideal, &p, self.psf.ks);
+            let p = at(sys, k);
+            if let Some(d) = &design {
+                sim += psf_similarity_of(&at(d, k), &p, self.psf.ks);
             }
             for (g, v) in self.image_grad[k].iter().zip(&p) {
                 if *g != 0.0 {
@@ -484,8 +496,8 @@ impl Objective for PatternObjective {
                 }
             }
         }
-        if !self.ideal.is_empty() {
-            let n = S::cst(1.0 / self.ideal.len() as f64);
+        if self.similarity {
+            let n = S::cst(1.0 / self.psf_rays.sets.len().max(1) as f64);
             total += (S::cst(1.0) - sim * n) * S::cst(self.weight * self.lambda_psf);
         }
         total
@@ -684,11 +696,12 @@ impl FocusObjective {
 }
 
 impl Objective for FocusObjective {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let optics = self.bundles.optics(lift);
         let mut rays: Vec<Vec<[S; 4]>> = vec![Vec::new(); self.fields];
         for k in 0..self.bundles.sets.len() {
             let f = self.bundles.sets[k].0;
-            rays[f].extend(self.bundles.sensor_rays(sys, k));
+            rays[f].extend(self.bundles.launched_sensor_rays(sys, optics.as_ref(), k));
         }
         let moments: Vec<FocusMoments<S>> =
             rays.iter().filter_map(|r| FocusMoments::of(r)).collect();
@@ -829,7 +842,7 @@ pub fn eval_batch(
                         spot: bc.spot.clone(),
                         psf_rays: bc.rays.clone(),
                         psf,
-                        ideal: bc.ideal.clone(),
+                        similarity: !bc.ideal.is_empty(),
                         image_grad: g
                             .chunks(ks2)
                             .map(|ch| ch.iter().map(|&v| v as f64).collect())
@@ -843,21 +856,15 @@ pub fn eval_batch(
                     let (Some(pattern), Some(focus)) = (&bc.pattern, &bc.refocus) else {
                         return Ok(gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, vars)?.1);
                     };
-                    // The refocus moves the sensor along z (patterns do not tilt the image
-                    // plane), as the last gap does: ∂L/∂δ is the derivative in that gap.
+                    // The refocus δ moves the unit's sensor along z (patterns do not tilt the
+                    // image plane), as the unit's last gap does: ∂L/∂δ is the derivative in that
+                    // gap with the design (launch, reference PSFs) held.
                     let last = Param::Gap(plens.surfaces.len() - 1);
-                    let mut ext = vars.to_vec();
-                    let at = match ext.iter().position(|&p| p == last) {
-                        Some(k) => k,
-                        None => {
-                            ext.push(last);
-                            ext.len() - 1
-                        }
-                    };
-                    let g = gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, &ext)?.1;
+                    let g = gradient_with_unit::<_, GRAD_WIDTH>(&obj, &plens, &adj, vars, last)?.1;
+                    let dl_ddelta = g[vars.len()];
                     let (ul, ua) = unit_lens(lens, pattern, None)?;
                     let dd = gradient::<_, GRAD_WIDTH>(focus.as_ref(), &ul, &ua, vars)?.1;
-                    Ok((0..vars.len()).map(|k| g[k] + g[at] * dd[k]).collect())
+                    Ok((0..vars.len()).map(|k| g[k] + dl_ddelta * dd[k]).collect())
                 })
                 .collect::<Result<_>>()?;
             let mut g = vec![0.0; vars.len()];

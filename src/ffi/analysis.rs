@@ -3,7 +3,6 @@
 use super::handles::{check_wavelength, tolray_param, tolray_system};
 use super::{boundary, c_slice, nonnull, tolray_status, FfiError, FfiResult};
 use crate::analysis::spot::{spot_diagram, SpotOptions};
-use crate::lens::System;
 use crate::math::Vec3;
 use crate::optim::{self, Bundles, PsfLoss, SpotLoss, SpotMeasure};
 use crate::psf::{self, PsfCentre, PsfOptions, PsfRays};
@@ -611,11 +610,13 @@ fn write_gradient(
 /// per trace) with respect to design variables of the system's lens, at their current values,
 /// with the tolerance pattern held fixed: a curvature variable c is traced as
 /// c (1 + curvature_pct / 100), a gap with the pattern's gap changes added, and the pattern's
-/// motions are constants. The ray launch is frozen: the bundles are generated once from the
+/// motions are constants. The ray launch is differentiated: the bundles are launched from the
 /// nominal lens (its paraxial entrance pupil and EFL at the first wavelength, used for every
-/// wavelength; aiming, if on, at its stop) and do not move with the variables, so the gradient
-/// does not include a variable's effect on the entrance pupil or the field angle. Which rays
-/// arrive is held at the current values (vignetting changes are steps, not derivatives).
+/// wavelength), and the gradient includes each variable's effect on them (the entrance pupil's
+/// position and size, and the field angle of a fraction of the field), so it is the derivative
+/// of this function's value as the variables move. Exception: with `pupil->aim` set, the aimed
+/// rays keep their launch (the aim is not differentiated). Which rays arrive is held at the
+/// current values (vignetting changes are steps, not derivatives).
 ///
 /// Checked: `n_fields` and `n_wavelengths` at least 1 (`TOLRAY_ERROR_BUFFER_SIZE`), fields,
 /// wavelengths and `pupil` as for [`tolray_spot`], `measure` 0 or 1, every variable as
@@ -677,11 +678,12 @@ pub unsafe extern "C" fn tolray_spot_loss_gradient(
 /// at most `kernel_px` / 2 in x and in y (zero padding), in [0, 1]; 0 when either PSF is empty
 /// (no error here, unlike [`tolray_psf`]).
 ///
-/// Gradient: as for [`tolray_spot_loss_gradient`] (exact, pattern fixed, launch frozen), except
-/// that the launch uses the nominal lens' paraxial data at its primary wavelength. The nominal
-/// (reference) PSFs are computed once, in f64, and held fixed, as are the best shift and the
-/// pixel each ray falls in; derivatives flow through the ray positions, the reference point
-/// (chief ray or centroid) and the bilinear weights of the system's PSFs.
+/// Gradient: as for [`tolray_spot_loss_gradient`] (exact, pattern fixed, launch differentiated
+/// unless aimed), except that the launch uses the nominal lens' paraxial data at its primary
+/// wavelength. The nominal (reference) PSFs move with the variables too (the nominal lens is
+/// the design being differentiated); the best shift and the pixel each ray falls in are held.
+/// Derivatives flow through the ray positions, the reference point (chief ray or centroid) and
+/// the bilinear weights of both PSFs.
 ///
 /// Checked: fields, wavelengths and variables as for [`tolray_spot_loss_gradient`], `opts` as
 /// [`tolray_psf_options`] says.
@@ -713,9 +715,11 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
             .iter()
             .flat_map(|&f| wl.iter().map(move |&w| (f, w)))
             .collect();
-        let rays = PsfRays::new(&s.nominal, &pairs, &opts.pupil)?;
-        let ideal: System<f64> = s.nominal.compile();
-        let loss = PsfLoss::new(rays, &ideal, opts, TraceOptions::default());
+        let loss = PsfLoss {
+            rays: PsfRays::new(&s.nominal, &pairs, &opts.pupil)?,
+            opts,
+            trace: TraceOptions::default(),
+        };
         write_gradient(s, &loss, &vars, value_out, grad_out)
     })
 }

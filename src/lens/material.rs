@@ -237,18 +237,31 @@ pub enum Material {
     },
 }
 
+/// Index of a model glass (n_d, V_d) at `wavelength_nm` by its Cauchy law `n = A + B / λ²`
+/// through n_d at the d line with the Abbe number V_d = (n_d − 1) / (n_F − n_C), in any number
+/// type: the one formula of [`Material::index`], of the tracer's indices and of the paraxial
+/// launch, so that dual numbers carry glass derivatives with the same values.
+///
+/// ```
+/// use tolray::lens::material::{model_index, Material, LAMBDA_D_NM};
+/// let n: f64 = model_index(1.5168, 64.17, LAMBDA_D_NM);
+/// assert!((n - 1.5168).abs() < 1e-15);
+/// assert_eq!(n, Material::Model { nd: 1.5168, vd: 64.17 }.index(LAMBDA_D_NM));
+/// ```
+pub fn model_index<S: crate::real::Real>(nd: S, vd: S, wavelength_nm: f64) -> S {
+    let inv2 = |l: f64| 1.0 / (l * l);
+    let b = (nd - S::cst(1.0)) / vd / S::cst(inv2(LAMBDA_F_NM) - inv2(LAMBDA_C_NM));
+    let a = nd - b * S::cst(inv2(LAMBDA_D_NM));
+    a + b * S::cst(inv2(wavelength_nm))
+}
+
 impl Material {
     /// Refractive index at `wavelength_nm` nanometres.
     pub fn index(&self, wavelength_nm: f64) -> f64 {
         match self {
             Material::Air => 1.0,
             Material::Constant(n) => *n,
-            Material::Model { nd, vd } => {
-                let inv2 = |l: f64| 1.0 / (l * l);
-                let b = (nd - 1.0) / vd / (inv2(LAMBDA_F_NM) - inv2(LAMBDA_C_NM));
-                let a = nd - b * inv2(LAMBDA_D_NM);
-                a + b * inv2(wavelength_nm)
-            }
+            Material::Model { nd, vd } => model_index(*nd, *vd, wavelength_nm),
             Material::Catalog(g) => g.dispersion.index(wavelength_nm * 1e-3),
             Material::Agf(g) => g.dispersion.index(wavelength_nm * 1e-3),
             Material::Perturbed {

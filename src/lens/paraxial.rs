@@ -1,7 +1,9 @@
 //! First-order (paraxial) optics by y-nu ray tracing.
 
-use super::{Lens, Object};
+use super::material::model_index;
+use super::{Lens, Material, Object, Param};
 use crate::error::{Error, Result};
+use crate::real::Real;
 use serde::Serialize;
 
 /// First-order properties of a lens at one wavelength. Lengths in mm; axial positions are global
@@ -39,38 +41,177 @@ pub struct Paraxial {
 }
 
 /// Paraxial heights at every surface and the final height and slope after the last one.
-struct Ynu {
-    heights: Vec<f64>,
-    y_last: f64,
-    u_last: f64,
+struct Ynu<S> {
+    heights: Vec<S>,
+    y_last: S,
+    u_last: S,
 }
 
-/// Traces a paraxial ray that arrives at the vertex plane of surface `start` (before refracting
-/// there) with height `y0` and slope `u0`; heights of surfaces before `start` are left 0.
+/// What a paraxial trace reads of a lens, in number type `S`: the paraxial curvature c + 2 a2
+/// of each surface, whether it bends rays, the signed index after it and the gap after it.
 ///
 /// `n` holds the signed indices of [`signed_indices`]: a mirror is a refraction into `-n`, and
 /// the gaps after it are negative, so the y-nu equations hold unchanged through mirrors.
-fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
-    let (mut y, mut u) = (y0, u0);
-    let mut heights = vec![0.0; lens.surfaces.len()];
-    let last = lens.surfaces.len() - 1;
-    for i in start..lens.surfaces.len() {
-        let s = &lens.surfaces[i];
-        heights[i] = y;
-        let n0 = if i == 0 { 1.0 } else { n[i - 1] };
-        if lens.refracts(i) {
-            let power = (s.c + 2.0 * s.asph[0]) * (n[i] - n0);
-            u = (n0 * u - y * power) / n[i];
+struct Prescription<S> {
+    curvature: Vec<S>,
+    bends: Vec<bool>,
+    n: Vec<S>,
+    gap: Vec<S>,
+}
+
+impl Prescription<f64> {
+    fn of(lens: &Lens, wavelength_nm: f64) -> Self {
+        Prescription::lifted(lens, wavelength_nm, &|_, v| v)
+    }
+}
+
+impl<S: Real> Prescription<S> {
+    /// The prescription of `lens` with each design parameter passed through `lift` (as
+    /// [`crate::lens::System::compile`] does), so that dual numbers carry its derivatives.
+    fn lifted(lens: &Lens, wavelength_nm: f64, lift: &dyn Fn(Param, S) -> S) -> Self {
+        let dirs = lens.travel_directions();
+        let mut p = Prescription {
+            curvature: Vec::with_capacity(lens.surfaces.len()),
+            bends: Vec::with_capacity(lens.surfaces.len()),
+            n: Vec::with_capacity(lens.surfaces.len()),
+            gap: Vec::with_capacity(lens.surfaces.len()),
+        };
+        for (i, s) in lens.surfaces.iter().enumerate() {
+            let c = lift(Param::Curvature(i), S::cst(s.c));
+            let a2 = lift(Param::Asphere(i, 0), S::cst(s.asph[0]));
+            p.curvature.push(c + S::cst(2.0) * a2);
+            p.bends.push(lens.refracts(i));
+            let n = match s.material {
+                Material::Model { nd, vd } => model_index(
+                    lift(Param::GlassNd(i), S::cst(nd)),
+                    lift(Param::GlassVd(i), S::cst(vd)),
+                    wavelength_nm,
+                ),
+                ref m => S::cst(m.index(wavelength_nm)),
+            };
+            p.n.push(n * S::cst(dirs[i + 1]));
+            p.gap.push(lift(Param::Gap(i), S::cst(s.d_next_mm)));
         }
-        if i < last {
-            y += u * s.d_next_mm;
+        p
+    }
+
+    /// Traces a paraxial ray that arrives at the vertex plane of surface `start` (before
+    /// refracting there) with height `y0` and slope `u0`; heights of surfaces before `start` are
+    /// left 0.
+    fn ynu(&self, start: usize, y0: S, u0: S) -> Ynu<S> {
+        let (mut y, mut u) = (y0, u0);
+        let mut heights = vec![S::cst(0.0); self.n.len()];
+        let last = self.n.len() - 1;
+        for i in start..self.n.len() {
+            heights[i] = y;
+            let n0 = if i == 0 { S::cst(1.0) } else { self.n[i - 1] };
+            if self.bends[i] {
+                let power = self.curvature[i] * (self.n[i] - n0);
+                u = (n0 * u - y * power) / self.n[i];
+            }
+            if i < last {
+                y += u * self.gap[i];
+            }
+        }
+        Ynu {
+            heights,
+            y_last: y,
+            u_last: u,
         }
     }
-    Ynu {
-        heights,
-        y_last: y,
-        u_last: u,
+
+    /// The effective focal length of a unit-height parallel ray, -1 / (n' u') (n' = -1 after an
+    /// odd number of mirrors), and that ray.
+    fn efl(&self) -> (S, Ynu<S>) {
+        let n_last = self.n[self.n.len() - 1];
+        let parallel = self.ynu(0, S::cst(1.0), S::cst(0.0));
+        (S::cst(-1.0) / (n_last * parallel.u_last), parallel)
     }
+
+    /// The entrance pupil's axial position and radius for the stop surface `stop` of
+    /// semi-diameter `r_stop`: the stop's image in object space, from the heights there of a
+    /// parallel ray and of a ray through the first vertex.
+    fn pupil(&self, stop: usize, r_stop: f64) -> (S, S) {
+        let a = self.ynu(0, S::cst(1.0), S::cst(0.0)).heights[stop];
+        let b = self.ynu(0, S::cst(0.0), S::cst(1.0)).heights[stop];
+        (b / a, S::cst(r_stop) / a.abs())
+    }
+}
+
+/// The first-order numbers a ray launch depends on, in any number type: where the rays of a
+/// field are aimed (the paraxial entrance pupil) and the focal length that turns a fraction of
+/// the field into an angle. [`launch_optics`] computes them with dual numbers so that a
+/// gradient includes a design variable's effect on the launch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LaunchOptics<S> {
+    /// Effective focal length, mm.
+    pub efl_mm: S,
+    /// Axial position of the entrance pupil, mm.
+    pub entrance_pupil_z_mm: S,
+    /// Entrance pupil radius, mm.
+    pub entrance_pupil_radius_mm: S,
+}
+
+impl LaunchOptics<f64> {
+    /// The launch numbers of a paraxial analysis.
+    pub fn of(p: &Paraxial) -> Self {
+        LaunchOptics {
+            efl_mm: p.efl_mm,
+            entrance_pupil_z_mm: p.entrance_pupil_z_mm,
+            entrance_pupil_radius_mm: 0.5 * p.entrance_pupil_diameter_mm,
+        }
+    }
+}
+
+impl<S: Real> LaunchOptics<S> {
+    /// True when no number carries a derivative.
+    pub fn is_constant(&self) -> bool {
+        self.efl_mm.is_constant()
+            && self.entrance_pupil_z_mm.is_constant()
+            && self.entrance_pupil_radius_mm.is_constant()
+    }
+}
+
+/// The [`LaunchOptics`] of `lens` at `wavelength_nm` with the aperture stop at surface `stop`
+/// (a [`Paraxial::stop_surface`]: which surface limits the beam is a discrete choice, held),
+/// each design parameter passed through `lift` as [`crate::lens::System::compile`] does. With
+/// the identity lift the numbers are those of [`analyze`], bit for bit.
+///
+/// ```
+/// use tolray::lens::paraxial::{launch_optics, LaunchOptics};
+/// use tolray::lens::Param;
+/// use tolray::real::Dual;
+/// let lens = tolray::Lens::load("lens2").unwrap();
+/// let p = lens.paraxial(lens.primary_wavelength_nm).unwrap();
+/// let same: LaunchOptics<f64> =
+///     launch_optics(&lens, p.wavelength_nm, p.stop_surface, &|_, v| v);
+/// assert_eq!(same, LaunchOptics::of(&p));
+/// // d EFL / d c0 by a dual number.
+/// let lift = |q: Param, v: Dual<f64, 1>| if q == Param::Curvature(0) { Dual::var(v.re, 0) } else { v };
+/// let d = launch_optics(&lens, p.wavelength_nm, p.stop_surface, &lift);
+/// assert_eq!(d.efl_mm.re, p.efl_mm);
+/// assert!(d.efl_mm.eps[0] < 0.0); // a stronger front surface shortens the focal length
+/// ```
+pub fn launch_optics<S: Real>(
+    lens: &Lens,
+    wavelength_nm: f64,
+    stop: usize,
+    lift: &dyn Fn(Param, S) -> S,
+) -> LaunchOptics<S> {
+    let p = Prescription::lifted(lens, wavelength_nm, lift);
+    let r_stop = lens.surfaces[stop].semi_aperture_mm;
+    let (z, r) = p.pupil(stop, r_stop);
+    LaunchOptics {
+        efl_mm: p.efl().0,
+        entrance_pupil_z_mm: z,
+        entrance_pupil_radius_mm: r,
+    }
+}
+
+/// Paraxial effective focal length of `lens` at `wavelength_nm` in any number type, each design
+/// parameter passed through `lift` (the EFL target of training).
+pub fn efl_lifted<S: Real>(lens: &Lens, wavelength_nm: f64, lift: &dyn Fn(Param, S) -> S) -> S {
+    Prescription::lifted(lens, wavelength_nm, lift).efl().0
 }
 
 /// Paraxial analysis of `lens` at `wavelength_nm`.
@@ -82,19 +223,17 @@ fn ynu(lens: &Lens, n: &[f64], start: usize, y0: f64, u0: f64) -> Ynu {
 pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     lens.validate()?;
     lens.check_indices(wavelength_nm)?;
-    let n = signed_indices(lens, wavelength_nm);
-    let n_last = n.last().copied().unwrap_or(1.0);
+    let p = Prescription::of(lens, wavelength_nm);
+    let n_last = p.n.last().copied().unwrap_or(1.0);
     let last = lens.surfaces.len() - 1;
-    let parallel = ynu(lens, &n, 0, 1.0, 0.0);
+    let (efl, parallel) = p.efl();
     if parallel.u_last.abs() < 1e-14 {
         return Err(Error::numerical("the lens is afocal (no focal length)"));
     }
-    // The power -n' u' of a unit-height parallel ray (n' = -1 after an odd number of mirrors).
-    let efl = -1.0 / (n_last * parallel.u_last);
     let bfd = -parallel.y_last / parallel.u_last;
     let axial = match lens.object {
         Object::Infinite => None,
-        Object::Finite { distance_mm } => Some(ynu(lens, &n, 0, distance_mm, 1.0)),
+        Object::Finite { distance_mm } => Some(p.ynu(0, distance_mm, 1.0)),
     };
     let image_distance = axial.as_ref().map_or(bfd, |r| -r.y_last / r.u_last);
 
@@ -110,13 +249,10 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             .unwrap_or(0)
     });
     let r_stop = lens.surfaces[stop].semi_aperture_mm;
-    let a = parallel.heights[stop];
-    let b = ynu(lens, &n, 0, 0.0, 1.0).heights[stop];
-    if a.abs() < 1e-14 {
+    if parallel.heights[stop].abs() < 1e-14 {
         return Err(Error::numerical("the entrance pupil is at infinity"));
     }
-    let enp_z = b / a;
-    let enp_r = r_stop / a.abs();
+    let (enp_z, enp_r) = p.pupil(stop, r_stop);
 
     // Exit pupil: image of the stop through the surfaces after it.
     let z = lens.vertex_z_mm();
@@ -125,8 +261,8 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     } else {
         // Rays leave the stop vertex (after any refraction there) and meet surface stop + 1.
         let d = lens.surfaces[stop].d_next_mm;
-        let chief = ynu(lens, &n, stop + 1, d, 1.0);
-        let edge = ynu(lens, &n, stop + 1, r_stop, 0.0);
+        let chief = p.ynu(stop + 1, d, 1.0);
+        let edge = p.ynu(stop + 1, r_stop, 0.0);
         if chief.u_last.abs() < 1e-14 {
             (f64::INFINITY, f64::INFINITY)
         } else {
@@ -139,7 +275,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         Object::Infinite => (efl / (2.0 * enp_r), 0.0),
         Object::Finite { distance_mm } => {
             let u0 = enp_r / (enp_z + distance_mm);
-            let r = ynu(lens, &n, 0, u0 * distance_mm, u0);
+            let r = p.ynu(0, u0 * distance_mm, u0);
             (1.0 / (2.0 * r.u_last.abs()), u0 / (n_last * r.u_last))
         }
     };
@@ -175,17 +311,6 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     })
 }
 
-/// Indices after each surface at `wavelength_nm`, negated while the light travels toward -z
-/// (after an odd number of mirrors).
-fn signed_indices(lens: &Lens, wavelength_nm: f64) -> Vec<f64> {
-    let dirs = lens.travel_directions();
-    lens.surfaces
-        .iter()
-        .enumerate()
-        .map(|(i, s)| s.material.index(wavelength_nm) * dirs[i + 1])
-        .collect()
-}
-
 /// The field of a paraxial chief ray, for [`beam_semi_diameters`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ParaxialField {
@@ -218,9 +343,9 @@ pub fn beam_semi_diameters(
     field: ParaxialField,
 ) -> Result<Vec<f64>> {
     let p = analyze(lens, wavelength_nm)?;
-    let n = signed_indices(lens, wavelength_nm);
+    let pres = Prescription::of(lens, wavelength_nm);
     let image_gap = lens.image_distance_mm();
-    let with_image = |r: Ynu| {
+    let with_image = |r: Ynu<f64>| {
         let mut h = r.heights;
         h.push(r.y_last + r.u_last * image_gap);
         h
@@ -229,16 +354,16 @@ pub fn beam_semi_diameters(
     let z_ep = p.entrance_pupil_z_mm;
     let (marginal, chief) = match lens.object {
         Object::Infinite => (
-            with_image(ynu(lens, &n, 0, r_ep, 0.0)),
-            with_image(ynu(lens, &n, 0, -z_ep, 1.0)),
+            with_image(pres.ynu(0, r_ep, 0.0)),
+            with_image(pres.ynu(0, -z_ep, 1.0)),
         ),
         Object::Finite { distance_mm } => {
             let u = r_ep / (distance_mm + z_ep);
             let uc = -1.0 / (distance_mm + z_ep);
             (
-                with_image(ynu(lens, &n, 0, u * distance_mm, u)),
+                with_image(pres.ynu(0, u * distance_mm, u)),
                 // The chief ray of unit object height.
-                with_image(ynu(lens, &n, 0, 1.0 + uc * distance_mm, uc)),
+                with_image(pres.ynu(0, 1.0 + uc * distance_mm, uc)),
             )
         }
     };

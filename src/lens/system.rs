@@ -331,18 +331,12 @@ impl<S: Real> System<S> {
 
     /// Refractive index after each surface at `wavelength_nm` (the object space is air).
     pub fn indices(&self, wavelength_nm: f64) -> Vec<S> {
-        use crate::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
-        let inv2 = |l: f64| 1.0 / (l * l);
         self.materials
             .iter()
             .zip(&self.model_glass)
             .map(|(m, g)| match g {
-                // The model glass' Cauchy law, n = A + B / λ², evaluated in S.
-                Some((nd, vd)) => {
-                    let b = (*nd - S::cst(1.0)) / *vd
-                        * S::cst(1.0 / (inv2(LAMBDA_F_NM) - inv2(LAMBDA_C_NM)));
-                    *nd + b * S::cst(inv2(wavelength_nm) - inv2(LAMBDA_D_NM))
-                }
+                // The model glass' Cauchy law, evaluated in S.
+                Some((nd, vd)) => crate::lens::material::model_index(*nd, *vd, wavelength_nm),
                 None => S::cst(m.index(wavelength_nm)),
             })
             .collect()

@@ -6,16 +6,22 @@ mod run;
 pub mod train;
 
 use crate::error::{Error, Result};
+use crate::lens::paraxial::LaunchOptics;
 use crate::lens::{Adjustments, Lens, Param, System};
 use crate::math::Vec3;
 use crate::real::{Dual, Real};
-use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable};
+use crate::trace::{
+    trace_serial, Field, LaunchSource, Pupil, RayBatch, RaySet, TraceOptions, Traceable,
+};
 
 /// Something to minimize, evaluable in any traceable number type so that the same code gives the
 /// value (`f64`) and exact derivatives (`Dual<f64, N>`).
 pub trait Objective: Sync {
-    /// The objective for the compiled system `sys`.
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S;
+    /// The objective for the compiled system `sys`. `lift` is how the design parameters entered
+    /// it (the identity for a value; seeded dual numbers for a gradient): an objective whose rays
+    /// or reference are launched from the design ([`Bundles`], [`crate::psf::PsfRays`]) launches
+    /// them through it again, so that its derivatives include the launch's.
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S;
 }
 
 /// Width of the dual numbers used for gradients (derivatives per pass).
@@ -83,11 +89,18 @@ pub fn set_param(lens: &mut Lens, p: Param, v: f64) -> Result<()> {
 /// Value of `obj` for `lens` with adjustments `adj`.
 pub fn value<O: Objective>(obj: &O, lens: &Lens, adj: &Adjustments) -> f64 {
     let sys: System<f64> = System::compile(lens, adj, &|_, v| v);
-    obj.eval(&sys)
+    obj.eval(&sys, &|_, v| v)
 }
 
 /// Value and gradient of `obj` with respect to `vars`, exactly, in ceil(P / N) forward passes
 /// with `Dual<f64, N>`.
+///
+/// The derivative is that of the objective as it is evaluated when the design moves: `lens`
+/// (with `adj`) is traced with each variable seeded, and the rays and references an objective
+/// launches from the design ([`Bundles`], [`crate::psf::PsfRays`]) move with the same
+/// variables (the paraxial entrance pupil, the field angle of a fraction of the field, the
+/// design's own PSFs); only aimed rays keep their launch (see
+/// [`crate::trace::RaySet::launched_batch`]).
 ///
 /// # Errors
 /// [`crate::ErrorKind::Argument`] for a parameter that does not exist.
@@ -100,21 +113,65 @@ pub fn gradient<O: Objective, const N: usize>(
 where
     Dual<f64, N>: Traceable,
 {
-    for &p in vars {
+    gradient_slots::<O, N>(obj, lens, adj, vars, None)
+}
+
+/// As [`gradient`], with one more derivative last: with respect to `unit`, a parameter moved in
+/// the traced system (`lens` with `adj`) only, not in the design the rays are launched from (a
+/// fabricated unit's own refocus, say, seeded as the unit's image distance).
+///
+/// # Errors
+/// As [`gradient`].
+pub fn gradient_with_unit<O: Objective, const N: usize>(
+    obj: &O,
+    lens: &Lens,
+    adj: &Adjustments,
+    vars: &[Param],
+    unit: Param,
+) -> Result<(f64, Vec<f64>)>
+where
+    Dual<f64, N>: Traceable,
+{
+    gradient_slots::<O, N>(obj, lens, adj, vars, Some(unit))
+}
+
+fn gradient_slots<O: Objective, const N: usize>(
+    obj: &O,
+    lens: &Lens,
+    adj: &Adjustments,
+    vars: &[Param],
+    unit: Option<Param>,
+) -> Result<(f64, Vec<f64>)>
+where
+    Dual<f64, N>: Traceable,
+{
+    for &p in vars.iter().chain(&unit) {
         param_value(lens, p)?;
     }
-    let mut grad = vec![0.0; vars.len()];
+    let slots = vars.len() + usize::from(unit.is_some());
+    let mut grad = vec![0.0; slots];
     let mut val = None;
-    for (b, block) in vars.chunks(N).enumerate() {
-        let lift = |p: Param, v: Dual<f64, N>| match block.iter().position(|&q| q == p) {
-            Some(k) => Dual::var(v.re, k),
-            None => v,
+    for start in (0..slots).step_by(N) {
+        let block = start..(start + N).min(slots);
+        // Slot k differentiates vars[k] (in the system and the design alike), the last slot
+        // `unit` (in the system only).
+        let seed = |p: Param, v: Dual<f64, N>, system: bool| {
+            let mut d = v;
+            for k in block.clone() {
+                let q = match vars.get(k) {
+                    Some(&q) => q,
+                    None if system => unit.unwrap_or(p),
+                    None => continue,
+                };
+                if q == p {
+                    d.eps[k - start] = 1.0;
+                }
+            }
+            d
         };
-        let sys: System<Dual<f64, N>> = System::compile(lens, adj, &lift);
-        let f = obj.eval(&sys);
-        for k in 0..block.len() {
-            grad[b * N + k] = f.eps[k];
-        }
+        let sys: System<Dual<f64, N>> = System::compile(lens, adj, &|p, v| seed(p, v, true));
+        let f = obj.eval(&sys, &|p, v| seed(p, v, false));
+        grad[block.clone()].copy_from_slice(&f.eps[..block.len()]);
         val.get_or_insert(f.re);
     }
     let v = match val {
@@ -135,13 +192,17 @@ pub enum SpotMeasure {
 }
 
 /// Rays of the bundles an objective traces (fields × wavelengths), generated once in f64 from the
-/// nominal lens and aimed at its paraxial entrance pupil.
+/// design lens and aimed at its paraxial entrance pupil at the first wavelength. The `launched_`
+/// methods launch them again from the design with a gradient's seeded variables (see
+/// [`Objective::eval`]); the others trace the stored rays.
 #[derive(Clone, Debug)]
 pub struct Bundles {
     /// (field index, wavelength nm, rays).
     pub sets: Vec<(usize, f64, RaySet)>,
     /// Trace options.
     pub trace: TraceOptions,
+    /// The design the rays were launched from.
+    pub launch: LaunchSource,
 }
 
 impl Bundles {
@@ -168,13 +229,34 @@ impl Bundles {
                 sets.push((f, wl, RaySet::generate(lens, &para, *field, pupil, wl)?));
             }
         }
-        Ok(Bundles { sets, trace })
+        Ok(Bundles {
+            sets,
+            trace,
+            launch: LaunchSource::new(lens, &para),
+        })
+    }
+
+    /// The launch's first-order numbers with the design parameters passed through `lift`, for
+    /// the `launched_` methods (`None` when nothing is differentiated).
+    pub fn optics<S: Real>(&self, lift: &dyn Fn(Param, S) -> S) -> Option<LaunchOptics<S>> {
+        self.launch.optics(lift)
     }
 
     /// Traces bundle `k` in `S` and returns, for each ray that arrives, its sensor-plane position
     /// and slopes `[x, y, dx/dz, dy/dz]` in the sensor frame (what a refocus moves).
     pub fn sensor_rays<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 4]> {
-        self.arrived(sys, k, |o, d| {
+        self.launched_sensor_rays(sys, None, k)
+    }
+
+    /// As [`Bundles::sensor_rays`], with the rays launched from `optics` (see
+    /// [`Bundles::optics`]).
+    pub fn launched_sensor_rays<S: Traceable>(
+        &self,
+        sys: &System<S>,
+        optics: Option<&LaunchOptics<S>>,
+        k: usize,
+    ) -> Vec<[S; 4]> {
+        self.arrived(sys, optics, k, |o, d| {
             let p = sys.image.point_to_local(o);
             let d = sys.image.rotation.apply_t(d);
             [p.x, p.y, d.x / d.z, d.y / d.z]
@@ -183,7 +265,18 @@ impl Bundles {
 
     /// Traces bundle `k` in `S` and returns the sensor-plane positions of the rays that arrive.
     pub fn sensor_points<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 2]> {
-        self.arrived(sys, k, |o, _| {
+        self.launched_sensor_points(sys, None, k)
+    }
+
+    /// As [`Bundles::sensor_points`], with the rays launched from `optics` (see
+    /// [`Bundles::optics`]).
+    pub fn launched_sensor_points<S: Traceable>(
+        &self,
+        sys: &System<S>,
+        optics: Option<&LaunchOptics<S>>,
+        k: usize,
+    ) -> Vec<[S; 2]> {
+        self.arrived(sys, optics, k, |o, _| {
             let p = sys.image.point_to_local(o);
             [p.x, p.y]
         })
@@ -194,11 +287,12 @@ impl Bundles {
     fn arrived<S: Traceable, T>(
         &self,
         sys: &System<S>,
+        optics: Option<&LaunchOptics<S>>,
         k: usize,
         f: impl Fn(Vec3<S>, Vec3<S>) -> T,
     ) -> Vec<T> {
         let (_, wl, set) = &self.sets[k];
-        let mut b: RayBatch<S> = set.batch();
+        let mut b: RayBatch<S> = set.launched_batch(&self.launch.lens, optics, false);
         trace_serial(sys, *wl, &mut b, self.trace);
         b.iter()
             .filter(|r| r.status.is_alive())
@@ -347,55 +441,48 @@ pub fn bundle_spot<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
 }
 
 impl Objective for SpotLoss {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let optics = self.bundles.optics(lift);
         let mut total = S::cst(0.0);
         for k in 0..self.bundles.sets.len() {
-            total += bundle_spot(&self.bundles.sensor_points(sys, k), self.measure);
+            let pts = self.bundles.launched_sensor_points(sys, optics.as_ref(), k);
+            total += bundle_spot(&pts, self.measure);
         }
         total
     }
 }
 
 /// The paper's PSF-similarity loss: 1 − mean over PSFs of the similarity between each PSF and
-/// its ideal PSF (a constant, e.g. from the nominal lens at the same field and wavelength).
+/// the design's own PSF at the same field and wavelength (the lens the rays were launched from,
+/// without adjustments; it moves with the design in gradients).
 #[derive(Clone, Debug)]
 pub struct PsfLoss {
-    /// Rays of each PSF.
+    /// Rays of each PSF, launched from the design.
     pub rays: crate::psf::PsfRays,
-    /// The ideal PSF of each ray set (constant).
-    pub ideal: Vec<Vec<f64>>,
     /// PSF settings.
     pub opts: crate::psf::PsfOptions,
     /// Trace options.
     pub trace: TraceOptions,
 }
 
-impl PsfLoss {
-    /// A PSF loss whose ideal PSFs are those of `ideal_sys` (typically the nominal design).
-    pub fn new(
-        rays: crate::psf::PsfRays,
-        ideal_sys: &System<f64>,
-        opts: crate::psf::PsfOptions,
-        trace: TraceOptions,
-    ) -> PsfLoss {
-        let ideal = (0..rays.sets.len())
-            .map(|k| crate::psf::psf_of(ideal_sys, &rays, k, &opts, trace).0)
-            .collect();
-        PsfLoss {
-            rays,
-            ideal,
-            opts,
-            trace,
-        }
-    }
-}
-
 impl Objective for PsfLoss {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let optics = self.rays.launch.optics(lift);
+        let design = self.rays.launch.design(lift);
         let mut sim = S::cst(0.0);
         for k in 0..self.rays.sets.len() {
-            let (psf, _) = crate::psf::psf_of(sys, &self.rays, k, &self.opts, self.trace);
-            sim += crate::psf::psf_similarity(&self.ideal[k], &psf, self.opts.ks);
+            let at = |s: &System<S>| {
+                crate::psf::psf_of_launched(
+                    s,
+                    &self.rays,
+                    k,
+                    optics.as_ref(),
+                    &self.opts,
+                    self.trace,
+                )
+                .0
+            };
+            sim += crate::psf::psf_similarity_of(&at(&design), &at(sys), self.opts.ks);
         }
         S::cst(1.0) - sim * S::cst(1.0 / self.rays.sets.len().max(1) as f64)
     }

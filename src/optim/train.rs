@@ -17,7 +17,10 @@ use super::{
 };
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, SurfaceRole, System};
-use crate::psf::{grid_fields, psf_of, psf_similarity, PsfCentre, PsfOptions, PsfRays};
+use crate::psf::{
+    grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
+    PsfRays,
+};
 use crate::real::Real;
 use crate::tolerance::ToleranceSpec;
 use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
@@ -234,7 +237,12 @@ pub fn design_variables(lens: &Lens) -> Vec<Param> {
 }
 
 /// Constraint penalties (and the EFL target) evaluated in `S` on the compiled nominal geometry.
-fn penalties<S: Real>(lens: &Lens, sys: &System<S>, c: &Constraints) -> S {
+fn penalties<S: Real>(
+    lens: &Lens,
+    sys: &System<S>,
+    lift: &dyn Fn(Param, S) -> S,
+    c: &Constraints,
+) -> S {
     let mut p = S::cst(0.0);
     let n = lens.surfaces.len();
     let hinge = |x: S| if x.value() > 0.0 { x * x } else { S::cst(0.0) };
@@ -261,29 +269,11 @@ fn penalties<S: Real>(lens: &Lens, sys: &System<S>, c: &Constraints) -> S {
     }
     p *= S::cst(c.weight);
     if let Some(f) = c.target_efl_mm {
-        let efl = paraxial_efl(lens, sys);
+        let efl = crate::lens::paraxial::efl_lifted(lens, crate::lens::material::LAMBDA_D_NM, lift);
         let d = (efl - S::cst(f)) / S::cst(f);
         p += d * d * S::cst(c.efl_weight);
     }
     p
-}
-
-/// Paraxial EFL in `S` (y-nu trace through the compiled curvatures and vertex positions) at the
-/// d line.
-fn paraxial_efl<S: Real>(lens: &Lens, sys: &System<S>) -> S {
-    let (mut y, mut u) = (S::cst(1.0), S::cst(0.0));
-    let mut n0 = S::cst(1.0);
-    for (i, s) in lens.surfaces.iter().enumerate() {
-        let n1 = S::cst(s.material.index(crate::lens::material::LAMBDA_D_NM));
-        if sys.rows[i].refract {
-            u = (n0 * u - y * (sys.rows[i].c + S::cst(2.0) * sys.rows[i].asph[0]) * (n1 - n0)) / n1;
-        }
-        if i + 1 < lens.surfaces.len() {
-            y += u * (sys.rows[i + 1].pos.z - sys.rows[i].pos.z);
-        }
-        n0 = n1;
-    }
-    -S::cst(1.0) / u
 }
 
 /// Stage-1 objective: RMS spot (mm) summed over fields and wavelengths, plus penalties.
@@ -294,38 +284,46 @@ struct PretrainObjective<'a> {
 }
 
 impl Objective for PretrainObjective<'_> {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let optics = self.bundles.optics(lift);
         let mut total = S::cst(0.0);
         for k in 0..self.bundles.sets.len() {
-            total += bundle_spot(&self.bundles.sensor_points(sys, k), SpotMeasure::Rms);
+            let pts = self.bundles.launched_sensor_points(sys, optics.as_ref(), k);
+            total += bundle_spot(&pts, SpotMeasure::Rms);
         }
         total * S::cst(1.0 / self.bundles.sets.len() as f64)
-            + penalties(self.lens, sys, self.constraints)
+            + penalties(self.lens, sys, lift, self.constraints)
     }
 }
 
-/// Stage-2 objective of one pattern at one field: λ_spot · mean spot + λ_psf · (1 − mean Sim).
+/// Stage-2 objective of one pattern at one field: λ_spot · mean spot + λ_psf · (1 − mean Sim),
+/// the similarity to the design's own PSFs (which move with it).
 struct PatternObjective<'a> {
     spot: Bundles,
     psf_rays: PsfRays,
-    ideal: Vec<Vec<f64>>,
     psf: PsfOptions,
     cfg: &'a TrainConfig,
 }
 
 impl Objective for PatternObjective<'_> {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
         let trace = TraceOptions {
             apertures: self.cfg.apertures,
         };
+        let optics = self.spot.optics(lift);
         let mut spot = S::cst(0.0);
         for k in 0..self.spot.sets.len() {
-            spot += bundle_spot(&self.spot.sensor_points(sys, k), SpotMeasure::Mean);
+            let pts = self.spot.launched_sensor_points(sys, optics.as_ref(), k);
+            spot += bundle_spot(&pts, SpotMeasure::Mean);
         }
+        let optics = self.psf_rays.launch.optics(lift);
+        let design = self.psf_rays.launch.design(lift);
         let mut sim = S::cst(0.0);
         for k in 0..self.psf_rays.sets.len() {
-            let (p, _) = psf_of(sys, &self.psf_rays, k, &self.psf, trace);
-            sim += psf_similarity(&self.ideal[k], &p, self.psf.ks);
+            let at = |s: &System<S>| {
+                psf_of_launched(s, &self.psf_rays, k, optics.as_ref(), &self.psf, trace).0
+            };
+            sim += psf_similarity_of(&at(&design), &at(sys), self.psf.ks);
         }
         let nw = S::cst(1.0 / self.psf_rays.sets.len().max(1) as f64);
         S::cst(self.cfg.lambda_spot / self.spot.sets.len().max(1) as f64) * spot
@@ -507,7 +505,8 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     let pairs: Vec<(Field, f64)> =
                         cfg.wavelengths_nm.iter().map(|&w| (field, w)).collect();
                     let psf_rays = PsfRays::new(&lens, &pairs, &psf.pupil)?;
-                    let ideal = (0..pairs.len())
+                    // The design's own PSFs (for the logged similarity).
+                    let ideal: Vec<Vec<f64>> = (0..pairs.len())
                         .map(|k| psf_of(&nominal, &psf_rays, k, &psf, trace).0)
                         .collect();
                     let spot = Bundles::new(
@@ -520,7 +519,6 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     let obj = PatternObjective {
                         spot,
                         psf_rays,
-                        ideal,
                         psf,
                         cfg: &cfg,
                     };
@@ -533,7 +531,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     let sim = (0..obj.psf_rays.sets.len())
                         .map(|k| {
                             psf_similarity(
-                                &obj.ideal[k],
+                                &ideal[k],
                                 &psf_of(&sys, &obj.psf_rays, k, &obj.psf, trace).0,
                                 obj.psf.ks,
                             )
@@ -611,8 +609,8 @@ struct PenaltyObjective<'a> {
 }
 
 impl Objective for PenaltyObjective<'_> {
-    fn eval<S: Traceable>(&self, sys: &System<S>) -> S {
-        penalties(self.lens, sys, self.constraints)
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        penalties(self.lens, sys, lift, self.constraints)
     }
 }
 

@@ -12,7 +12,7 @@ pub mod rays;
 pub mod reference;
 
 pub use kernel::Traceable;
-pub use rays::{Field, Pupil, PupilPattern, RaySet};
+pub use rays::{Field, LaunchSource, Pupil, PupilPattern, RaySet};
 
 use crate::lens::System;
 use crate::math::Vec3;
@@ -182,29 +182,46 @@ impl<S: Real> RayBatch<S> {
     /// Appends a ray at `o` (mm) with direction `d` (need not be normalized). A ray with
     /// non-finite numbers or a zero direction is stored as [`RayStatus::Invalid`].
     pub fn push(&mut self, o: Vec3<f64>, d: Vec3<f64>) {
+        // Normalized in f64, then rounded to S (an f32 batch gets the f64 ray's nearest numbers).
+        let norm = d.norm();
+        let ok = [o.x, o.y, o.z, d.x, d.y, d.z].iter().all(|v| v.is_finite()) && norm > 0.0;
+        let d = if ok { d * (1.0 / norm) } else { d };
+        self.store(o.map_value(), d.map_value(), ok);
+    }
+
+    /// As [`RayBatch::push`], with the ray given and normalized in `S` (derivatives kept; for
+    /// `f64` the same numbers).
+    pub fn push_in(&mut self, o: Vec3<S>, d: Vec3<S>) {
+        let norm = d.norm();
+        let ok = [o.x, o.y, o.z, d.x, d.y, d.z]
+            .iter()
+            .all(|v| v.value().is_finite())
+            && norm.value() > 0.0;
+        let d = if ok { d * (S::cst(1.0) / norm) } else { d };
+        self.store(o, d, ok);
+    }
+
+    /// Appends a ray (unit direction) as it is when `ok`, else an invalid one.
+    fn store(&mut self, o: Vec3<S>, d: Vec3<S>, ok: bool) {
         let (b, l) = (self.len / LANES, self.len % LANES);
         if l == 0 {
             self.blocks.push(Block::dead());
         }
-        let norm = d.norm();
-        let ok = [o.x, o.y, o.z, d.x, d.y, d.z].iter().all(|v| v.is_finite()) && norm > 0.0;
-        let d = if ok {
-            d * (1.0 / norm)
-        } else {
-            Vec3::cst(0.0, 0.0, 1.0)
-        };
-        let o = if ok { o } else { Vec3::cst(0.0, 0.0, 0.0) };
+        let (zero, one) = (S::cst(0.0), S::cst(1.0));
+        let d = if ok { d } else { Vec3::new(zero, zero, one) };
+        let o = if ok { o } else { Vec3::new(zero, zero, zero) };
         let blk = &mut self.blocks[b];
         for (k, v) in [o.x, o.y, o.z].into_iter().enumerate() {
-            blk.o[k][l] = S::cst(v);
+            blk.o[k][l] = v;
         }
         for (k, v) in [d.x, d.y, d.z].into_iter().enumerate() {
-            blk.d[k][l] = S::cst(v);
+            blk.d[k][l] = v;
         }
-        blk.opl[l] = S::cst(0.0);
+        blk.opl[l] = zero;
         blk.status[l] = if ok { 0 } else { CODE_INVALID };
         self.len += 1;
     }
+
     /// A batch of the rays `origins[i]`, `directions[i]` (mm; unit directions, taken as they are).
     /// A ray with non-finite numbers is stored as [`RayStatus::Invalid`], as by [`RayBatch::push`].
     ///
@@ -212,28 +229,39 @@ impl<S: Real> RayBatch<S> {
     /// If the two slices differ in length.
     pub fn from_unit_rays(origins: &[Vec3<f64>], directions: &[Vec3<f64>]) -> Self {
         assert_eq!(origins.len(), directions.len(), "one direction per origin");
-        let blocks = origins
-            .chunks(LANES)
-            .zip(directions.chunks(LANES))
-            .map(|(os, ds)| {
-                let mut blk = Block::dead();
-                for (l, (o, d)) in os.iter().zip(ds).enumerate() {
-                    let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
-                    if o.iter().chain(&d).all(|v| v.is_finite()) {
-                        for k in 0..3 {
-                            blk.o[k][l] = S::cst(o[k]);
-                            blk.d[k][l] = S::cst(d[k]);
-                        }
-                        blk.status[l] = 0;
-                    }
+        Self::collect_unit(
+            origins
+                .iter()
+                .zip(directions)
+                .map(|(o, d)| (o.map_value(), d.map_value())),
+        )
+    }
+
+    /// A batch of the rays (origin mm, unit direction) in `S`, taken as they are (derivatives
+    /// kept); a ray with non-finite numbers is stored as [`RayStatus::Invalid`], as by
+    /// [`RayBatch::from_unit_rays`].
+    pub fn collect_unit(rays: impl IntoIterator<Item = (Vec3<S>, Vec3<S>)>) -> Self {
+        let mut blocks: Vec<Block<S>> = Vec::new();
+        let mut len = 0;
+        for (o, d) in rays {
+            let l = len % LANES;
+            if l == 0 {
+                blocks.push(Block::dead());
+            }
+            let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
+            if let Some(blk) = blocks
+                .last_mut()
+                .filter(|_| o.iter().chain(&d).all(|v| v.value().is_finite()))
+            {
+                for k in 0..3 {
+                    blk.o[k][l] = o[k];
+                    blk.d[k][l] = d[k];
                 }
-                blk
-            })
-            .collect();
-        RayBatch {
-            blocks,
-            len: origins.len(),
+                blk.status[l] = 0;
+            }
+            len += 1;
         }
+        RayBatch { blocks, len }
     }
     /// Ray `i`.
     ///

@@ -4,11 +4,13 @@
 use super::reference::trace_ray;
 use super::{RayBatch, LANES};
 use crate::error::{Error, Result};
-use crate::lens::{Lens, Object, Paraxial, System};
+use crate::lens::paraxial::{launch_optics, LaunchOptics};
+use crate::lens::{Adjustments, Lens, Object, Param, Paraxial, System};
 use crate::math::Vec3;
 use crate::real::Real;
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// A field point. Positive values put the object above/right of the axis (rays then travel
 /// toward -y/-x), as in the reference data.
@@ -104,8 +106,9 @@ impl Field {
         }
     }
 
-    /// Field angles (tan x, tan y) seen from the first vertex.
-    fn tangents(&self, lens: &Lens, para: &Paraxial) -> Result<(f64, f64)> {
+    /// Field angles (tan x, tan y) seen from the first vertex, for a lens of focal length
+    /// `efl_mm` (which turns a fraction of the field into an angle), in any number type.
+    fn tangents<S: Real>(&self, lens: &Lens, efl_mm: S) -> Result<(S, S)> {
         Ok(match *self {
             Field::AngleDeg { x, y } => {
                 // tan flips sign past 90°: a field there is not a direction toward the lens.
@@ -115,14 +118,16 @@ impl Field {
                          magnitude"
                     )));
                 }
-                (x.to_radians().tan(), y.to_radians().tan())
+                (S::cst(x.to_radians().tan()), S::cst(y.to_radians().tan()))
             }
             Field::Fraction { x, y } => {
-                let t = lens.sensor.half_diagonal_mm() / para.efl_mm;
-                (x * t, y * t)
+                let t = S::cst(lens.sensor.half_diagonal_mm()) / efl_mm;
+                (S::cst(x) * t, S::cst(y) * t)
             }
             Field::HeightMm { x, y } => match lens.object {
-                Object::Finite { distance_mm } => (x / distance_mm, y / distance_mm),
+                Object::Finite { distance_mm } => {
+                    (S::cst(x / distance_mm), S::cst(y / distance_mm))
+                }
                 Object::Infinite => {
                     return Err(Error::argument(
                         "an object height field needs a finite object distance",
@@ -291,6 +296,8 @@ pub struct RaySet {
     pub pupil: Vec<[f64; 2]>,
     /// The chief ray (through the pupil centre).
     pub chief: (Vec3<f64>, Vec3<f64>),
+    /// The field the rays belong to.
+    pub field: Field,
     /// With ray aiming: the stop surface and the rays that cannot reach their point of the stop
     /// (every nearby ray misses a surface before it). [`RaySet::batch`] marks them vignetted at
     /// the stop; without aiming, empty.
@@ -336,6 +343,7 @@ impl RaySet {
             directions: Vec::with_capacity(pts.len()),
             pupil: pts.to_vec(),
             chief: make(0.0, 0.0),
+            field,
             unreachable: None,
         };
         if aim {
@@ -382,25 +390,102 @@ impl RaySet {
         }
         b
     }
+
+    /// The rays as a batch in `S`, launched again from `optics` (the first-order numbers of the
+    /// design they were generated from, for `lens`, as [`LaunchSource::optics`] gives them), and,
+    /// with `chief`, the chief ray appended as [`RayBatch::push`] appends it. The numbers are
+    /// those of [`RaySet::batch`] (and of the chief ray), bit for bit, now with the derivatives
+    /// `optics` carries: the entrance pupil's position and size and the field angle of a
+    /// fraction of the field move with the design. `None`, and aimed rays (whose aim is not
+    /// differentiated), give the stored rays: the launch is then held.
+    pub fn launched_batch<S: Real>(
+        &self,
+        lens: &Lens,
+        optics: Option<&LaunchOptics<S>>,
+        chief: bool,
+    ) -> RayBatch<S> {
+        // The beam was built from these very numbers when the set was generated, so it builds
+        // again; should it not, the stored rays are the launch's values.
+        let beam = match optics {
+            Some(o) if self.unreachable.is_none() => Beam::launch(lens, o, self.field).ok(),
+            _ => None,
+        };
+        let Some(beam) = beam else {
+            let mut b = self.batch();
+            if chief {
+                b.push(self.chief.0, self.chief.1);
+            }
+            return b;
+        };
+        let mut b = RayBatch::collect_unit(self.pupil.iter().map(|q| beam.at_pupil(*q)));
+        if chief {
+            let (o, d) = beam.at_pupil([0.0, 0.0]);
+            b.push_in(o, d);
+        }
+        b
+    }
+}
+
+/// The design a set of rays was launched from, kept so that its rays can be launched again with
+/// a design variable's effect on the launch (see [`RaySet::launched_batch`]): the exact
+/// gradient of a loss whose rays are launched from the design being optimized.
+#[derive(Clone, Debug)]
+pub struct LaunchSource {
+    /// The lens the rays were launched from.
+    pub lens: Arc<Lens>,
+    /// Wavelength of its paraxial data, nm.
+    pub wavelength_nm: f64,
+    /// Its aperture stop (held: which surface limits the beam is a discrete choice).
+    pub stop: usize,
+}
+
+impl LaunchSource {
+    /// The source of rays launched from `lens` with its paraxial analysis `para`.
+    pub fn new(lens: &Lens, para: &Paraxial) -> LaunchSource {
+        LaunchSource {
+            lens: Arc::new(lens.clone()),
+            wavelength_nm: para.wavelength_nm,
+            stop: para.stop_surface,
+        }
+    }
+
+    /// The launch's first-order numbers with each design parameter passed through `lift` (as
+    /// [`System::compile`] passes them), or `None` when they carry no derivative (the stored
+    /// rays are then the launch, exactly).
+    pub fn optics<S: Real>(&self, lift: &dyn Fn(Param, S) -> S) -> Option<LaunchOptics<S>> {
+        let o = launch_optics(&self.lens, self.wavelength_nm, self.stop, lift);
+        (!o.is_constant()).then_some(o)
+    }
+
+    /// The design itself compiled with `lift` and no adjustment (the reference of a PSF
+    /// similarity, which moves with the design too).
+    pub fn design<S: Real>(&self, lift: &dyn Fn(Param, S) -> S) -> System<S> {
+        System::compile(
+            &self.lens,
+            &Adjustments::none(self.lens.surfaces.len()),
+            lift,
+        )
+    }
 }
 
 /// The rays of one field as a function of the point where they cross the paraxial entrance-pupil
-/// plane.
+/// plane, in number type `S` (`f64` to generate rays; dual numbers to carry the launch's
+/// derivatives).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Beam {
-    source: Source,
-    z_ep: f64,
+pub(crate) struct Beam<S = f64> {
+    source: Source<S>,
+    z_ep: S,
     /// Paraxial entrance-pupil radius, mm.
-    pub(crate) r_ep: f64,
+    pub(crate) r_ep: S,
 }
 
 #[derive(Clone, Copy, Debug)]
-enum Source {
+enum Source<S> {
     /// A finite object point.
-    Point(Vec3<f64>),
+    Point(Vec3<S>),
     /// An object at infinity: the direction, and the distance back along it from the pupil
     /// plane to the start plane.
-    Direction { d: Vec3<f64>, back: f64 },
+    Direction { d: Vec3<S>, back: S },
 }
 
 impl Beam {
@@ -409,45 +494,7 @@ impl Beam {
     /// # Errors
     /// As [`RaySet::generate`].
     pub(crate) fn new(lens: &Lens, para: &Paraxial, field: Field) -> Result<Beam> {
-        let (tx, ty) = field.tangents(lens, para)?;
-        let z_ep = para.entrance_pupil_z_mm;
-        let source = match lens.object {
-            Object::Finite { distance_mm } => {
-                Source::Point(Vec3::new(distance_mm * tx, distance_mm * ty, -distance_mm))
-            }
-            Object::Infinite => {
-                // Infinite-object rays start on a plane in front of the lens.
-                let s = &lens.surfaces[0];
-                let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
-                let z0 = z_ep.min(sag).min(0.0) - 1.0;
-                let d = Vec3::new(-tx, -ty, 1.0).normalized();
-                Source::Direction {
-                    d,
-                    back: (z_ep - z0) / d.z,
-                }
-            }
-        };
-        Ok(Beam {
-            source,
-            z_ep,
-            r_ep: 0.5 * para.entrance_pupil_diameter_mm,
-        })
-    }
-
-    /// The ray (origin, unit direction) through `(x, y)` (mm) on the entrance-pupil plane.
-    #[inline(always)]
-    pub(crate) fn ray(&self, x: f64, y: f64) -> (Vec3<f64>, Vec3<f64>) {
-        let p = Vec3::new(x, y, self.z_ep);
-        match self.source {
-            Source::Point(q) => (q, (p - q).normalized()),
-            Source::Direction { d, back } => (p - d * back, d),
-        }
-    }
-
-    /// The ray through the normalized pupil point `q` (unit disk).
-    #[inline(always)]
-    pub(crate) fn at_pupil(&self, q: [f64; 2]) -> (Vec3<f64>, Vec3<f64>) {
-        self.ray(q[0] * self.r_ep, q[1] * self.r_ep)
+        Beam::launch(lens, &LaunchOptics::of(para), field)
     }
 
     /// The rays through the normalized pupil points `pts`, followed by the chief ray, written
@@ -459,6 +506,57 @@ impl Beam {
         let mut blocks = vec![super::Block::dead(); n.div_ceil(LANES)];
         beam_rays(self, pts, &mut blocks);
         RayBatch { blocks, len: n }
+    }
+}
+
+impl<S: Real> Beam<S> {
+    /// The beam of `field` for a lens with the first-order numbers `o`.
+    ///
+    /// # Errors
+    /// As [`RaySet::generate`].
+    pub(crate) fn launch(lens: &Lens, o: &LaunchOptics<S>, field: Field) -> Result<Beam<S>> {
+        let (tx, ty) = field.tangents(lens, o.efl_mm)?;
+        let z_ep = o.entrance_pupil_z_mm;
+        let source = match lens.object {
+            Object::Finite { distance_mm } => Source::Point(Vec3::new(
+                S::cst(distance_mm) * tx,
+                S::cst(distance_mm) * ty,
+                S::cst(-distance_mm),
+            )),
+            Object::Infinite => {
+                // Infinite-object rays start on a plane in front of the lens (a constant: moving
+                // the start along the ray changes no intersection).
+                let s = &lens.surfaces[0];
+                let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
+                let z0 = S::cst(z_ep.value().min(sag).min(0.0) - 1.0);
+                let d = Vec3::new(-tx, -ty, S::cst(1.0)).normalized();
+                Source::Direction {
+                    d,
+                    back: (z_ep - z0) / d.z,
+                }
+            }
+        };
+        Ok(Beam {
+            source,
+            z_ep,
+            r_ep: o.entrance_pupil_radius_mm,
+        })
+    }
+
+    /// The ray (origin, unit direction) through `(x, y)` (mm) on the entrance-pupil plane.
+    #[inline(always)]
+    pub(crate) fn ray(&self, x: S, y: S) -> (Vec3<S>, Vec3<S>) {
+        let p = Vec3::new(x, y, self.z_ep);
+        match self.source {
+            Source::Point(q) => (q, (p - q).normalized()),
+            Source::Direction { d, back } => (p - d * back, d),
+        }
+    }
+
+    /// The ray through the normalized pupil point `q` (unit disk).
+    #[inline(always)]
+    pub(crate) fn at_pupil(&self, q: [f64; 2]) -> (Vec3<S>, Vec3<S>) {
+        self.ray(S::cst(q[0]) * self.r_ep, S::cst(q[1]) * self.r_ep)
     }
 }
 
