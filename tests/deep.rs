@@ -415,23 +415,36 @@ fn the_refocus_derivative_is_exact() {
     assert!((g[2] + 1.0).abs() < 1e-12, "{}", g[2]);
 }
 
+/// One crop's PSF settings (51 px, 64 rays, seed 9), its field (tile 10 of an 8 x 8 grid) and
+/// its (field, wavelength) pairs at the lens' RGB wavelengths.
+fn crop_rays(
+    lens: &Lens,
+) -> (
+    tolray::psf::PsfOptions,
+    tolray::trace::Field,
+    Vec<(tolray::trace::Field, f64)>,
+) {
+    let psf = tolray::deep::psf_options(lens, 51, 64, 9);
+    let field = tolray::psf::grid_fields(lens, 8)[10];
+    let pairs = lens
+        .rgb_wavelengths_nm
+        .iter()
+        .map(|&w| (field, w))
+        .collect();
+    (psf, field, pairs)
+}
+
 /// The seam between reverse and forward mode, exactly: the lens gradient of `<G, PSF(θ)>` for a
 /// fixed dL/dPSF `G` (what [`PatternObjective`] adds to the optics loss), in f64, against central
 /// differences with steps small enough that no ray changes pixel.
 #[test]
 fn the_vjp_seam_is_exact_in_f64() {
-    use tolray::deep::{psf_options, PatternObjective};
+    use tolray::deep::PatternObjective;
     use tolray::optim::{gradient, value, Bundles};
-    use tolray::psf::{grid_fields, PsfRays};
+    use tolray::psf::PsfRays;
     use tolray::trace::{Pupil, TraceOptions};
     let lens = focused_lens1();
-    let psf = psf_options(&lens, 51, 64, 9);
-    let field = grid_fields(&lens, 8)[10];
-    let pairs: Vec<_> = lens
-        .rgb_wavelengths_nm
-        .iter()
-        .map(|&w| (field, w))
-        .collect();
+    let (psf, field, pairs) = crop_rays(&lens);
     let n = 51 * 51;
     let g: Vec<Vec<f64>> = (0..3)
         .map(|c| {
@@ -623,22 +636,16 @@ fn refocused_training_keeps_the_design_at_its_best_focus() {
 /// the unit's sensor-shift derivative) is exact.
 #[test]
 fn the_refocused_crop_objective_is_exact_in_f64() {
-    use tolray::deep::{psf_options, PatternObjective};
+    use tolray::deep::PatternObjective;
     use tolray::optim::{gradient, gradient_with_unit, value, Bundles};
-    use tolray::psf::{grid_fields, PsfRays};
+    use tolray::psf::PsfRays;
     use tolray::trace::{Pupil, TraceOptions};
     let mut lens = focused_lens1();
     let last = lens.surfaces.len() - 1;
     let none = Adjustments::none(last + 1);
     lens.surfaces[last].d_next_mm +=
         value(&FocusObjective::new(&lens, false).unwrap(), &lens, &none);
-    let psf = psf_options(&lens, 51, 64, 9);
-    let field = grid_fields(&lens, 8)[10];
-    let pairs: Vec<_> = lens
-        .rgb_wavelengths_nm
-        .iter()
-        .map(|&w| (field, w))
-        .collect();
+    let (psf, field, pairs) = crop_rays(&lens);
     let trace = TraceOptions { apertures: false };
     let pattern = tolray::tolerance::ToleranceSpec::default()
         .sample(&lens, 3, 7)
