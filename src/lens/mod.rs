@@ -363,6 +363,17 @@ pub struct Lens {
     pub ray_aiming: bool,
 }
 
+/// A lens read by [`Lens::load_file`], with what its file says besides the prescription.
+#[derive(Clone, Debug)]
+pub struct Loaded {
+    /// The lens.
+    pub lens: Lens,
+    /// The reader's warnings, each naming the file and the line.
+    pub warnings: Vec<String>,
+    /// The fields a .zmx file defines (`None` for other sources).
+    pub fields: Option<Vec<crate::trace::Field>>,
+}
+
 impl Lens {
     /// Loads a lens from a file path (DeepLens JSON, or Zemax .zmx by its extension) or a
     /// built-in name (`lens1`, `lens2`, `cooke-triplet`), with the built-in glass catalog.
@@ -384,8 +395,31 @@ impl Lens {
         name_or_path: &str,
         catalogs: &GlassCatalogs,
     ) -> Result<(Lens, Vec<String>)> {
+        Lens::load_file(name_or_path, catalogs).map(|l| (l.lens, l.warnings))
+    }
+
+    /// As [`Lens::load_with_catalogs`], also returning the fields a .zmx file defines (what the
+    /// CLI's commands use when no `--fields` is given).
+    ///
+    /// ```
+    /// use tolray::lens::GlassCatalogs;
+    /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/cooke-triplet.zmx");
+    /// let l = tolray::Lens::load_file(path, &GlassCatalogs::builtin())?;
+    /// assert!(l.fields.is_some_and(|f| !f.is_empty()));
+    /// let b = tolray::Lens::load_file("lens2", &GlassCatalogs::builtin())?;
+    /// assert!(b.fields.is_none() && b.warnings.is_empty());
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    ///
+    /// # Errors
+    /// As [`Lens::load`].
+    pub fn load_file(name_or_path: &str, catalogs: &GlassCatalogs) -> Result<Loaded> {
         if let Some(lens) = builtin(name_or_path) {
-            return Ok((lens, Vec::new()));
+            return Ok(Loaded {
+                lens,
+                warnings: Vec::new(),
+                fields: None,
+            });
         }
         let path = Path::new(name_or_path);
         if !path.exists() {
@@ -399,9 +433,18 @@ impl Lens {
         }
         if zemax::is_zmx_path(path) {
             let z = zemax::read_file(path, catalogs)?;
-            return Ok((z.lens, z.warnings));
+            let fields = z.extras.tolray_fields(&z.lens);
+            return Ok(Loaded {
+                lens: z.lens,
+                warnings: z.warnings,
+                fields,
+            });
         }
-        Ok((json::read_file_with(path, catalogs)?, Vec::new()))
+        Ok(Loaded {
+            lens: json::read_file_with(path, catalogs)?,
+            warnings: Vec::new(),
+            fields: None,
+        })
     }
 
     /// Index of the aperture stop surface, if one is marked.

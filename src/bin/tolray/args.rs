@@ -6,7 +6,7 @@ use clap::Args;
 use std::path::{Path, PathBuf};
 use tolray::analysis::SpotOptions;
 use tolray::lens::material::{self, LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
-use tolray::lens::{zemax, GlassCatalogs};
+use tolray::lens::GlassCatalogs;
 use tolray::psf::{PsfCentre, PsfOptions};
 use tolray::tolerance::{McOptions, Perturbation, ToleranceSpec};
 use tolray::trace::{Field, Pupil, TraceOptions};
@@ -42,15 +42,11 @@ impl LensArgs {
     /// that trace fields when `--fields` is not given).
     pub fn load_with_fields(&self) -> anyhow::Result<(Lens, Option<Vec<Field>>)> {
         let catalogs = load_catalogs(&self.glass_catalog, &self.glass_fallback)?;
-        let path = std::path::Path::new(&self.lens);
-        let (mut lens, warnings, file_fields) = if zemax::is_zmx_path(path) && path.exists() {
-            let z = zemax::read_file(path, &catalogs)?;
-            let fields = z.extras.tolray_fields(&z.lens);
-            (z.lens, z.warnings, fields)
-        } else {
-            let (l, w) = Lens::load_with_catalogs(&self.lens, &catalogs)?;
-            (l, w, None)
-        };
+        let tolray::lens::Loaded {
+            mut lens,
+            warnings,
+            fields: file_fields,
+        } = Lens::load_file(&self.lens, &catalogs)?;
         for w in warnings {
             eprintln!("warning: {w}");
         }
