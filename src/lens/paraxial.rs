@@ -129,10 +129,11 @@ impl<S: Real> Prescription<S> {
     }
 
     /// The entrance pupil's axial position and radius for the stop surface `stop` of
-    /// semi-diameter `r_stop`: the stop's image in object space, from the heights there of a
-    /// parallel ray and of a ray through the first vertex.
-    fn pupil(&self, stop: usize, r_stop: f64) -> (S, S) {
-        let a = self.ynu(0, S::cst(1.0), S::cst(0.0)).heights[stop];
+    /// semi-diameter `r_stop`: the stop's image in object space, from the heights there of the
+    /// unit-height `parallel` ray (of [`Prescription::efl`]) and of a ray through the first
+    /// vertex.
+    fn pupil(&self, parallel: &Ynu<S>, stop: usize, r_stop: f64) -> (S, S) {
+        let a = parallel.heights[stop];
         let b = self.ynu(0, S::cst(0.0), S::cst(1.0)).heights[stop];
         (b / a, S::cst(r_stop) / a.abs())
     }
@@ -200,9 +201,10 @@ pub fn launch_optics<S: Real>(
 ) -> LaunchOptics<S> {
     let p = Prescription::lifted(lens, wavelength_nm, lift);
     let r_stop = lens.surfaces[stop].semi_aperture_mm;
-    let (z, r) = p.pupil(stop, r_stop);
+    let (efl, parallel) = p.efl();
+    let (z, r) = p.pupil(&parallel, stop, r_stop);
     LaunchOptics {
-        efl_mm: p.efl().0,
+        efl_mm: efl,
         entrance_pupil_z_mm: z,
         entrance_pupil_radius_mm: r,
     }
@@ -252,7 +254,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     if parallel.heights[stop].abs() < 1e-14 {
         return Err(Error::numerical("the entrance pupil is at infinity"));
     }
-    let (enp_z, enp_r) = p.pupil(stop, r_stop);
+    let (enp_z, enp_r) = p.pupil(&parallel, stop, r_stop);
 
     // Exit pupil: image of the stop through the surfaces after it.
     let z = lens.vertex_z_mm();
