@@ -2,10 +2,15 @@
 //! against the analytic intersection (Newton on the sag), on the same rays, one thread, warm
 //! caches. lens2's first surface (R 33.6 mm) over a 15.9 mm disk at a 1e-4 mm chord bound
 //! (~210k triangles, robust scene); 65,536 parallel rays at random points of a 15 mm disk,
-//! traced in raster order (coherent, like a pupil grid) and in random order.
+//! traced in raster order (coherent, like a pupil grid) and in random order. Then one whole
+//! cross-check case (`check_system`: meshes, scene builds, both Embree traces, the analytic
+//! comparisons) of lens2 nominal with the default 32x32 grid at fields 0, 0.7, 1, meshing the
+//! rays' footprints (the default) against whole disks.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use tolray::embree::{Device, Frame, Mesh, Scene, SceneOptions};
+use tolray::embree::{
+    check_system, CheckOptions, Cover, Device, Frame, Mesh, Rays, Scene, SceneOptions,
+};
 use tolray::math::Vec3;
 use tolray::trace::reference::intersect_local;
 use tolray::Lens;
@@ -62,6 +67,21 @@ fn bench(c: &mut Criterion) {
                     .filter(|(o, d)| intersect_local(row, *o, *d).is_some())
                     .count()
             })
+        });
+    }
+    g.finish();
+
+    let opts = CheckOptions::default();
+    let rays = Rays::generate(&lens, &opts).unwrap();
+    let mut g = c.benchmark_group("embree/check-case/lens2");
+    g.sample_size(10);
+    for cover in [Cover::Footprint, Cover::Disk] {
+        let o = CheckOptions {
+            cover,
+            ..opts.clone()
+        };
+        g.bench_function(format!("{cover:?}").to_lowercase(), |b| {
+            b.iter(|| check_system(dev, &sys, &rays, &o).unwrap().timing.triangles)
         });
     }
     g.finish();

@@ -6,7 +6,7 @@ mod common;
 
 use common::tolray;
 use tolray::embree::{
-    check_system, CheckOptions, Device, Frame, Mesh, RayHit, Rays, Scene, SceneOptions,
+    check_system, CheckOptions, Cover, Device, Frame, Mesh, RayHit, Rays, Scene, SceneOptions,
 };
 use tolray::lens::{Adjustments, System};
 use tolray::tolerance::ToleranceSpec;
@@ -281,6 +281,132 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
                 }
             }
         }
+    }
+}
+
+/// Footprint meshes (the default) give every ray the hit the whole disk's mesh gives it: on
+/// lens2 and the triplet, nominal and perturbed, in both frames, the counts of hits, leaks and
+/// misses are equal and the deviations and spots agree to Embree's f32 rounding (a ray on an
+/// edge shared by two triangles may take the other one), with fewer triangles built.
+#[test]
+fn footprint_meshes_give_the_whole_disks_hits() {
+    let spec = ToleranceSpec::default();
+    for (name, frame) in [
+        ("lens2", Frame::Local),
+        ("cooke-triplet", Frame::Local),
+        ("lens2", Frame::Global),
+    ] {
+        let lens = Lens::load(name).unwrap();
+        let disk = CheckOptions {
+            frame,
+            cover: Cover::Disk,
+            ..small_options()
+        };
+        let foot = CheckOptions {
+            cover: Cover::Footprint,
+            ..disk.clone()
+        };
+        let rays = Rays::generate(&lens, &disk).unwrap();
+        let p = spec.sample(&lens, 1, 0).unwrap();
+        let (pl, adj) = p.apply(&lens).unwrap();
+        for sys in [lens.compile(), System::compile(&pl, &adj, &|_, v| v)] {
+            let a = check_system(device(), &sys, &rays, &disk).unwrap();
+            let b = check_system(device(), &sys, &rays, &foot).unwrap();
+            assert_eq!(a.failures, b.failures, "{name}");
+            for (x, y) in a.surfaces.iter().zip(&b.surfaces) {
+                let ctx = format!("{name} {frame:?} surface {}", x.surface);
+                let counts = |s: &tolray::embree::SurfaceCheck| {
+                    [
+                        s.hits,
+                        s.leaks,
+                        s.uncovered,
+                        s.unmatched,
+                        s.grazing,
+                        s.rim_flips,
+                    ]
+                };
+                assert_eq!(counts(x), counts(y), "{ctx}");
+                let f32 = 2.0 * x.max_f32_allowance_mm;
+                assert!(
+                    (x.max_hit_distance_mm - y.max_hit_distance_mm).abs() <= f32,
+                    "{ctx}: {} vs {}",
+                    x.max_hit_distance_mm,
+                    y.max_hit_distance_mm
+                );
+                assert!(
+                    (x.max_bound_ratio - y.max_bound_ratio).abs() <= 0.05,
+                    "{ctx}"
+                );
+                assert_eq!(x.chord_bound_mm, y.chord_bound_mm, "{ctx}");
+                assert_eq!(x.triangles, y.disk_triangles, "{ctx}");
+                assert!(y.triangles <= x.triangles, "{ctx}");
+            }
+            for (x, y) in a.fields.iter().zip(&b.fields) {
+                assert_eq!(x.compared, y.compared, "{name}");
+                assert!((x.rms_embree_um - y.rms_embree_um).abs() < 1e-6, "{name}");
+                assert!(
+                    (x.rms_embree_mesh_normal_um - y.rms_embree_mesh_normal_um).abs() < 1e-6,
+                    "{name}"
+                );
+            }
+            eprintln!(
+                "{name} {frame:?}: {} of {} triangles ({:.1} %), build {:.3} s vs {:.3} s",
+                b.timing.triangles,
+                a.timing.triangles,
+                100.0 * b.timing.triangles as f64 / a.timing.triangles as f64,
+                b.timing.build_s,
+                a.timing.build_s
+            );
+            assert!(b.timing.triangles < a.timing.triangles, "{name}");
+        }
+    }
+}
+
+/// A footprint mesh keeps the whole mesh's own triangles: the same vertices (bit for bit), a
+/// subset of its faces, and only near the rays it was given.
+#[test]
+fn a_footprint_mesh_is_part_of_the_whole_mesh() {
+    use std::collections::HashSet;
+    use tolray::math::Vec3;
+    let sys = Lens::load("lens2").unwrap().compile();
+    let row = &sys.rows[0];
+    let whole = Mesh::with_radius(row, 0, 15.0, 1e-3, Frame::Local).unwrap();
+    // Three parallel rays near (5, 0), (-3, 4) and the axis.
+    let d = Vec3::new(0.1, 0.0, 1.0).normalized();
+    let rays: Vec<_> = [(5.0, 0.0), (-3.0, 4.0), (0.0, 0.0)]
+        .iter()
+        .map(|&(x, y)| (Vec3::new(x, y, -2.0), d))
+        .collect();
+    let part =
+        Mesh::with_footprint(row, 0, 15.0, 1e-3, Frame::Local, Some(rays.as_slice())).unwrap();
+    let key = |m: &Mesh, t: &[u32; 3]| {
+        let mut v: Vec<[u32; 3]> = t
+            .iter()
+            .map(|&i| m.vertices[i as usize].map(f32::to_bits))
+            .collect();
+        v.sort();
+        v
+    };
+    let faces: HashSet<_> = whole.triangles.iter().map(|t| key(&whole, t)).collect();
+    assert!(part
+        .triangles
+        .iter()
+        .all(|t| faces.contains(&key(&part, t))));
+    assert_eq!(part.layout_triangles, whole.triangles.len());
+    assert_eq!(part.chord_bound_mm, whole.chord_bound_mm);
+    assert_eq!(part.z_range_mm, whole.z_range_mm);
+    assert!(part.triangles.len() * 20 < whole.triangles.len());
+    // Every kept vertex lies within a few ring spacings (the marked disk, a sector and a
+    // band) of a ray where the ray passes its
+    // height, or in the centre's bands, which a ray near the axis keeps whole.
+    let dr = whole.radius_mm / whole.rings as f64;
+    for v in &part.vertices {
+        let near = rays.iter().any(|(o, d)| {
+            let t = (v[2] as f64 - o.z) / d.z;
+            let (x, y) = (o.x + d.x * t, o.y + d.y * t);
+            (v[0] as f64 - x).hypot(v[1] as f64 - y) < 4.5 * dr
+        });
+        assert!(near || (v[0] as f64).hypot(v[1] as f64) < 5.0 * dr, "{v:?}");
     }
 }
 

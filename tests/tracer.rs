@@ -411,6 +411,57 @@ fn rays_behind_a_surface_stop_unless_the_lens_asks_for_virtual_propagation() {
     assert_eq!(b.get(0).status, RayStatus::Alive);
 }
 
+/// A ray that crosses a steep surface's vertex plane beyond the sphere's rim (where the sag is
+/// undefined) but meets the surface nearer the axis is a hit in the kernel and the reference
+/// tracer alike, at the sphere's closed-form root. The reference's Newton started at the vertex
+/// plane and called it a miss (found by the Embree check on a patent lens, surface 51: R 50 mm,
+/// semi-aperture 42.5 mm, 1.2 % of the on-axis rays).
+#[test]
+fn a_steep_surface_crossed_beyond_its_rim_at_the_vertex_plane_is_hit() {
+    let r_mm: f64 = 50.0;
+    let p: Vec3<f64> = Vec3::new(0.0, -68.95430530365167, -34.727342366274456);
+    let d = Vec3::new(0.0, 0.46418579392640935, 0.8855932156819379).normalized();
+    // Vertex-plane crossing beyond the rim.
+    let t0 = -p.z / d.z;
+    assert!((p.y + d.y * t0).abs() > r_mm);
+    // Closed form: |p + t d - (0, 0, R)|² = R², the nearer root is on the vertex side.
+    let q = p - Vec3::new(0.0, 0.0, r_mm);
+    let (b, c) = (q.dot(d), q.dot(q) - r_mm * r_mm);
+    let t_exact = -b - (b * b - c).sqrt();
+    let hit = p + d * t_exact;
+    assert!(hit.y.hypot(hit.x) < 42.0 && hit.z < r_mm);
+    for a4 in [0.0, 1e-9] {
+        let mut l = Lens::load("lens1").unwrap();
+        let mut s0 = Surface::sphere(1.0 / r_mm, 45.0, 40.0, Material::parse("N-BK7").unwrap());
+        s0.asph[1] = a4; // 0: the quadric path; otherwise Newton from the quadric root
+        l.surfaces = vec![s0, Surface::sphere(0.0, 60.0, 20.0, Material::Air)];
+        l.object = Object::Infinite;
+        let sys = l.compile();
+        let n = sys.indices(LAMBDA_D_NM);
+        let o = p + sys.rows[0].pos;
+        let r = trace_ray(&sys, &n, o, d, false, Some(0));
+        assert_eq!(r.status, RayStatus::Alive, "a4 {a4}");
+        let local = r.o - sys.rows[0].pos;
+        if a4 == 0.0 {
+            assert!((local - hit).norm() < 1e-9, "{local:?} vs {hit:?}");
+        } else {
+            assert!((local - hit).norm() < 0.1, "{local:?} vs {hit:?}");
+        }
+        let mut batch = RayBatch::<f64>::new();
+        batch.push(o, d);
+        trace(
+            &sys,
+            LAMBDA_D_NM,
+            &mut batch,
+            TraceOptions { apertures: false },
+        );
+        let full = trace_ray(&sys, &n, o, d, false, None);
+        assert_eq!(batch.get(0).status, full.status, "a4 {a4}");
+        assert_eq!(full.status, RayStatus::Alive, "a4 {a4}");
+        assert!((batch.get(0).o - full.o).norm() < 1e-9, "a4 {a4}");
+    }
+}
+
 /// One row out per row in, whatever the wavelengths (0.0 and -0.0 were merged; defect 7).
 #[test]
 fn raw_trace_keeps_every_row() {

@@ -35,6 +35,15 @@
 //! second derivatives over 8192 radii, times 1.001 (the derivatives are smooth polynomials and
 //! conic terms, so the sampling error is far below that margin).
 //!
+//! # Footprints
+//!
+//! A cross-check traces a few thousand rays, and on a large surface they meet a small part of
+//! the disk. [`Mesh::with_footprint`] keeps only the sectors (a band's triangles between two
+//! neighbouring angles) within one ring spacing of each ray's path through the mesh's slab, up
+//! to just past its analytic hit: the triangles a ray can meet first. The kept triangles are
+//! the whole mesh's, so the chord bound is the whole mesh's and each ray's first hit is the one
+//! the whole mesh gives it.
+//!
 //! Vertices are stored in `f32` (what Embree takes) either in the surface's local frame (the
 //! default: coordinates stay below the aperture radius, so the rounding is ~1e-6 mm) or in the
 //! global frame (the perturbed placement `x = pos + R x_local`; at z = 50 mm one f32 ulp is
@@ -43,7 +52,7 @@
 use crate::error::{Error, Result};
 use crate::lens::{SurfaceKind, SurfaceRow};
 use crate::math::Vec3;
-use crate::trace::reference::surface_sag;
+use crate::trace::reference::{intersect_local, surface_sag};
 
 /// Where mesh vertices (and the rays traced against them) are expressed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -84,6 +93,9 @@ pub struct Mesh {
     pub normals: Vec<Vec3<f64>>,
     /// Triangles (vertex indices).
     pub triangles: Vec<[u32; 3]>,
+    /// Triangles of the whole disk's mesh (more than `triangles.len()` for a footprint mesh,
+    /// [`Mesh::with_footprint`]).
+    pub layout_triangles: usize,
     /// `M`: largest second directional derivative of the sag over the mesh's disk, 1/mm.
     pub max_second_derivative: f64,
     /// Largest slope `|∇f|` over the mesh's disk.
@@ -93,7 +105,7 @@ pub struct Mesh {
     pub chord_bound_mm: f64,
     /// The bound that was asked for, mm (`chord_bound_mm <= requested_mm`).
     pub requested_mm: f64,
-    /// Lowest and highest sag of the vertices, local frame, mm.
+    /// Lowest and highest sag of the whole disk's vertices, local frame, mm.
     pub z_range_mm: [f64; 2],
 }
 
@@ -187,32 +199,180 @@ fn ring_point(r: f64, k: usize, n: usize) -> [f64; 2] {
     [r * cs, r * sn]
 }
 
-/// Triangles of the band between ring `inner` (count `ni`, first vertex `oi`; ring 0 is the
-/// centre vertex) and the next ring (count `no`, first vertex `oo`), as local vertex numbers
-/// `(ring, k)` pairs are turned into indices by the caller.
-fn band(ni: usize, no: usize) -> Vec<[(usize, usize); 3]> {
-    let mut t = Vec::new();
-    if ni == 0 {
-        for k in 0..no {
-            t.push([(0, 0), (1, k), (1, k + 1)]);
-        }
-    } else if ni == no {
-        for k in 0..ni {
-            t.push([(0, k), (1, k), (1, k + 1)]);
-            t.push([(0, k), (1, k + 1), (0, k + 1)]);
-        }
+/// Sectors of band `i` of a layout (`counts`: vertices per ring, ring 1 first): the centre fan
+/// has one sector per vertex of ring 1, every other band one per vertex of its inner ring.
+/// Sector `k` spans the angles `[2πk/K, 2π(k+1)/K]`, and its triangles lie inside that wedge.
+fn sectors(counts: &[usize], i: usize) -> usize {
+    if i == 0 {
+        counts[0]
     } else {
-        for k in 0..ni {
-            t.push([(0, k), (1, 2 * k), (1, 2 * k + 1)]);
-            t.push([(0, k), (1, 2 * k + 1), (0, k + 1)]);
-            t.push([(0, k + 1), (1, 2 * k + 1), (1, 2 * k + 2)]);
-        }
+        counts[i - 1]
     }
-    t
 }
 
-/// Largest enclosing radius over the triangles of a layout (the first one or two segments of
-/// each band: the others are rotated copies).
+/// Triangles of sector `k` of the band between an inner ring of `ni` vertices (0: the centre
+/// vertex) and an outer ring of `no`, as `(ring, k)` pairs (ring 0 inner, 1 outer) that the
+/// caller turns into indices: one (centre fan), two (equal counts: a quad split along the same
+/// diagonal everywhere) or three (the count doubles).
+fn sector(ni: usize, no: usize, k: usize) -> ([[(usize, usize); 3]; 3], usize) {
+    let none = [(0, 0); 3];
+    if ni == 0 {
+        ([[(0, 0), (1, k), (1, k + 1)], none, none], 1)
+    } else if ni == no {
+        (
+            [
+                [(0, k), (1, k), (1, k + 1)],
+                [(0, k), (1, k + 1), (0, k + 1)],
+                none,
+            ],
+            2,
+        )
+    } else {
+        (
+            [
+                [(0, k), (1, 2 * k), (1, 2 * k + 1)],
+                [(0, k), (1, 2 * k + 1), (0, k + 1)],
+                [(0, k + 1), (1, 2 * k + 1), (1, 2 * k + 2)],
+            ],
+            3,
+        )
+    }
+}
+
+/// Triangles of the whole layout `counts` (vertices per ring, ring 1 first).
+fn layout_triangles(counts: &[usize]) -> usize {
+    (0..counts.len())
+        .map(|i| {
+            let ni = if i == 0 { 0 } else { counts[i - 1] };
+            sectors(counts, i) * sector(ni, counts[i], 0).1
+        })
+        .sum()
+}
+
+/// Which sectors of each band a footprint mesh keeps.
+struct Marks {
+    /// Per band, one flag per sector.
+    bands: Vec<Vec<bool>>,
+    /// Per band, the lowest and highest height of its triangles (those of its two rings, whose
+    /// vertices they interpolate), widened by the vertices' f32 rounding, mm.
+    heights: Vec<[f64; 2]>,
+    /// Ring spacing, mm.
+    dr: f64,
+}
+
+impl Marks {
+    fn new(counts: &[usize], dr: f64, ring_z: &[f64]) -> Marks {
+        let pad = 1e-5 + 1e-6 * ring_z.iter().fold(0.0f64, |a, z| a.max(z.abs()));
+        Marks {
+            bands: (0..counts.len())
+                .map(|i| vec![false; sectors(counts, i)])
+                .collect(),
+            heights: ring_z
+                .windows(2)
+                .map(|w| [w[0].min(w[1]) - pad, w[0].max(w[1]) + pad])
+                .collect(),
+            dr,
+        }
+    }
+
+    /// Marks every sector holding a point within `rad` of `(x, y)` whose band's heights meet
+    /// `z` (the heights at which the ray passes within `rad`). Band `i` spans radii from
+    /// `i dr cos(π/K)` (its inner ring's chords, `K >= 8`) to `(i + 1) dr`; a point within `rad`
+    /// of `(x, y)`, at radius `r > rad`, lies within `asin(rad / r)` of its angle.
+    fn disk(&mut self, x: f64, y: f64, rad: f64, z: [f64; 2]) {
+        let r = (x * x + y * y).sqrt();
+        let lo = (r - rad).max(0.0) / self.dr;
+        let hi = (r + rad) / (self.dr * (std::f64::consts::PI / 8.0).cos());
+        if !(lo < self.bands.len() as f64 && hi.is_finite()) {
+            return;
+        }
+        // Both are non-negative: truncation is the floor.
+        let (lo, hi) = (lo as usize, (hi as usize).min(self.bands.len() - 1));
+        let mut angles = None;
+        for (band, h) in self.bands[lo..=hi].iter_mut().zip(&self.heights[lo..=hi]) {
+            if z[1] < h[0] || z[0] > h[1] {
+                continue;
+            }
+            if r <= rad {
+                band.fill(true);
+                continue;
+            }
+            let (theta, alpha) = *angles.get_or_insert_with(|| (y.atan2(x), (rad / r).asin()));
+            let k = band.len();
+            let w = std::f64::consts::TAU / k as f64;
+            let (a, b) = (((theta - alpha) / w).floor(), ((theta + alpha) / w).floor());
+            let span = b - a + 1.0;
+            if span >= k as f64 {
+                band.fill(true);
+                continue;
+            }
+            let mut s = (a as i64).rem_euclid(k as i64) as usize;
+            for _ in 0..span as usize {
+                band[s] = true;
+                s += 1;
+                if s == k {
+                    s = 0;
+                }
+            }
+        }
+    }
+
+    /// Marks what the ray `p + t d` (local frame) can meet on a mesh whose vertices lie
+    /// between `z_lo` and `z_hi`, out to `radius`: its path from where it enters that slab to one
+    /// ring spacing past its analytic hit on `row` (through the whole slab when it has none),
+    /// with a margin of one spacing, in the bands whose heights the ray passes near. A mesh
+    /// keeping these sectors gives the ray the same first hit as the whole disk's mesh,
+    /// whenever that hit lies on this path.
+    fn ray(&mut self, row: &SurfaceRow<f64>, p: Vec3<f64>, d: Vec3<f64>, z: [f64; 2], radius: f64) {
+        if d.z == 0.0 || !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return;
+        }
+        let dr = self.dr;
+        let dxy = d.x.hypot(d.y);
+        if dxy == 0.0 {
+            // Along the axis of the local frame: one point, every height.
+            self.disk(p.x, p.y, dr, [f64::NEG_INFINITY, f64::INFINITY]);
+            return;
+        }
+        let (t1, t2) = ((z[0] - p.z) / d.z, (z[1] - p.z) / d.z);
+        let (t_in, t_out) = (t1.min(t2), t1.max(t2));
+        let t_end = match intersect_local(row, p, d) {
+            Some((t, _)) => t + dr / dxy,
+            None => t_out,
+        };
+        // Clip to the disk of radius `radius + dr` in x, y.
+        let rc = radius + dr;
+        let (a, b, c) = (
+            dxy * dxy,
+            2.0 * (p.x * d.x + p.y * d.y),
+            p.x * p.x + p.y * p.y - rc * rc,
+        );
+        let disc = b * b - 4.0 * a * c;
+        if disc < 0.0 {
+            return;
+        }
+        let q = disc.sqrt();
+        let lo = t_in.max((-b - q) / (2.0 * a));
+        let hi = t_end.max(t_in).min((-b + q) / (2.0 * a));
+        if !(lo <= hi) {
+            return;
+        }
+        // Samples every `h` <= dr of x, y; each marks a disk of radius dr + h/2 in the bands
+        // whose heights meet the ray's heights within that distance.
+        let len = (hi - lo) * dxy;
+        let n = (len / dr).ceil().max(1.0) as usize;
+        let rad = dr + 0.5 * len / n as f64;
+        let dz = rad * d.z.abs() / dxy;
+        for j in 0..=n {
+            let t = lo + (hi - lo) * j as f64 / n as f64;
+            let zt = p.z + d.z * t;
+            self.disk(p.x + d.x * t, p.y + d.y * t, rad, [zt - dz, zt + dz]);
+        }
+    }
+}
+
+/// Largest enclosing radius over the triangles of a layout (the first sector of each band: the
+/// others are rotated copies).
 fn max_enclosing_radius(counts: &[usize], radius: f64) -> f64 {
     let dr = radius / counts.len() as f64;
     let mut rmax = 0.0f64;
@@ -227,7 +387,8 @@ fn max_enclosing_radius(counts: &[usize], radius: f64) -> f64 {
             };
             ring_point(r, k, n)
         };
-        for t in band(ni, no).iter().take(3) {
+        let (tris, n) = sector(ni, no, 0);
+        for t in &tris[..n] {
             rmax = rmax.max(enclosing_radius(pt(t[0]), pt(t[1]), pt(t[2])));
         }
     }
@@ -254,7 +415,7 @@ pub struct Plan {
 impl Plan {
     /// Number of triangles.
     pub fn triangles(&self) -> usize {
-        2 * self.counts.iter().sum::<usize>()
+        layout_triangles(&self.counts)
     }
 }
 
@@ -283,6 +444,31 @@ impl Mesh {
         chord_mm: f64,
         frame: Frame,
     ) -> Result<Mesh> {
+        Mesh::with_footprint(row, surface, radius_mm, chord_mm, frame, None)
+    }
+
+    /// As [`Mesh::with_radius`], keeping only the part of the disk's mesh that the rays
+    /// `footprint` (origin and direction in the surface's local frame, mm) can meet: every
+    /// triangle within one ring spacing of a ray's path from where it enters the mesh's slab
+    /// (`z_range_mm` of the whole disk's mesh) to one spacing past its analytic hit. Kept
+    /// triangles are the whole mesh's own (same vertices, same order within a band), so each of
+    /// these rays meets the footprint mesh where it meets the whole one whenever that hit lies
+    /// on its path; `chord_bound_mm`, `z_range_mm` and the layout fields are the whole mesh's.
+    /// A footprint that marks nothing keeps the centre fan's first triangle (a scene needs
+    /// one). `None` builds the whole disk, as does a footprint of so many rays that their
+    /// marked neighbourhoods (about `π (1.5 Δr)²` each) would add up to the disk's area: there
+    /// the marking would cost more than the triangles it saves.
+    ///
+    /// # Errors
+    /// As [`Mesh::with_radius`].
+    pub fn with_footprint(
+        row: &SurfaceRow<f64>,
+        surface: usize,
+        radius_mm: f64,
+        chord_mm: f64,
+        frame: Frame,
+        footprint: Option<&[(Vec3<f64>, Vec3<f64>)]>,
+    ) -> Result<Mesh> {
         let Plan {
             disk_mm: a,
             counts,
@@ -297,49 +483,108 @@ impl Mesh {
         for &n in &counts {
             first.push(first.last().copied().unwrap_or(0) + n);
         }
-        let nv = first[rings + 1];
-        let mut local = Vec::with_capacity(nv);
-        let mut normals = Vec::with_capacity(nv);
+        // The sag depends on the radius only: once per ring (ring 0 is the centre vertex).
+        let mut ring_sag = Vec::with_capacity(rings + 1);
         for i in 0..=rings {
-            let n = if i == 0 { 1 } else { counts[i - 1] };
-            for k in 0..n {
-                let [x, y] = if i == 0 {
-                    [0.0, 0.0]
-                } else {
-                    ring_point(i as f64 * dr, k, n)
-                };
-                let u = x * x + y * y;
-                let (z, dz) = surface_sag(row, u).ok_or_else(|| {
-                    Error::invalid(format!(
-                        "surface {surface}: the sag is undefined at r = {:.4} mm",
-                        u.sqrt()
-                    ))
-                })?;
-                local.push(Vec3::new(x, y, z));
-                normals.push(Vec3::new(-2.0 * x * dz, -2.0 * y * dz, 1.0).normalized());
-            }
+            let r = i as f64 * dr;
+            ring_sag.push(surface_sag(row, r * r).ok_or_else(|| {
+                Error::invalid(format!(
+                    "surface {surface}: the sag is undefined at r = {r:.4} mm"
+                ))
+            })?);
         }
-        let mut triangles = Vec::with_capacity(2 * counts.iter().sum::<usize>());
+        let z_lo = ring_sag.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
+        let z_hi = ring_sag
+            .iter()
+            .map(|p| p.0)
+            .fold(f64::NEG_INFINITY, f64::max);
+        // Marking costs about as much per ray as building its share of the disk: a footprint
+        // pays only when the rays' marked disks (radius ~1.5 spacings) cover less of the disk
+        // than it has; otherwise the whole disk is built (the same hits).
+        let footprint =
+            footprint.filter(|rays| rays.len() as f64 * (1.5 * dr).powi(2) < radius * radius);
+        let marks = footprint.map(|rays| {
+            let ring_z: Vec<f64> = ring_sag.iter().map(|p| p.0).collect();
+            let mut marks = Marks::new(&counts, dr, &ring_z);
+            for &(p, d) in rays {
+                marks.ray(row, p, d, [z_lo, z_hi], radius);
+            }
+            if !marks.bands.iter().flatten().any(|&m| m) {
+                marks.bands[0][0] = true;
+            }
+            marks
+        });
+        let vertex = |ring: usize, k: usize| -> (Vec3<f64>, Vec3<f64>) {
+            let (z, dz) = ring_sag[ring];
+            let [x, y] = if ring == 0 {
+                [0.0, 0.0]
+            } else {
+                ring_point(ring as f64 * dr, k, counts[ring - 1])
+            };
+            (
+                Vec3::new(x, y, z),
+                Vec3::new(-2.0 * x * dz, -2.0 * y * dz, 1.0).normalized(),
+            )
+        };
+        let nv = first[rings + 1];
+        let layout_triangles = layout_triangles(&counts);
+        let mut local = Vec::new();
+        let mut normals = Vec::new();
+        // Vertex numbers: the whole mesh's, or (footprint) in order of first use.
+        let mut remap = Vec::new();
+        match marks {
+            None => {
+                local.reserve_exact(nv);
+                normals.reserve_exact(nv);
+                for i in 0..=rings {
+                    let n = if i == 0 { 1 } else { counts[i - 1] };
+                    for k in 0..n {
+                        let (p, q) = vertex(i, k);
+                        local.push(p);
+                        normals.push(q);
+                    }
+                }
+            }
+            Some(_) => remap = vec![u32::MAX; nv],
+        }
+        let mut triangles = Vec::with_capacity(if marks.is_none() { layout_triangles } else { 0 });
         let mut band_starts = Vec::with_capacity(rings + 1);
         for i in 0..rings {
             band_starts.push(triangles.len());
             let ni = if i == 0 { 0 } else { counts[i - 1] };
             let no = counts[i];
-            let idx = |(ring, k): (usize, usize)| {
-                let (r, n) = if ring == 0 {
-                    (i, ni.max(1))
-                } else {
-                    (i + 1, no)
-                };
-                (first[r] + k % n) as u32
-            };
-            for t in band(ni, no) {
-                triangles.push([idx(t[0]), idx(t[1]), idx(t[2])]);
+            for k in 0..sectors(&counts, i) {
+                if marks.as_ref().is_some_and(|m| !m.bands[i][k]) {
+                    continue;
+                }
+                let (tris, nt) = sector(ni, no, k);
+                for t in &tris[..nt] {
+                    let mut idx = [0u32; 3];
+                    for (slot, &(ring, kk)) in idx.iter_mut().zip(t) {
+                        let (r, n) = if ring == 0 {
+                            (i, ni.max(1))
+                        } else {
+                            (i + 1, no)
+                        };
+                        let whole = first[r] + kk % n;
+                        *slot = if marks.is_none() {
+                            whole as u32
+                        } else {
+                            if remap[whole] == u32::MAX {
+                                remap[whole] = local.len() as u32;
+                                let (p, q) = vertex(r, kk % n);
+                                local.push(p);
+                                normals.push(q);
+                            }
+                            remap[whole]
+                        };
+                    }
+                    triangles.push(idx);
+                }
             }
         }
         band_starts.push(triangles.len());
-        let z_lo = local.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
-        let z_hi = local.iter().map(|p| p.z).fold(f64::NEG_INFINITY, f64::max);
+        drop(remap);
         let (vertices, normals) = match frame {
             Frame::Local => (
                 local
@@ -371,6 +616,7 @@ impl Mesh {
             vertices,
             normals,
             triangles,
+            layout_triangles,
             max_second_derivative: m,
             max_slope: slope,
             chord_bound_mm: bound,
@@ -423,8 +669,25 @@ impl Mesh {
         let (mut counts, mut radius, mut m, mut slope, mut bound);
         let mut tries = 0;
         loop {
+            // About 2 triangles per s² of the disk: refuse before allocating the rings.
+            let estimate = 2.0 * std::f64::consts::PI * ((a + 2.0 * s) / s).powi(2);
+            if !(estimate <= 2.0 * MAX_TRIANGLES as f64) {
+                let why = if a >= rim * (1.0 - 1e-9) {
+                    format!(
+                        " (the disk reaches the conic's rim at r = {rim:.4} mm, where the \
+                         surface turns vertical: no bound can mesh it; give the surface a hard \
+                         aperture or trace a smaller pupil)"
+                    )
+                } else {
+                    "; choose a larger bound".to_string()
+                };
+                return Err(Error::argument(format!(
+                    "surface {surface}: a chord bound of {chord_mm:e} mm needs about {estimate:.2e} \
+                     triangles (more than {MAX_TRIANGLES}) over a disk of radius {a:.4} mm{why}"
+                )));
+            }
             (counts, radius) = layout(a, s);
-            let tri: usize = 2 * counts.iter().sum::<usize>();
+            let tri = layout_triangles(&counts);
             if tri > MAX_TRIANGLES {
                 return Err(Error::argument(format!(
                     "surface {surface}: a chord bound of {chord_mm:e} mm needs about {tri} \
@@ -474,6 +737,9 @@ impl Mesh {
         let mut tri_ids = Vec::new();
         for w in self.band_starts.windows(2) {
             let (start, len) = (w[0], w[1] - w[0]);
+            if len == 0 {
+                continue; // a band a footprint mesh leaves out
+            }
             // Every triangle shape of the band (its first three) at eight angles.
             for q in 0..8 {
                 for j in 0..3 {

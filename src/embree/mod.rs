@@ -13,8 +13,8 @@ pub mod device;
 pub mod mesh;
 
 pub use check::{
-    check_system, validate, CaseReport, CheckOptions, FieldCheck, NormalMode, Rays, SurfaceCheck,
-    Timing, ValidateOptions, ValidationReport, ValidationSummary,
+    check_system, validate, CaseReport, CheckOptions, Cover, FieldCheck, NormalMode, Rays,
+    SurfaceCheck, Timing, ValidateOptions, ValidationReport, ValidationSummary,
 };
 pub use device::{Device, Hit, RayHit, Scene, SceneOptions};
 pub use mesh::{Frame, Mesh};

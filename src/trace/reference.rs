@@ -1,6 +1,7 @@
 //! A plain scalar `f64` reference tracer, one ray at a time, written independently of the fast
 //! kernel: every surface is intersected by Newton's method on its sag function (started at the
-//! vertex plane), refraction uses the tangential-component form of Snell's law, and reflection
+//! vertex plane, or at the base conic's root when the plane's crossing lies beyond a steep
+//! surface's rim), refraction uses the tangential-component form of Snell's law, and reflection
 //! reverses the normal component. Tests prove
 //! that the kernel agrees with it.
 
@@ -43,8 +44,11 @@ pub fn surface_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
 }
 
 /// Intersects the local-frame ray `p + t dl` with the surface of `row` by Newton's method on the
-/// sag, started at the vertex plane. Returns `t` and `dz/du` at the hit, or `None` when the ray
-/// is parallel to the vertex plane or Newton does not converge (a miss).
+/// sag, started at the vertex plane, or, when that start fails (the ray crosses the vertex
+/// plane beyond a steep surface's rim, where the sag is undefined, though it meets the surface
+/// nearer the axis), at the base conic's vertex-side intersection nearest that crossing.
+/// Returns `t` and `dz/du` at the hit, or `None` when the ray is parallel to the vertex plane
+/// or Newton does not converge from either start (a miss).
 pub fn intersect_local(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>) -> Option<(f64, f64)> {
     if dl.z == 0.0 {
         return None;
@@ -53,6 +57,11 @@ pub fn intersect_local(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>) -> Op
     if row.kind == SurfaceKind::Plane {
         return Some((t, 0.0));
     }
+    newton(row, p, dl, t).or_else(|| newton(row, p, dl, conic_start(row, p, dl, t)?))
+}
+
+/// Newton on `z(t) - sag(x(t)² + y(t)²)` from `t`.
+fn newton(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t: f64) -> Option<(f64, f64)> {
     let asph = &row.asph[..row.n_asph];
     let mut t = t;
     for _ in 0..100 {
@@ -68,6 +77,24 @@ pub fn intersect_local(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>) -> Op
         }
     }
     None
+}
+
+/// The root of the base conic `c (x² + y² + k z²) - 2 z = 0` along `p + t dl` on its vertex
+/// side (`c k z < 1`) nearest `t0`.
+fn conic_start(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t0: f64) -> Option<f64> {
+    let (c, k) = (row.c, row.k1);
+    let a = c * (dl.x * dl.x + dl.y * dl.y + k * dl.z * dl.z);
+    let b = 2.0 * (c * (p.x * dl.x + p.y * dl.y + k * p.z * dl.z) - dl.z);
+    let cc = c * (p.x * p.x + p.y * p.y + k * p.z * p.z) - 2.0 * p.z;
+    let disc = b * b - 4.0 * a * cc;
+    if !(disc >= 0.0) {
+        return None;
+    }
+    let q = -0.5 * (b + disc.sqrt().copysign(b));
+    [q / a, cc / q]
+        .into_iter()
+        .filter(|t| t.is_finite() && c * k * (p.z + dl.z * t) < 1.0)
+        .min_by(|x, y| (x - t0).abs().total_cmp(&(y - t0).abs()))
 }
 
 /// Refracts the unit direction `dl` at a surface with unit normal `nrm` from index `n1` into
