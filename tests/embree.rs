@@ -362,6 +362,36 @@ fn footprint_meshes_give_the_whole_disks_hits() {
     }
 }
 
+/// A patent lens whose rays meet two steep spheres (R 50 mm) out to their rims: no chord bound
+/// can mesh a surface that turns vertical, and the check says so up front, exit 2. It aborted
+/// the process on a 543 GB allocation at `--chord 1e-3` (the ring count was allocated before
+/// the triangle limit was checked), and, before the reference intersection could start from
+/// the conic's root, "validated" this lens while calling 1.2 % of the on-axis hits misses.
+#[test]
+fn a_disk_reaching_a_conic_rim_is_refused_before_meshing() {
+    let file = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/zemax/real/patent_to_zemax/EP0770895A2-embodiment-1.zmx"
+    );
+    for chord in ["1e-4", "1e-3", "1e-2"] {
+        let (code, _, err) = tolray(&[
+            "validate", file, "--embree", "--trials", "0", "--chord", chord,
+        ]);
+        assert_eq!(code, 2, "{chord}: {err}");
+        assert!(
+            err.contains("cannot be checked: surface 5"),
+            "{chord}: {err}"
+        );
+        // At 1e-4 mm surface 51 (disk 48.9 mm) is already too fine; coarser bounds reach
+        // surface 52, whose rays' disk is its sphere's rim.
+        assert_eq!(
+            err.contains("conic's rim"),
+            chord != "1e-4",
+            "{chord}: {err}"
+        );
+    }
+}
+
 /// A footprint mesh keeps the whole mesh's own triangles: the same vertices (bit for bit), a
 /// subset of its faces, and only near the rays it was given.
 #[test]
