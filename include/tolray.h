@@ -61,8 +61,10 @@
  * Top level:
  * - "surfaces": the surfaces from the object side, an array of objects (required, not empty).
  * - "r_sensor": sensor half-diagonal, mm, > 0. If it is absent: "sensor_size": [w, h] mm, of
- *   which only the half-diagonal is used (the aspect ratio always follows "sensor_res").
- * - "sensor_res": [columns, rows], whole numbers >= 1 (default [2000, 2000]). Pixels are square,
+ *   which the half-diagonal is used. A "sensor_size" whose aspect ratio differs from
+ *   "sensor_res"'s by more than a pixel's rounding is refused (pixels are square).
+ * - "sensor_res": [columns, rows], whole numbers >= 1 (default [2000, 2000], or with a
+ *   "sensor_size", 2000 along its longer side and its aspect). Pixels are square,
  *   pitch = 2 r_sensor / hypot(columns, rows).
  * - "obj_depth": object distance, mm (DeepLens writes it negative; the sign is ignored, 0 is
  *   refused), or "(object)": "inf" or a distance as a string ("1000"), which wins. Neither: the
@@ -741,8 +743,8 @@ void tolray_lens_free(struct tolray_lens *lens);
 /**
  * Parses a lens from DeepLens JSON text (the format at the top of tolray.h); `*out` receives a
  * new handle. `TOLRAY_ERROR_PARSE` for malformed JSON or a value of the wrong JSON type,
- * `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass or a lens
- * beyond the limits listed there, `TOLRAY_ERROR_ARGUMENT` for an object distance of 0.
+ * `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass, an object
+ * distance of 0, non-square pixels or a lens beyond the limits listed there.
  *
  * # Safety
  * `json` is a NUL-terminated string; `out` points to writable storage for a pointer.
@@ -938,7 +940,9 @@ tolray_status tolray_psf_loss_gradient(const struct tolray_system *system,
 /**
  * The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch
  * (2 r_sensor / hypot(columns, rows) of the lens JSON), chief-ray centred, 8192 uniform random
- * pupil rays with seed 0, scale 1, no aiming.
+ * pupil rays with seed 0, scale 1, no aiming. `TOLRAY_ERROR_ARGUMENT`, and `out` untouched, when the
+ * sensor's pitch lies outside the 1e-5 to 10 mm that [`tolray_psf`] accepts (fill the struct
+ * yourself then): the defaults are always options `tolray_psf` takes.
  *
  * # Safety
  * `system` is a live handle; `out` points to a writable `tolray_psf_options`.

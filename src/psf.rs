@@ -24,7 +24,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PsfCentre {
-    /// The chief ray (through the pupil centre) at the first wavelength; the centroid if lost.
+    /// The chief ray (through the pupil centre) of the PSF's own field and wavelength (so a
+    /// PSF holds no lateral colour); the centroid if that ray is lost.
     #[default]
     Chief,
     /// The centroid of the arriving rays.

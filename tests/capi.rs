@@ -560,6 +560,47 @@ fn install_script_serves_pkg_config_and_cmake_users() {
     assert!(out.starts_with("RMS spot"), "{out}");
 }
 
+/// `tolray_psf_options_default` never hands out options `tolray_psf` refuses: a lens whose
+/// sensor pitch (70.7 mm: 2 x 2 pixels on a 100 mm half-diagonal) is outside 1e-5 to 10 mm gets
+/// `TOLRAY_ERROR_ARGUMENT` naming the pitch, and `out` is left as it was.
+#[test]
+fn psf_defaults_are_options_tolray_psf_takes() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    let mut v: serde_json::Value =
+        serde_json::from_str(include_str!("../src/lens/builtin/lens1.json")).unwrap();
+    v["r_sensor"] = serde_json::json!(100.0);
+    v["sensor_res"] = serde_json::json!([2, 2]);
+    let text = std::ffi::CString::new(v.to_string()).unwrap();
+    let (mut lens, mut sys) = (null_mut(), null_mut());
+    let mut opts = std::mem::MaybeUninit::<tolray_psf_options>::zeroed();
+    // SAFETY: valid pointers; handles freed below.
+    unsafe {
+        assert_eq!(
+            tolray_lens_from_json(text.as_ptr(), &mut lens),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_system_new(lens, std::ptr::null(), &mut sys),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_psf_options_default(sys, opts.as_mut_ptr()),
+            tolray_status::TOLRAY_ERROR_ARGUMENT
+        );
+        let mut buf = vec![0 as std::ffi::c_char; 512];
+        tolray_last_error(buf.as_mut_ptr(), buf.len());
+        let msg = std::ffi::CStr::from_ptr(buf.as_ptr()).to_string_lossy();
+        assert!(
+            msg.contains("sensor pitch") && msg.contains("70.7"),
+            "{msg}"
+        );
+        assert_eq!(opts.assume_init().kernel_px, 0);
+        tolray_system_free(sys);
+        tolray_lens_free(lens);
+    }
+}
+
 /// `tolray_render` gives the library's capture (same PSF map, same noise), and refuses a short
 /// output buffer, a NULL input and a bad grid with a status.
 #[test]

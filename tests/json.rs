@@ -163,6 +163,43 @@ fn errors_say_what_and_where() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A sensor size and a resolution whose aspects differ would make non-square pixels, which
+/// tolray cannot model: refused, naming both (the sensor was silently reshaped to the
+/// resolution's aspect). Without a resolution, a size gets 2000 pixels along its longer side
+/// and its own aspect. `obj_depth: 0` is a prescription error (INVALID_INPUT in the C ABI),
+/// like the others, not a command-line argument error.
+#[test]
+fn sensor_aspect_and_object_depth_are_prescription_errors() {
+    let mut v = lens1_value();
+    v.as_object_mut().unwrap().remove("r_sensor");
+    v["sensor_size"] = json!([6.4, 4.8]);
+    v["sensor_res"] = json!([2000, 2000]);
+    let e = from_value(&v).unwrap_err();
+    assert_eq!(e.kind, ErrorKind::Invalid);
+    assert!(e.message.contains("non-square pixels"), "{}", e.message);
+    v["sensor_res"] = json!([4000, 3000]);
+    let l = from_value(&v).unwrap();
+    let [w, h] = l.sensor.size_mm();
+    assert!(
+        (w - 6.4).abs() < 1e-12 && (h - 4.8).abs() < 1e-12,
+        "{w} {h}"
+    );
+    v.as_object_mut().unwrap().remove("sensor_res");
+    let l = from_value(&v).unwrap();
+    assert_eq!(l.sensor.resolution, [2000, 1500]);
+    let [w, h] = l.sensor.size_mm();
+    assert!(
+        (w - 6.4).abs() < 1e-12 && (h - 4.8).abs() < 1e-12,
+        "{w} {h}"
+    );
+
+    let mut v = lens1_value();
+    v["obj_depth"] = json!(0.0);
+    let e = from_value(&v).unwrap_err();
+    assert_eq!(e.kind, ErrorKind::Invalid, "{}", e.message);
+    assert!(e.message.contains("\"obj_depth\" 0"), "{}", e.message);
+}
+
 /// Structural and textual mutations of a real lens file: the reader must never panic, and any
 /// lens it accepts must trace without panicking or producing non-finite alive rays.
 #[test]

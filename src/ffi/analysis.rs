@@ -475,7 +475,9 @@ pub unsafe extern "C" fn tolray_spot(
 
 /// The default PSF settings for the lens of `system`: 51 x 51 pixels at the sensor's pitch
 /// (2 r_sensor / hypot(columns, rows) of the lens JSON), chief-ray centred, 8192 uniform random
-/// pupil rays with seed 0, scale 1, no aiming.
+/// pupil rays with seed 0, scale 1, no aiming. `TOLRAY_ERROR_ARGUMENT`, and `out` untouched, when the
+/// sensor's pitch lies outside the 1e-5 to 10 mm that [`tolray_psf`] accepts (fill the struct
+/// yourself then): the defaults are always options `tolray_psf` takes.
 ///
 /// # Safety
 /// `system` is a live handle; `out` points to a writable `tolray_psf_options`.
@@ -491,6 +493,7 @@ pub unsafe extern "C" fn tolray_psf_options_default(
             return Err(FfiError::null("out"));
         }
         let o = PsfOptions::for_lens(&s.nominal);
+        psf::check_options(&o).map_err(|e| e.context("the lens' sensor pitch"))?;
         let (n, seed) = match o.pupil.pattern {
             PupilPattern::Random { n, seed } => (n, seed),
             _ => (8192, 0),

@@ -174,8 +174,8 @@ pub unsafe extern "C" fn tolray_lens_load(
 
 /// Parses a lens from DeepLens JSON text (the format at the top of tolray.h); `*out` receives a
 /// new handle. `TOLRAY_ERROR_PARSE` for malformed JSON or a value of the wrong JSON type,
-/// `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass or a lens
-/// beyond the limits listed there, `TOLRAY_ERROR_ARGUMENT` for an object distance of 0.
+/// `TOLRAY_ERROR_INVALID_INPUT` for a missing key, an unknown surface type or glass, an object
+/// distance of 0, non-square pixels or a lens beyond the limits listed there.
 ///
 /// # Safety
 /// `json` is a NUL-terminated string; `out` points to writable storage for a pointer.

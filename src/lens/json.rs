@@ -259,9 +259,11 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         num(top, "obj_depth", "")?,
     ) {
         (Some(s), _) => Object::parse(s)?,
-        (None, Some(d)) => Object::parse(&d.to_string())?,
+        (None, Some(d)) => Object::parse(&d.to_string())
+            .map_err(|e| Error::invalid(format!("\"obj_depth\" {d}: {}", e.message)))?,
         (None, None) => Object::Infinite,
     };
+    let size = num_array::<2>(top, "sensor_size", "")?;
     let res = match num_array::<2>(top, "sensor_res", "")? {
         Some([w, h]) if w >= 1.0 && h >= 1.0 && w.fract() == 0.0 && h.fract() == 0.0 => {
             [w as u32, h as u32]
@@ -271,12 +273,34 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
                 "\"sensor_res\" {r:?} must be two positive whole numbers"
             )))
         }
-        None => [2000, 2000],
+        // 2000 pixels along the longer side of a given sensor size (square pixels).
+        None => match size {
+            Some([w, h]) if w > 0.0 && h > 0.0 && w.is_finite() && h.is_finite() => {
+                let short = |a: f64, b: f64| ((2000.0 * a / b).round() as u32).clamp(1, 2000);
+                if w >= h {
+                    [2000, short(h, w)]
+                } else {
+                    [short(w, h), 2000]
+                }
+            }
+            _ => [2000, 2000],
+        },
     };
-    let sensor = match (
-        num(top, "r_sensor", "")?,
-        num_array::<2>(top, "sensor_size", "")?,
-    ) {
+    // tolray's pixels are square: a size whose aspect differs from the resolution's by more
+    // than a pixel's rounding would be silently reshaped.
+    if let Some([w, h]) = size {
+        let (rw, rh) = (res[0] as f64, res[1] as f64);
+        if w > 0.0 && h > 0.0 && (rh - rw * h / w).abs() > 1.0 && (rw - rh * w / h).abs() > 1.0 {
+            return Err(Error::invalid(format!(
+                "\"sensor_size\" [{w}, {h}] mm and \"sensor_res\" [{rw}, {rh}] give \
+                 non-square pixels ({:.4} x {:.4} µm); tolray models square pixels: give a \
+                 resolution with the sensor's aspect ratio",
+                1e3 * w / rw,
+                1e3 * h / rh
+            )));
+        }
+    }
+    let sensor = match (num(top, "r_sensor", "")?, size) {
         (Some(r), _) if r > 0.0 && r.is_finite() => Sensor::from_half_diagonal(r, res),
         (None, Some([w, h])) if w > 0.0 && h > 0.0 => {
             Sensor::from_half_diagonal(0.5 * w.hypot(h), res)
