@@ -270,10 +270,10 @@ pub fn save(figure: &Figure, path: &Path) -> Result<()> {
         .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     if svg {
         let text = figure.to_svg()?;
-        crate::error::write_via_temp(path, |tmp| std::fs::write(tmp, text.as_bytes()))
+        crate::files::write_via_temp(path, |tmp| std::fs::write(tmp, text.as_bytes()))
     } else {
         let img = figure.to_png()?;
-        crate::error::write_via_temp(path, |tmp| {
+        crate::files::write_via_temp(path, |tmp| {
             img.save_with_format(tmp, image::ImageFormat::Png)
                 .map_err(|e| std::io::Error::other(e.to_string()))
         })
@@ -1164,7 +1164,7 @@ fn write_exr(
     height: usize,
     rgb: impl Fn(usize) -> (f32, f32, f32) + Sync,
 ) -> Result<()> {
-    crate::error::write_via_temp(path, |tmp| {
+    crate::files::write_via_temp(path, |tmp| {
         exr::prelude::write_rgb_file(tmp, width, height, |x, y| rgb(y * width + x))
             .map_err(|e| std::io::Error::other(e.to_string()))
     })

@@ -22,7 +22,8 @@
 //! - [`deep`]: deep-optics training (lens and decoder), the study and its yield evaluation.
 //! - [`figures`]: the pictures the CLI writes (plotters, PNG or SVG).
 //! - [`ffi`]: the C ABI (`include/tolray.h`).
-//! - [`error`], [`math`]: errors with their kind and cause, small vector algebra.
+//! - [`error`], [`files`], [`math`]: errors with their kind and cause; JSON reading and atomic
+//!   writes that an interrupted program cleans up; small vector algebra.
 //! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
 //!
 //! ```
@@ -67,6 +68,7 @@ pub mod embree;
 pub mod error;
 pub mod ffi;
 pub mod figures;
+pub mod files;
 pub mod image;
 pub mod lens;
 pub mod math;

@@ -8,7 +8,8 @@
 use super::eval::{evaluate, report, EvalConfig, EvalImages, Report};
 use super::{step, DeepConfig, DeepLog, DeepState, Design, Phase};
 use crate::decoder::Decoder;
-use crate::error::{write_atomic, Error, ErrorKind, Result};
+use crate::error::{Error, ErrorKind, Result};
+use crate::files::write_atomic;
 use crate::lens::Lens;
 use crate::optim::train::{IterLog, TrainState};
 use serde::{Deserialize, Serialize};
@@ -290,7 +291,7 @@ pub fn run(
 /// # Errors
 /// I/O and parse errors naming the file.
 pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
-    crate::error::read_json(&dir.join("checkpoint.json"))
+    crate::files::read_json(&dir.join("checkpoint.json"))
 }
 
 /// [`run`] with checkpoints every `ctl.checkpoint_every` iterations, a stop request, and an

@@ -9,7 +9,8 @@ pub mod metrics;
 pub mod render;
 pub mod source;
 
-use crate::error::{write_atomic, Error, ErrorKind, Result};
+use crate::error::{Error, ErrorKind, Result};
+use crate::files::write_atomic;
 use std::path::Path;
 
 /// Most pixels an image may have (2^28, a 16384² picture; 3 GB as f32 RGB).

@@ -566,5 +566,5 @@ pub fn to_string(lens: &Lens) -> String {
 /// # Errors
 /// [`ErrorKind::Io`] naming the path.
 pub fn write_file(lens: &Lens, path: &Path) -> Result<()> {
-    crate::error::write_atomic(path, to_string(lens).as_bytes())
+    crate::files::write_atomic(path, to_string(lens).as_bytes())
 }

@@ -1957,7 +1957,7 @@ fn aperture_lines(s: &Surface) -> Vec<String> {
 /// # Errors
 /// [`ErrorKind::Io`] naming the path.
 pub fn write_file(lens: &Lens, extras: Option<&ZmxExtras>, path: &Path) -> Result<()> {
-    crate::error::write_atomic(path, to_string(lens, extras).as_bytes())
+    crate::files::write_atomic(path, to_string(lens, extras).as_bytes())
 }
 
 #[cfg(test)]

@@ -10,7 +10,8 @@
 //! rename) except the log, which grows by one appended line per iteration.
 
 use super::train::{held_out, step, HeldOut, IterLog, TrainConfig, TrainState};
-use crate::error::{write_atomic, Error, ErrorKind, Result};
+use crate::error::{Error, ErrorKind, Result};
+use crate::files::write_atomic;
 use crate::lens::{json, Lens};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -368,7 +369,7 @@ mod tests {
         let end = run_training(&mut state, &part, opts, |_| seen += 1).unwrap();
         assert_eq!(end, RunOutcome::Stopped { next_iter: 1 });
         assert_eq!(seen, 1);
-        let ck: TrainState = crate::error::read_json(&part.join("checkpoint.json")).unwrap();
+        let ck: TrainState = crate::files::read_json(&part.join("checkpoint.json")).unwrap();
         assert!(ck == state);
         // A line logged after the checkpoint (a killed run) is dropped on resume.
         let log = part.join("log.jsonl");

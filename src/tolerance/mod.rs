@@ -117,7 +117,7 @@ impl Perturbation {
     /// # Errors
     /// I/O and JSON errors naming the file, line and column.
     pub fn read(path: &Path) -> Result<Perturbation> {
-        crate::error::read_json(path)
+        crate::files::read_json(path)
     }
 
     /// Checks element and surface indices and values against `lens`.

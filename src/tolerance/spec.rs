@@ -203,7 +203,7 @@ impl ToleranceSpec {
     /// # Errors
     /// I/O and JSON errors naming the file, line and column (unknown operands are named).
     pub fn read(path: &Path) -> Result<ToleranceSpec> {
-        crate::error::read_json(path)
+        crate::files::read_json(path)
     }
 
     /// JSON text of the spec.

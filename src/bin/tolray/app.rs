@@ -54,7 +54,7 @@ pub fn install_interrupt_handler() {
         if GRACEFUL_STOP.load(Ordering::SeqCst) {
             STOP_REQUESTED.store(true, Ordering::SeqCst);
         } else {
-            tolray::error::remove_partial_files();
+            tolray::files::remove_partial_files();
             std::process::exit(130);
         }
     });

@@ -401,7 +401,7 @@ pub fn merge_eval(a: &MergeEvalArgs) -> anyhow::Result<()> {
     let parts: Vec<Report> = a
         .parts
         .iter()
-        .map(|p| Ok(tolray::error::read_json(p)?))
+        .map(|p| Ok(tolray::files::read_json(p)?))
         .collect::<anyhow::Result<_>>()?;
     let r = tolray::deep::eval::merge(&parts)?;
     print_report(&r);
@@ -432,7 +432,7 @@ pub fn pool_eval(a: &PoolEvalArgs) -> anyhow::Result<()> {
             } else {
                 p.clone()
             };
-            Ok(tolray::error::read_json(&f)?)
+            Ok(tolray::files::read_json(&f)?)
         })
         .collect::<anyhow::Result<_>>()?;
     let r = tolray::deep::eval::pool(&reports)?;

@@ -309,6 +309,6 @@ pub fn emit_line(s: &str) {
 
 /// Writes `text` to `path` atomically (a temporary file and a rename).
 pub fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
-    tolray::error::write_atomic(path, text.as_bytes())?;
+    tolray::files::write_atomic(path, text.as_bytes())?;
     Ok(())
 }
