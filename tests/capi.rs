@@ -560,6 +560,20 @@ fn install_script_serves_pkg_config_and_cmake_users() {
     assert!(out.starts_with("RMS spot"), "{out}");
 }
 
+/// The nominal system of `lens` (a live handle), asserting success; free it with
+/// `tolray_system_free`.
+///
+/// # Safety
+/// `lens` is a live lens handle.
+unsafe fn nominal_system(lens: *const tolray::ffi::tolray_lens) -> *mut tolray::ffi::tolray_system {
+    let mut sys = std::ptr::null_mut();
+    assert_eq!(
+        tolray::ffi::tolray_system_new(lens, std::ptr::null(), &mut sys),
+        tolray::ffi::tolray_status::TOLRAY_OK
+    );
+    sys
+}
+
 /// `tolray_psf_options_default` never hands out options `tolray_psf` refuses: a lens whose
 /// sensor pitch (70.7 mm: 2 x 2 pixels on a 100 mm half-diagonal) is outside 1e-5 to 10 mm gets
 /// `TOLRAY_ERROR_ARGUMENT` naming the pitch, and `out` is left as it was.
@@ -572,7 +586,8 @@ fn psf_defaults_are_options_tolray_psf_takes() {
     v["r_sensor"] = serde_json::json!(100.0);
     v["sensor_res"] = serde_json::json!([2, 2]);
     let text = std::ffi::CString::new(v.to_string()).unwrap();
-    let (mut lens, mut sys) = (null_mut(), null_mut());
+    let mut lens = null_mut();
+    let sys;
     let mut opts = std::mem::MaybeUninit::<tolray_psf_options>::zeroed();
     // SAFETY: valid pointers; handles freed below.
     unsafe {
@@ -580,10 +595,7 @@ fn psf_defaults_are_options_tolray_psf_takes() {
             tolray_lens_from_json(text.as_ptr(), &mut lens),
             tolray_status::TOLRAY_OK
         );
-        assert_eq!(
-            tolray_system_new(lens, std::ptr::null(), &mut sys),
-            tolray_status::TOLRAY_OK
-        );
+        sys = nominal_system(lens);
         assert_eq!(
             tolray_psf_options_default(sys, opts.as_mut_ptr()),
             tolray_status::TOLRAY_ERROR_ARGUMENT
@@ -609,7 +621,7 @@ fn render_through_the_c_abi_matches_the_library() {
     use tolray::ffi::*;
     let name = std::ffi::CString::new("lens2").unwrap();
     let mut lens = null_mut();
-    let mut sys = null_mut();
+    let sys;
     let mut opts = std::mem::MaybeUninit::<tolray_psf_options>::uninit();
     // SAFETY: valid pointers; handles freed below.
     unsafe {
@@ -617,10 +629,7 @@ fn render_through_the_c_abi_matches_the_library() {
             tolray_lens_load(name.as_ptr(), &mut lens),
             tolray_status::TOLRAY_OK
         );
-        assert_eq!(
-            tolray_system_new(lens, std::ptr::null(), &mut sys),
-            tolray_status::TOLRAY_OK
-        );
+        sys = nominal_system(lens);
         assert_eq!(
             tolray_psf_options_default(sys, opts.as_mut_ptr()),
             tolray_status::TOLRAY_OK
@@ -701,17 +710,15 @@ fn oversized_spot_pupils_are_refused_with_a_status() {
     use std::ptr::null_mut;
     use tolray::ffi::*;
     let name = std::ffi::CString::new("lens2").unwrap();
-    let (mut lens, mut sys) = (null_mut(), null_mut());
+    let mut lens = null_mut();
+    let sys;
     // SAFETY: valid pointers; handles freed below.
     unsafe {
         assert_eq!(
             tolray_lens_load(name.as_ptr(), &mut lens),
             tolray_status::TOLRAY_OK
         );
-        assert_eq!(
-            tolray_system_new(lens, std::ptr::null(), &mut sys),
-            tolray_status::TOLRAY_OK
-        );
+        sys = nominal_system(lens);
     }
     let field = tolray_field {
         kind: TOLRAY_FIELD_FRACTION,
