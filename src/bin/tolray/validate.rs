@@ -270,7 +270,8 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
         t,
         "(worst point: largest image-point distance between the traces; mesh-normal: RMS difference \
          when refracting with interpolated mesh normals. {} rays compared; {} reached the image in one \
-         trace only, by crossing an aperture rim on different sides.)",
+         trace only: crossing an aperture rim on different sides, or a leak or unmatched hit \
+         (per surface in --json).)",
         s.rays_compared, s.status_mismatches
     );
     let tm = &s.timing;
