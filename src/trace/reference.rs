@@ -79,8 +79,8 @@ fn newton(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t: f64) -> Option<
     None
 }
 
-/// The root of the base conic `c (x² + y² + k z²) - 2 z = 0` along `p + t dl` on its vertex
-/// side (`c k z < 1`) nearest `t0`.
+/// The root of the base conic `c (x² + y² + k₁ z²) - 2 z = 0` (`k₁ = 1 + κ`, `row.k1`) along
+/// `p + t dl` on its vertex side (`c k₁ z < 1`) nearest `t0`.
 fn conic_start(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t0: f64) -> Option<f64> {
     let (c, k) = (row.c, row.k1);
     let a = c * (dl.x * dl.x + dl.y * dl.y + k * dl.z * dl.z);
