@@ -1325,44 +1325,42 @@ fn draw_training<DB: DrawingBackend>(
 
 /// Training curves of a deep-optics study: the batch PSNR (light) and the validation PSNR
 /// (dots) against the iteration (top), and the batch image loss on a log scale (bottom). Stage
-/// 1, which the branches share, is drawn once in grey; a dashed line marks where the branches
-/// start.
+/// 1 (`stage1`, which every branch's log starts with) is drawn once in grey; a dashed line marks
+/// where the branches start. With no branches, the figure is stage 1's.
 #[must_use]
 pub fn deep_training_figure(
+    stage1: &[crate::deep::DeepLog],
     branches: &[(String, Vec<crate::deep::DeepLog>)],
     title: &str,
 ) -> Figure {
-    // Where the branches part: the first iteration at which two branches differ in phase or
-    // PSNR, or the end of the common prefix.
-    let split = branches.first().map_or(0, |b0| {
-        b0.1.iter()
-            .position(|l| {
-                branches.iter().any(|b| {
-                    b.1.iter()
-                        .find(|m| m.iter == l.iter)
-                        .map_or(true, |m| m.phase != l.phase || m.psnr_db != l.psnr_db)
-                })
-            })
-            .map_or(b0.1.last().map_or(0, |l| l.iter + 1), |k| b0.1[k].iter)
-    });
+    // The branches start after stage 1's last iteration (at 0 when stage 1 ran none).
+    let split = stage1.last().map_or(0, |l| l.iter + 1);
     let row = |l: &crate::deep::DeepLog| (l.iter as f64, l.psnr_db, l.val_psnr_db, l.image_loss);
     let mut series = Vec::new();
-    if let Some(b0) = branches.first() {
-        series.push((
-            "stage 1 (shared)".to_string(),
-            GREY,
-            b0.1.iter().filter(|l| l.iter < split).map(row).collect(),
-        ));
+    if !stage1.is_empty() {
+        let name = if branches.len() > 1 {
+            "stage 1 (shared)"
+        } else {
+            "stage 1"
+        };
+        series.push((name.to_string(), GREY, stage1.iter().map(row).collect()));
     }
     for (k, (name, logs)) in branches.iter().enumerate() {
         // Joined to the last shared point so that the curves continue.
         let from = split.saturating_sub(1);
+        // A design keeps its colour whichever branches ran.
+        use crate::deep::study::{CONVENTIONAL, DECODER_ONLY, OPTICS_ONLY, TOLERANCE_AWARE};
+        let c = [CONVENTIONAL, TOLERANCE_AWARE, DECODER_ONLY, OPTICS_ONLY]
+            .iter()
+            .position(|n| n == name)
+            .unwrap_or(k);
         series.push((
             name.clone(),
-            PALETTE[k % PALETTE.len()],
+            PALETTE[c % PALETTE.len()],
             logs.iter().filter(|l| l.iter >= from).map(row).collect(),
         ));
     }
+    let split = if branches.is_empty() { 0 } else { split };
     Figure {
         width: 900,
         height: 700,

@@ -838,3 +838,222 @@ fn glass_lookup() {
         "{err}"
     );
 }
+
+/// `tolray train --decoder`: the image stage for one design. Stage 1 and the stage-2 design are
+/// saved, logged and evaluated on the same units (the pair is stage 2 minus stage 1); a run
+/// interrupted by Ctrl-C and resumed ends in exactly the files of an uninterrupted one; the
+/// ablations and a start from a saved design; flags that belong to the other mode are usage
+/// errors.
+#[test]
+fn train_with_a_decoder_runs_the_image_stage_and_resumes_exactly() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let dir = tmp("train-image");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = |out: &std::path::Path| -> Vec<String> {
+        [
+            "train",
+            "lens1",
+            "--decoder",
+            "wiener",
+            "--focus-iters",
+            "40",
+            "--pretrain-iters",
+            "8",
+            "--iters",
+            "8",
+            "--samples",
+            "2",
+            "--crop",
+            "16",
+            "--eval-trials",
+            "2",
+            "--validate-every",
+            "4",
+            "--checkpoint-every",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let whole = dir.join("whole");
+    let args = base(&whole);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, out, err) = tolray(&args);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("tolerance-aware − stage1"), "{out}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(whole.join("report.json")).unwrap()).unwrap();
+    let names: Vec<&str> = report["designs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["stage1", "tolerance-aware"]);
+    assert_eq!(report["pairs"][0]["a"], "tolerance-aware");
+    assert_eq!(report["pairs"][0]["b"], "stage1");
+    for f in [
+        "stage1/lens.json",
+        "stage1/decoder.bin",
+        "tolerance-aware/decoder.bin",
+        "training.png",
+        "report.html",
+    ] {
+        assert!(whole.join(f).exists(), "{f}");
+    }
+    // Stage 1's log, then stage 1's and stage 2's in the design's; validation every 4 and at
+    // the end of each stage.
+    let lines = |p: &str| -> Vec<serde_json::Value> {
+        std::fs::read_to_string(whole.join(p))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    };
+    assert_eq!(lines("stage1/log.jsonl").len(), 8);
+    let log = lines("tolerance-aware/log.jsonl");
+    assert_eq!(log.len(), 16);
+    assert_eq!(log[15]["phase"], "tolerance");
+    assert!(log[15]["psf_similarity"].as_f64().is_some());
+    let validated = log
+        .iter()
+        .filter(|l| l.get("val_psnr_db").is_some())
+        .count();
+    assert_eq!(validated, 4, "{log:?}");
+
+    let x = dir.join("x");
+    let x = x.to_str().unwrap();
+    // Interrupted anywhere (Ctrl-C as soon as training has begun), then resumed: the same files.
+    let cut = dir.join("cut");
+    let args = base(&cut);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .args(&args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !cut.join("checkpoint.json").exists() {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(start.elapsed() < Duration::from_secs(60), "no progress");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    interrupt(&child);
+    let done = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    if done.status.code() == Some(130) {
+        assert!(err.contains("tolray train --resume"), "{err}");
+        let (code, _, err) = tolray(&["train", "--resume", cut.to_str().unwrap(), "--out", x]);
+        assert_eq!(code, 2, "another --out: {err}");
+        let (code, _, err) = tolray(&["train", "--resume", cut.to_str().unwrap()]);
+        assert_eq!(code, 0, "{err}");
+    } else {
+        // The stop came after the last iteration (a very fast machine): the run finished.
+        assert_eq!(done.status.code(), Some(0), "{err}");
+    }
+    for f in [
+        "stage1/lens.json",
+        "stage1/decoder.bin",
+        "tolerance-aware/lens.json",
+        "tolerance-aware/decoder.bin",
+        "tolerance-aware/log.jsonl",
+        "report.json",
+    ] {
+        assert!(
+            std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
+            "{f} differs after the resume"
+        );
+    }
+
+    // Stage 2 from the saved stage-1 design, training only the decoder (the paper's Table 3
+    // row): its lens is the start's, and it is evaluated against it.
+    let from = dir.join("from");
+    let (code, out, err) = tolray(&[
+        "train",
+        whole.join("stage1").to_str().unwrap(),
+        "--decoder",
+        "wiener",
+        "--stage",
+        "tolerance",
+        "--stage2-trains",
+        "decoder",
+        "--iters",
+        "2",
+        "--samples",
+        "2",
+        "--crop",
+        "16",
+        "--eval-trials",
+        "2",
+        "--out",
+        from.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("decoder-only − stage1"), "{out}");
+    assert_eq!(
+        std::fs::read_to_string(from.join("decoder-only/lens.json")).unwrap(),
+        std::fs::read_to_string(whole.join("stage1/lens.json")).unwrap()
+    );
+    assert_ne!(
+        std::fs::read(from.join("decoder-only/decoder.bin")).unwrap(),
+        std::fs::read(whole.join("stage1/decoder.bin")).unwrap()
+    );
+
+    let stage1 = whole.join("stage1");
+    let stage1 = stage1.to_str().unwrap();
+    for (args, says) in [
+        (vec!["train", "lens1", "--crop", "16", "--out", x], "--crop"),
+        (
+            vec![
+                "train",
+                "lens1",
+                "--decoder",
+                "wiener",
+                "--tolerance-lr-scale",
+                "0.2",
+                "--out",
+                x,
+            ],
+            "--tolerance-lr-scale",
+        ),
+        (
+            vec![
+                "train",
+                "lens1",
+                "--decoder",
+                "wiener",
+                "--stage",
+                "tolerance",
+                "--out",
+                x,
+            ],
+            "design",
+        ),
+        (
+            vec![
+                "train",
+                stage1,
+                "--decoder",
+                "unet",
+                "--stage",
+                "tolerance",
+                "--out",
+                x,
+            ],
+            "give --decoder wiener",
+        ),
+        (
+            vec!["train", "lens1", "--decoder", "vgg", "--out", x],
+            "vgg",
+        ),
+    ] {
+        let (code, _, err) = tolray(&args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+}

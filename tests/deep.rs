@@ -275,8 +275,11 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
         spot_iters: 3,
         stage1_iters: 3,
         stage2_iters: 2,
+        conventional: true,
+        tolerance_aware: true,
         decoder_only: true,
         optics_only: true,
+        evaluate_stage1: false,
         validate_every: 2,
         eval: EvalConfig {
             trials: 2,
@@ -375,6 +378,99 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
         &mut ctl,
     );
     assert!(e.is_err());
+    let _ = std::fs::remove_dir_all(&base);
+}
+
+/// `tolray train --decoder`'s runs: a study of stage 1 alone (evaluated as its own design), and
+/// stage 2 started from that saved design, evaluated against it. Settings with nothing to
+/// report and a design whose decoder is not the configured one are refused.
+#[test]
+fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
+    use tolray::deep::study::{load_design, run, Start, StudyConfig, DECODER_ONLY, STAGE1};
+    let lens = focused_lens1();
+    let mut cfg = StudyConfig {
+        deep: small(&lens, DecoderKind::Wiener),
+        spot_iters: 2,
+        stage1_iters: 2,
+        stage2_iters: 0,
+        conventional: false,
+        tolerance_aware: false,
+        decoder_only: false,
+        optics_only: false,
+        evaluate_stage1: true,
+        validate_every: 0,
+        eval: EvalConfig {
+            trials: 2,
+            spp: 256,
+            ks: 51,
+            patch_px: 16,
+            bootstrap: 50,
+            ..EvalConfig::default()
+        },
+        eval_photos: 0,
+        eval_images_dir: None,
+    };
+    let images = cfg.eval_images().unwrap();
+    let base = std::env::temp_dir().join(format!("tolray-stage1-{}", std::process::id()));
+    let r = run(&lens, &cfg, &images, &base.join("a"), &mut |_| {}).unwrap();
+    assert_eq!(r.designs.len(), 1);
+    assert_eq!(r.designs[0].name, STAGE1);
+    assert!(r.pairs.is_empty());
+    let log = std::fs::read_to_string(base.join("a/stage1/log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), 2);
+
+    let start = load_design(&base.join("a").join(STAGE1)).unwrap();
+    (cfg.spot_iters, cfg.stage1_iters, cfg.stage2_iters) = (0, 0, 2);
+    cfg.decoder_only = true;
+    let mut ctl = tolray::deep::study::Control {
+        progress: &mut |_| {},
+        stop: &|| false,
+        checkpoint_every: 0,
+    };
+    let b = base.join("b");
+    let r2 = tolray::deep::study::run_resumable(Start::Design(&start), &cfg, &images, &b, &mut ctl)
+        .unwrap()
+        .unwrap();
+    let names: Vec<&str> = r2.designs.iter().map(|d| d.name.as_str()).collect();
+    assert_eq!(names, [STAGE1, DECODER_ONLY]);
+    assert_eq!(
+        (r2.pairs[0].a.as_str(), r2.pairs[0].b.as_str()),
+        (DECODER_ONLY, STAGE1)
+    );
+    // The start is the first run's stage 1, scored on the same units to the same numbers.
+    assert_eq!(
+        serde_json::to_string(&r2.designs[0]).unwrap(),
+        serde_json::to_string(&r.designs[0]).unwrap()
+    );
+    let read = |d: &str, f: &str| std::fs::read(b.join(d).join(f)).unwrap();
+    assert_eq!(read(DECODER_ONLY, "lens.json"), read(STAGE1, "lens.json"));
+    assert_ne!(
+        read(DECODER_ONLY, "decoder.bin"),
+        read(STAGE1, "decoder.bin")
+    );
+    assert_eq!(
+        std::fs::read_to_string(b.join(DECODER_ONLY).join("log.jsonl"))
+            .unwrap()
+            .lines()
+            .count(),
+        2
+    );
+
+    let mut none = cfg.clone();
+    (none.decoder_only, none.evaluate_stage1) = (false, false);
+    let e = run(&lens, &none, &images, &base.join("c"), &mut |_| {}).unwrap_err();
+    assert!(e.message.contains("nothing to report"), "{}", e.message);
+    let mut unet = cfg.clone();
+    unet.deep.decoder = DecoderKind::Unet;
+    let mut ctl = tolray::deep::study::Control {
+        progress: &mut |_| {},
+        stop: &|| false,
+        checkpoint_every: 0,
+    };
+    let e = tolray::deep::study::run_resumable(Start::Design(&start), &unet, &images, &b, &mut ctl)
+        .err()
+        .unwrap();
+    assert!(e.message.contains("decoder (wiener"), "{}", e.message);
     let _ = std::fs::remove_dir_all(&base);
 }
 
@@ -531,8 +627,11 @@ fn reduced_study_keeps_the_paper_s_directions() {
         spot_iters: 200,
         stage1_iters: 60,
         stage2_iters: 40,
+        conventional: true,
+        tolerance_aware: true,
         decoder_only: true,
         optics_only: false,
+        evaluate_stage1: false,
         validate_every: 0,
         eval: EvalConfig {
             trials: 16,

@@ -44,10 +44,39 @@ impl DecoderKind {
             ))),
         }
     }
-    fn has_wiener(self) -> bool {
+    /// The name [`DecoderKind::parse`] reads: `wiener`, `unet` or `wiener+unet`.
+    ///
+    /// ```
+    /// use tolray::decoder::DecoderKind;
+    /// for k in [DecoderKind::Wiener, DecoderKind::Unet, DecoderKind::WienerUnet] {
+    ///     assert_eq!(DecoderKind::parse(k.name())?, k);
+    /// }
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    pub fn name(self) -> &'static str {
+        match self {
+            DecoderKind::Wiener => "wiener",
+            DecoderKind::Unet => "unet",
+            DecoderKind::WienerUnet => "wiener+unet",
+        }
+    }
+
+    /// Whether the decoder has Wiener filters.
+    ///
+    /// ```
+    /// use tolray::decoder::DecoderKind;
+    /// assert!(DecoderKind::WienerUnet.has_wiener() && !DecoderKind::Unet.has_wiener());
+    /// ```
+    pub fn has_wiener(self) -> bool {
         self != DecoderKind::Unet
     }
-    fn has_unet(self) -> bool {
+    /// Whether the decoder has a U-Net.
+    ///
+    /// ```
+    /// use tolray::decoder::DecoderKind;
+    /// assert!(DecoderKind::Unet.has_unet() && !DecoderKind::Wiener.has_unet());
+    /// ```
+    pub fn has_unet(self) -> bool {
         self != DecoderKind::Wiener
     }
 }

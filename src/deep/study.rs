@@ -24,6 +24,9 @@ pub const DECODER_ONLY: &str = "decoder-only";
 /// Name of the optics-only control (the paper's Table 3: the stage-1 decoder frozen, the lens
 /// trained with tolerances).
 pub const OPTICS_ONLY: &str = "optics-only";
+/// Name of the stage-1 design (the branches' common start) when it is evaluated
+/// ([`StudyConfig::evaluate_stage1`]); its folder is `stage1`.
+pub const STAGE1: &str = "stage1";
 
 /// Study settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,11 +39,21 @@ pub struct StudyConfig {
     pub stage1_iters: usize,
     /// Iterations of each branch after stage 1.
     pub stage2_iters: usize,
+    /// Train and evaluate the conventional design (stage 1 continued without tolerances).
+    #[serde(default = "yes")]
+    pub conventional: bool,
+    /// Train and evaluate the tolerance-aware design (stage 2: lens and decoder with tolerances).
+    #[serde(default = "yes")]
+    pub tolerance_aware: bool,
     /// Also train and evaluate the decoder-only control.
     pub decoder_only: bool,
     /// Also train and evaluate the optics-only control.
     #[serde(default)]
     pub optics_only: bool,
+    /// Also evaluate the stage-1 design ([`STAGE1`]), each branch paired against it (what the
+    /// branch bought over its start). `tolray train`'s image stage sets it.
+    #[serde(default)]
+    pub evaluate_stage1: bool,
     /// Iterations between validation-PSNR measurements (0: none); the last iteration of every
     /// phase is always measured.
     #[serde(default)]
@@ -59,7 +72,77 @@ fn default_photos() -> usize {
     2
 }
 
+fn yes() -> bool {
+    true
+}
+
 impl StudyConfig {
+    /// The branches trained after stage 1, in order: (name, phase).
+    pub fn branches(&self) -> Vec<(&'static str, Phase)> {
+        [
+            (self.conventional, CONVENTIONAL, Phase::Nominal),
+            (self.tolerance_aware, TOLERANCE_AWARE, Phase::Tolerance),
+            (self.decoder_only, DECODER_ONLY, Phase::DecoderOnly),
+            (self.optics_only, OPTICS_ONLY, Phase::OpticsOnly),
+        ]
+        .into_iter()
+        .filter(|b| b.0)
+        .map(|b| (b.1, b.2))
+        .collect()
+    }
+
+    /// The designs the evaluation scores, in order: the stage-1 design when
+    /// [`StudyConfig::evaluate_stage1`] is set, then the branches.
+    pub fn designs(&self) -> Vec<&'static str> {
+        let mut d = if self.evaluate_stage1 {
+            vec![STAGE1]
+        } else {
+            Vec::new()
+        };
+        d.extend(self.branches().into_iter().map(|b| b.0));
+        d
+    }
+
+    /// The pairs of designs whose paired differences the report gives (a minus b): the
+    /// tolerance-aware design against each other branch, each control against the conventional
+    /// design, and with [`StudyConfig::evaluate_stage1`] each branch against stage 1.
+    pub fn pairs(&self) -> Vec<(String, String)> {
+        let has = |n: &str| self.designs().contains(&n);
+        let mut p = Vec::new();
+        let mut add = |a: &str, b: &str| {
+            if has(a) && has(b) {
+                p.push((a.to_string(), b.to_string()));
+            }
+        };
+        add(TOLERANCE_AWARE, CONVENTIONAL);
+        add(DECODER_ONLY, CONVENTIONAL);
+        add(TOLERANCE_AWARE, DECODER_ONLY);
+        add(OPTICS_ONLY, CONVENTIONAL);
+        add(TOLERANCE_AWARE, OPTICS_ONLY);
+        for (b, _) in self.branches() {
+            add(b, STAGE1);
+        }
+        p
+    }
+
+    /// Checks the settings: the joint-training settings, and that there is a design to
+    /// evaluate.
+    ///
+    /// # Errors
+    /// [`ErrorKind::Argument`] naming what is wrong.
+    pub fn validate(&self) -> Result<()> {
+        self.deep.validate()?;
+        if self.designs().is_empty() {
+            return Err(Error::argument(
+                "no design to train after stage 1 and stage 1 not evaluated: nothing to report",
+            ));
+        }
+        if self.eval.trials == 0 {
+            return Err(Error::argument("0 evaluation trials: give at least 1"));
+        }
+        Ok(())
+    }
+
     /// The evaluation images these settings name: `grid x patch` pixels square, the built-in set
     /// or centre crops of the folder's images.
     ///
@@ -78,6 +161,10 @@ impl StudyConfig {
 pub enum Start<'a> {
     /// A fresh study of this lens.
     Lens(&'a Lens),
+    /// A saved design (lens and decoder, e.g. an earlier run's `stage1` folder): the focus fit
+    /// is skipped and stage 1 (for [`StudyConfig::stage1_iters`], which may be 0) continues
+    /// from it. Its decoder must have the configured kind, grid, kernel and U-Net width.
+    Design(&'a Design),
     /// Where a checkpoint of the same study stopped.
     Checkpoint(Box<Checkpoint>),
 }
@@ -307,7 +394,7 @@ pub fn run_resumable(
     out: &Path,
     ctl: &mut Control<'_>,
 ) -> Result<Option<Report>> {
-    cfg.deep.validate()?;
+    cfg.validate()?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let ck_path = out.join("checkpoint.json");
     let save = |ck: &Checkpoint| -> Result<()> {
@@ -335,6 +422,44 @@ pub fn run_resumable(
                 config: cfg.clone(),
                 spot: Some(TrainState::new(lens, optics)),
                 stage1: None,
+                stage1_logs: Vec::new(),
+                branch: None,
+                finished: Vec::new(),
+            }
+        }
+        Start::Design(d) => {
+            let dc = &d.decoder;
+            let want = &cfg.deep;
+            if dc.kind != want.decoder
+                || dc.grid != want.optics.psf_grid
+                || dc.ks != want.optics.psf_ks
+                || (dc.kind.has_unet() && dc.unet_width != want.unet_width)
+            {
+                return Err(Error::argument(format!(
+                    "the design's decoder ({}, grid {}, kernel {}, U-Net width {}) differs from \
+                     the settings' ({}, grid {}, kernel {}, U-Net width {})",
+                    dc.kind.name(),
+                    dc.grid,
+                    dc.ks,
+                    dc.unet_width,
+                    want.decoder.name(),
+                    want.optics.psf_grid,
+                    want.optics.psf_ks,
+                    want.unet_width
+                )));
+            }
+            let s1 = DeepState::new(
+                cfg.deep.clone(),
+                d.lens.clone(),
+                Some(d.decoder.clone()),
+                Phase::Nominal,
+                cfg.stage1_iters,
+                0,
+            )?;
+            Checkpoint {
+                config: cfg.clone(),
+                spot: None,
+                stage1: Some(s1.to_saved()),
                 stage1_logs: Vec::new(),
                 branch: None,
                 finished: Vec::new(),
@@ -394,18 +519,11 @@ pub fn run_resumable(
         }
     }
     ck.stage1 = Some(s1.to_saved());
-    save_design(&s1.design, &out.join("stage1"))?;
-    let mut branches = vec![
-        (CONVENTIONAL, Phase::Nominal),
-        (TOLERANCE_AWARE, Phase::Tolerance),
-    ];
-    if cfg.decoder_only {
-        branches.push((DECODER_ONLY, Phase::DecoderOnly));
+    save_design(&s1.design, &out.join(STAGE1))?;
+    if cfg.evaluate_stage1 {
+        write_log(&out.join(STAGE1), &ck.stage1_logs)?;
     }
-    if cfg.optics_only {
-        branches.push((OPTICS_ONLY, Phase::OpticsOnly));
-    }
-    for (name, phase) in branches.iter().copied() {
+    for (name, phase) in cfg.branches() {
         if ck.finished.iter().any(|f| f.0 == name) {
             continue;
         }
@@ -431,34 +549,34 @@ pub fn run_resumable(
         }
         let dir = out.join(name);
         save_design(&s.design, &dir)?;
-        let text: String = logs
-            .iter()
-            .map(|l| serde_json::to_string(l).unwrap_or_default() + "\n")
-            .collect();
-        write_atomic(&dir.join("log.jsonl"), text.as_bytes())?;
+        write_log(&dir, &logs)?;
         ck.finished.push((name.to_string(), logs));
         if every > 0 {
             save(&ck)?;
         }
     }
     crate::figures::save(
-        &crate::figures::deep_training_figure(&ck.finished, "deep-optics training"),
+        &crate::figures::deep_training_figure(
+            &ck.stage1_logs,
+            &ck.finished,
+            "deep-optics training",
+        ),
         &out.join("training.png"),
     )?;
     let mut scores = Vec::new();
-    for (name, _) in &ck.finished {
+    for name in cfg.designs() {
         let d = load_design(&out.join(name))?;
         scores.push(evaluate(name, &d, images, &cfg.eval, 0..cfg.eval.trials)?);
     }
-    let mut pairs = vec![(TOLERANCE_AWARE.to_string(), CONVENTIONAL.to_string())];
-    if cfg.decoder_only {
-        pairs.push((DECODER_ONLY.to_string(), CONVENTIONAL.to_string()));
-        pairs.push((TOLERANCE_AWARE.to_string(), DECODER_ONLY.to_string()));
-    }
-    if cfg.optics_only {
-        pairs.push((OPTICS_ONLY.to_string(), CONVENTIONAL.to_string()));
-        pairs.push((TOLERANCE_AWARE.to_string(), OPTICS_ONLY.to_string()));
-    }
     let names: Vec<String> = images.images.iter().map(|i| i.0.clone()).collect();
-    report(&cfg.eval, &names, scores, &pairs).map(Some)
+    report(&cfg.eval, &names, scores, &cfg.pairs()).map(Some)
+}
+
+/// Writes a design's training log as `log.jsonl` in `dir` (one [`DeepLog`] per line).
+fn write_log(dir: &Path, logs: &[DeepLog]) -> Result<()> {
+    let text: String = logs
+        .iter()
+        .map(|l| serde_json::to_string(l).unwrap_or_default() + "\n")
+        .collect();
+    write_atomic(&dir.join("log.jsonl"), text.as_bytes())
 }

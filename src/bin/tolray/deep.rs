@@ -46,7 +46,21 @@ pub struct EvalArgs {
 }
 
 impl EvalArgs {
-    fn config(
+    /// The evaluation's defaults with `trials` units and the tolerance spec `spec`.
+    pub fn defaults(trials: usize, spec: Option<PathBuf>) -> EvalArgs {
+        EvalArgs {
+            trials,
+            eval_seed: 1_000_003,
+            eval_spp: 8192,
+            patch: 48,
+            photos: 2,
+            eval_images: None,
+            compensate: None,
+            spec,
+        }
+    }
+
+    pub(crate) fn config(
         &self,
         lens: &Lens,
         noise: f64,
@@ -187,7 +201,7 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
         }
     };
     let images = cfg.eval_images()?;
-    run_study(cfg, start, &images, &out, a.checkpoint_every)
+    run_study(cfg, start, &images, &out, a.checkpoint_every, "tolray deep")
 }
 
 /// The study settings of the flags.
@@ -218,8 +232,11 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
         spot_iters: a.spot_iters,
         stage1_iters: a.stage1_iters,
         stage2_iters: a.stage2_iters,
+        conventional: true,
+        tolerance_aware: true,
         decoder_only: !a.no_decoder_only,
         optics_only: a.optics_only,
+        evaluate_stage1: false,
         validate_every: a.validate_every,
         eval,
         eval_photos: a.eval.photos,
@@ -228,13 +245,14 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
 }
 
 /// Runs (or continues) the study with progress lines, checkpoints and Ctrl-C (a checkpoint, then
-/// exit code 130), and writes the report.
-fn run_study(
+/// exit code 130, naming `command` to resume with), and writes the report.
+pub(crate) fn run_study(
     cfg: StudyConfig,
     start: study::Start<'_>,
     images: &EvalImages,
     out: &Path,
     checkpoint_every: usize,
+    command: &str,
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(out)
         .with_context(|| format!("{}: cannot create directory", out.display()))?;
@@ -287,7 +305,7 @@ fn run_study(
     };
     let Some(report) = study::run_resumable(start, &cfg, images, out, &mut ctl)? else {
         eprintln!(
-            "interrupted: checkpoint written to {}; continue with `tolray deep --resume {}`",
+            "interrupted: checkpoint written to {}; continue with `{command} --resume {}`",
             out.join("checkpoint.json").display(),
             out.display()
         );

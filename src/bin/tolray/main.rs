@@ -52,7 +52,8 @@ enum Command {
     PsfMap(psf::PsfMapArgs),
     /// Two-stage optimization: stage 1 (pretrain) minimizes the RMS spot without tolerances;
     /// stage 2 (tolerance) samples tolerance patterns each iteration and minimizes the spot and
-    /// PSF-similarity losses.
+    /// PSF-similarity losses. With --decoder, the image stage: lens and decoder trained together
+    /// on simulated captures, stage 1 without and stage 2 with tolerances, and evaluated.
     Train(train::TrainArgs),
     /// Merge shard reports of one Monte Carlo study into the report a single run gives.
     Merge(tolerance::MergeArgs),
@@ -71,7 +72,6 @@ enum Command {
     /// agree. Exits with 1 when any deviation exceeds its bound. Needs a build with
     /// `--features embree`.
     Validate(validate::ValidateArgs),
-    /// The main job on built-in defaults: info, spots and pictures for every built-in lens.
     /// The main job: the deep-optics study on lens1 with the built-in defaults (`deep lens1`),
     /// or with --optics the tour of the optics half (paraxial data, spots, Monte Carlo).
     Demo(demo::DemoArgs),

@@ -1,13 +1,20 @@
 //! `tolray train`: the two-stage optics training, run by the library's
-//! [`run_training`](tolray::optim::train::run_training) with a progress bar and Ctrl-C.
+//! [`run_training`](tolray::optim::train::run_training) with a progress bar and Ctrl-C; with
+//! `--decoder`, the image stage (lens and decoder), run by the deep-optics study runner
+//! ([`tolray::deep::study::run_resumable`]) for one stage-2 design.
 
 use crate::app::{GRACEFUL_STOP, STOP_REQUESTED};
+use crate::deep::{run_study, EvalArgs};
 use crate::report::emit;
 use crate::usage;
 use anyhow::Context;
 use clap::Args;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
+use tolray::decoder::DecoderKind;
+use tolray::deep::study::{self, StudyConfig};
+use tolray::deep::DeepConfig;
+use tolray::image::source::TrainImages;
 use tolray::lens::json;
 use tolray::optim::train::{
     final_report, run_training, RunOptions, RunOutcome, TrainConfig, TrainState,
@@ -18,7 +25,8 @@ use tolray::{Lens, Object};
 /// Arguments of `tolray train`.
 #[derive(Args)]
 pub struct TrainArgs {
-    /// Lens JSON file or built-in name (ignored with --resume).
+    /// Lens JSON file or built-in name (ignored with --resume); with --decoder and --stage
+    /// tolerance, a design folder (lens.json and decoder.bin, e.g. an earlier run's stage1).
     pub lens: Option<String>,
     /// Object distance from the first vertex in mm, or "inf".
     #[arg(long, value_name = "MM|inf")]
@@ -26,22 +34,26 @@ pub struct TrainArgs {
     /// Which stages to run.
     #[arg(long, default_value = "both", value_parser = ["pretrain", "tolerance", "both"])]
     pub stage: String,
-    /// Iterations per stage.
-    #[arg(long, default_value_t = 100)]
-    pub iters: usize,
-    /// Iterations of stage 1 when it should differ from --iters.
+    /// Iterations per stage [default: 100]; with --decoder, iterations of stage 2 [default: 100].
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// Iterations of stage 1 when it should differ from --iters; with --decoder [default: 200].
     #[arg(long)]
     pub pretrain_iters: Option<usize>,
-    /// Tolerance patterns per stage-2 iteration.
-    #[arg(long, default_value_t = 64)]
-    pub samples: usize,
-    /// Seed of patterns and pupil samples.
+    /// Tolerance patterns per stage-2 iteration [default: 64]; with --decoder, training crops
+    /// (each with its own pattern in stage 2) per iteration [default: 32].
+    #[arg(long)]
+    pub samples: Option<usize>,
+    /// Seed of patterns and pupil samples (and with --decoder, of crops and noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output directory: log.jsonl, checkpoint.json, lens-*.json, report, pictures.
-    #[arg(long, value_name = "DIR")]
-    pub out: PathBuf,
-    /// Continue the run saved in DIR exactly where it stopped.
+    /// Output directory: log.jsonl, checkpoint.json, lens-*.json, report, pictures (with
+    /// --decoder: stage1/ and the stage-2 design's folder, training.png, report.json/.html).
+    /// With --resume it defaults to the resumed folder.
+    #[arg(long, value_name = "DIR", required_unless_present = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the run saved in DIR exactly where it stopped (either kind: the settings come
+    /// from its checkpoint).
     #[arg(long, value_name = "DIR")]
     pub resume: Option<PathBuf>,
     /// Write a checkpoint every K iterations (and always at the end or on Ctrl-C).
@@ -50,33 +62,112 @@ pub struct TrainArgs {
     /// Tolerance spec for stage 2 (default: the paper's Table A1).
     #[arg(long, value_name = "SPEC.json")]
     pub spec: Option<PathBuf>,
-    /// Weight of the spot loss (per mm).
-    #[arg(long, default_value_t = 10.0)]
-    pub lambda_spot: f64,
-    /// Weight of the PSF-similarity loss.
-    #[arg(long, default_value_t = 1.0)]
-    pub lambda_psf: f64,
+    /// Weight of the spot loss (per mm) [default: 10; with --decoder 0.1]; 0 turns it off.
+    #[arg(long)]
+    pub lambda_spot: Option<f64>,
+    /// Weight of the PSF-similarity loss [default: 1; with --decoder 0.01]; 0 turns it off.
+    #[arg(long)]
+    pub lambda_psf: Option<f64>,
     /// Rays per PSF in stage 2.
     #[arg(long, default_value_t = 256)]
     pub psf_spp: usize,
-    /// Factor on the learning rates in stage 2 (which fine-tunes the stage-1 design).
-    #[arg(long, default_value_t = 0.1)]
-    pub tolerance_lr_scale: f64,
+    /// Factor on the learning rates in stage 2 (which fine-tunes the stage-1 design)
+    /// [default: 0.1]. Not with --decoder.
+    #[arg(long)]
+    pub tolerance_lr_scale: Option<f64>,
     /// Maximum total track, mm.
     #[arg(long, value_name = "MM")]
     pub max_track: Option<f64>,
     /// Target effective focal length, mm.
     #[arg(long, value_name = "MM")]
     pub target_efl: Option<f64>,
-    /// Held-out patterns for the final report (seed differs from training). 100 is too few
-    /// to compare two designs' spreads: their standard deviations then vary by about 10 %
-    /// from one held-out seed to another.
-    #[arg(long, default_value_t = 400)]
-    pub eval_trials: usize,
+    /// Held-out patterns for the final report (seed differs from training) [default: 400; with
+    /// --decoder, fabricated units each design is evaluated on: 100]. 100 is too few to compare
+    /// two designs' spot spreads: their standard deviations then vary by about 10 % from one
+    /// held-out seed to another.
+    #[arg(long)]
+    pub eval_trials: Option<usize>,
+    #[command(flatten)]
+    pub image: ImageStageArgs,
+}
+
+/// The image stage of `tolray train` (the flags that need --decoder).
+#[derive(Args, Default)]
+pub struct ImageStageArgs {
+    /// Train the image stage: the lens and this decoder (wiener, unet, wiener+unet) together on
+    /// simulated captures, stage 1 without and stage 2 with tolerances (the deep-optics trainer
+    /// of `tolray deep`, for one design).
+    #[arg(long, help_heading = "Image stage")]
+    pub decoder: Option<String>,
+    /// What stage 2 trains: both (lens and decoder: the tolerance-aware design), optics (the
+    /// decoder frozen) or decoder (the lens frozen): the paper's Table 3 rows. The design is
+    /// saved as tolerance-aware/, optics-only/ or decoder-only/ [default: both].
+    #[arg(long, value_parser = ["both", "optics", "decoder"], help_heading = "Image stage")]
+    pub stage2_trains: Option<String>,
+    /// Iterations of the spot-loss focus fit before stage 1 (stage 0) [default: 300].
+    #[arg(long, help_heading = "Image stage")]
+    pub focus_iters: Option<usize>,
+    /// Side of the training crops, pixels (the paper: 256) [default: 32].
+    #[arg(long, help_heading = "Image stage")]
+    pub crop: Option<usize>,
+    /// U-Net width (channels of its first level) [default: 8].
+    #[arg(long, help_heading = "Image stage")]
+    pub unet_width: Option<usize>,
+    /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01) [default: 0.01].
+    #[arg(long, help_heading = "Image stage")]
+    pub noise: Option<f64>,
+    /// Train on random flipped blocks of the PNG/JPEG images of this folder instead of the
+    /// built-in dead leaves.
+    #[arg(long, value_name = "DIR", help_heading = "Image stage")]
+    pub images: Option<PathBuf>,
+    /// Refocus each sampled unit in stage 2 before imaging it (its best RMS focus, differentiated
+    /// with the design).
+    #[arg(long, value_name = "focus", value_parser = ["focus"], help_heading = "Image stage")]
+    pub train_compensate: Option<String>,
+    /// Iterations between validation-PSNR measurements (0: none) [default: 10].
+    #[arg(long, help_heading = "Image stage")]
+    pub validate_every: Option<usize>,
+    /// Evaluate on the PNG/JPEG images of this folder (centre crops) instead of the built-in set.
+    #[arg(long, value_name = "DIR", help_heading = "Image stage")]
+    pub eval_images: Option<PathBuf>,
+    /// Refocus each evaluated unit to its best RMS focus (the assembly's compensator).
+    #[arg(long, value_name = "focus", value_parser = ["focus"], help_heading = "Image stage")]
+    pub compensate: Option<String>,
+}
+
+impl ImageStageArgs {
+    /// The first image-stage flag given, for the error when --decoder is missing.
+    fn first_given(&self) -> Option<&'static str> {
+        [
+            (self.stage2_trains.is_some(), "--stage2-trains"),
+            (self.focus_iters.is_some(), "--focus-iters"),
+            (self.crop.is_some(), "--crop"),
+            (self.unet_width.is_some(), "--unet-width"),
+            (self.noise.is_some(), "--noise"),
+            (self.images.is_some(), "--images"),
+            (self.train_compensate.is_some(), "--train-compensate"),
+            (self.validate_every.is_some(), "--validate-every"),
+            (self.eval_images.is_some(), "--eval-images"),
+            (self.compensate.is_some(), "--compensate"),
+        ]
+        .into_iter()
+        .find(|f| f.0)
+        .map(|f| f.1)
+    }
 }
 
 /// Runs `tolray train`.
 pub fn run(a: TrainArgs) -> anyhow::Result<()> {
+    let image_resume = a
+        .resume
+        .as_ref()
+        .is_some_and(|d| d.join("study.json").exists());
+    if a.image.decoder.is_some() || image_resume {
+        return image_stage(a);
+    }
+    if let Some(flag) = a.image.first_given() {
+        usage!("{flag} belongs to the image stage: give --decoder KIND too");
+    }
     let TrainArgs {
         lens,
         object,
@@ -96,7 +187,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         max_track,
         target_efl,
         eval_trials,
+        image: _,
     } = a;
+    let Some(out) = out.or_else(|| resume.clone()) else {
+        usage!("train needs --out DIR (or --resume DIR)")
+    };
+    let iters = iters.unwrap_or(100);
     let state = match &resume {
         Some(dir) => {
             let p = dir.join("checkpoint.json");
@@ -120,11 +216,12 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 pretrain_iters.unwrap_or(iters)
             };
             cfg.tolerance_iters = if stage == "pretrain" { 0 } else { iters };
-            cfg.samples = samples;
+            cfg.samples = samples.unwrap_or(64);
             cfg.seed = seed;
-            cfg.lambda_spot = lambda_spot;
-            cfg.lambda_psf = lambda_psf;
+            cfg.lambda_spot = lambda_spot.unwrap_or(10.0);
+            cfg.lambda_psf = lambda_psf.unwrap_or(1.0);
             cfg.psf_spp = psf_spp;
+            let tolerance_lr_scale = tolerance_lr_scale.unwrap_or(0.1);
             if !(tolerance_lr_scale > 0.0 && tolerance_lr_scale.is_finite()) {
                 usage!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
             }
@@ -147,8 +244,143 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         &out,
         resume.is_some(),
         checkpoint_every.max(1),
-        eval_trials,
+        eval_trials.unwrap_or(400),
     )
+}
+
+/// `tolray train --decoder KIND`: stage 0 (focus fit), stage 1 (lens and decoder, nominal) and
+/// stage 2 (the branch `--stage2-trains` names, with tolerances), run by the study runner with
+/// the stage-1 design evaluated beside the stage-2 design on the same held-out units.
+fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
+    if let Some(dir) = &a.resume {
+        if a.out.as_ref().is_some_and(|o| o != dir) {
+            usage!(
+                "--out {}: an image-stage run continues in its own folder; give --out {} or leave \
+                 it out",
+                a.out
+                    .as_ref()
+                    .map_or(String::new(), |o| o.display().to_string()),
+                dir.display()
+            );
+        }
+        let ck = study::read_checkpoint(dir)?;
+        let cfg = ck.config.clone();
+        let images = cfg.eval_images()?;
+        return run_study(
+            cfg,
+            study::Start::Checkpoint(Box::new(ck)),
+            &images,
+            dir,
+            a.checkpoint_every,
+            "tolray train",
+        );
+    }
+    if a.tolerance_lr_scale.is_some() {
+        usage!(
+            "--tolerance-lr-scale is the optics trainer's; with --decoder the lens learning \
+             rates are the image stage's own"
+        );
+    }
+    let im = &a.image;
+    let Some(name) = a.lens.as_deref() else {
+        usage!("train needs a LENS (or --resume DIR)")
+    };
+    let from_design = a.stage == "tolerance";
+    let design = if from_design {
+        let dir = Path::new(name);
+        if !dir.join("decoder.bin").exists() {
+            usage!(
+                "--stage tolerance with --decoder starts from a design: give a folder with \
+                 lens.json and decoder.bin (e.g. the stage1/ of a `--stage pretrain` run), not \
+                 {name}"
+            );
+        }
+        Some(study::load_design(dir)?)
+    } else {
+        None
+    };
+    let mut lens = match &design {
+        Some(d) => d.lens.clone(),
+        None => Lens::load(name)?,
+    };
+    if let Some(o) = &a.object {
+        lens.object = Object::parse(o)?;
+    }
+    let mut d = DeepConfig::for_lens(&lens);
+    d.optics.samples = a.samples.unwrap_or(32);
+    d.optics.seed = a.seed;
+    d.optics.psf_spp = a.psf_spp;
+    d.optics.constraints.max_total_track_mm = a.max_track;
+    d.optics.constraints.target_efl_mm = a.target_efl;
+    d.crop_px = im.crop.unwrap_or(32);
+    d.decoder = DecoderKind::parse(im.decoder.as_deref().unwrap_or_default())?;
+    if let Some(k) = design.as_ref().map(|d| d.decoder.kind) {
+        if k != d.decoder {
+            usage!(
+                "{name}: the design's decoder is {0}: give --decoder {0}",
+                k.name()
+            );
+        }
+    }
+    // A design start keeps its U-Net's width unless told otherwise.
+    d.unet_width = im
+        .unet_width
+        .or(design.as_ref().map(|d| d.decoder.unet_width))
+        .unwrap_or(8);
+    d.noise_sigma = im.noise.unwrap_or(0.01);
+    d.lambda_spot = a.lambda_spot.unwrap_or(0.1);
+    d.lambda_psf = a.lambda_psf.unwrap_or(0.01);
+    d.compensate_focus = im.train_compensate.is_some();
+    if let Some(p) = &a.spec {
+        d.optics.spec = ToleranceSpec::read(p)?;
+    }
+    d.validate()?;
+    if let Some(dir) = &im.images {
+        d.train_images = TrainImages::from_dir(dir, d.crop_px + d.optics.psf_ks - 1)?;
+    }
+    let mut ev = EvalArgs::defaults(a.eval_trials.unwrap_or(100), a.spec.clone());
+    ev.eval_images = im.eval_images.clone();
+    ev.compensate = im.compensate.clone();
+    let (eval, images) = ev.config(&lens, d.noise_sigma, d.optics.psf_grid, d.optics.psf_ks)?;
+    let trains = im.stage2_trains.as_deref().unwrap_or("both");
+    let stage2 = a.stage != "pretrain";
+    let iters = a.iters.unwrap_or(100);
+    let cfg = StudyConfig {
+        deep: d,
+        spot_iters: if from_design {
+            0
+        } else {
+            im.focus_iters.unwrap_or(300)
+        },
+        stage1_iters: if from_design {
+            0
+        } else {
+            a.pretrain_iters.unwrap_or(200)
+        },
+        stage2_iters: if stage2 { iters } else { 0 },
+        conventional: false,
+        tolerance_aware: stage2 && trains == "both",
+        decoder_only: stage2 && trains == "decoder",
+        optics_only: stage2 && trains == "optics",
+        evaluate_stage1: true,
+        validate_every: im.validate_every.unwrap_or(10),
+        eval,
+        eval_photos: 2,
+        eval_images_dir: im.eval_images.clone(),
+    };
+    // A design start keeps its decoder and takes the lens with --object applied.
+    let Some(out) = &a.out else {
+        usage!("train needs --out DIR (or --resume DIR)")
+    };
+    let from = design.map(|d| tolray::deep::Design {
+        lens: lens.clone(),
+        decoder: d.decoder,
+    });
+    let start = match &from {
+        Some(d) => study::Start::Design(d),
+        None => study::Start::Lens(&lens),
+    };
+    run_study(cfg, start, &images, out, a.checkpoint_every, "tolray train")
 }
 
 /// Runs (or continues) training with a progress bar, Ctrl-C as a stop request (exit code 130
