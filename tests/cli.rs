@@ -604,7 +604,7 @@ fn training_interrupted_by_ctrl_c_leaves_an_exact_checkpoint() {
     assert_eq!(log_lines(), n);
     assert_eq!(
         std::fs::read_to_string(s("run/lens-latest.json")).unwrap(),
-        ck.lens_json
+        tolray::lens::json::to_string(&ck.lens)
     );
     assert!(dir.join(format!("run/lens-iter{n}.json")).exists());
     let initial = std::fs::read_to_string(s("run/lens-initial.json")).unwrap();

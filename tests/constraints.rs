@@ -17,7 +17,7 @@ fn pretrain(lens: &Lens, iters: usize, constraints: Constraints) -> Lens {
     while state.next_iter < state.total_iters() {
         step(&mut state).unwrap();
     }
-    state.lens().unwrap()
+    state.lens
 }
 
 /// (centre thickness or air gap, edge thickness or gap, is glass) of each pair of neighbouring

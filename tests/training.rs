@@ -36,8 +36,8 @@ fn train_and_evaluate(seed: u64) -> [HeldOut; 3] {
     while state.next_iter < state.total_iters() {
         step(&mut state).unwrap();
     }
-    let stage1 = tolray::lens::json::from_str(state.stage1_lens_json.as_deref().unwrap()).unwrap();
-    let fin = state.lens().unwrap();
+    let stage1 = state.stage1_lens.clone().unwrap();
+    let fin = state.lens.clone();
     let held = 1_000_003;
     [&lens, &stage1, &fin].map(|l| held_out(l, &cfg, 400, held).unwrap())
 }

@@ -489,7 +489,7 @@ pub fn run_resumable(
         }
         let s1 = DeepState::new(
             cfg.deep.clone(),
-            st.lens()?,
+            st.lens.clone(),
             None,
             Phase::Nominal,
             cfg.stage1_iters,

@@ -561,6 +561,78 @@ pub fn to_string(lens: &Lens) -> String {
     s
 }
 
+/// Serde helpers that store a [`Lens`] as its DeepLens JSON text in a string field (what
+/// training checkpoints hold): `#[serde(with = "tolray::lens::json::as_text")]`. Reading
+/// parses the text with the built-in glass catalog; the round trip is exact.
+///
+/// # Examples
+/// ```
+/// use serde::{Deserialize, Serialize};
+/// #[derive(Serialize, Deserialize)]
+/// struct Saved {
+///     #[serde(with = "tolray::lens::json::as_text")]
+///     lens: tolray::Lens,
+/// }
+/// let lens = tolray::Lens::load("lens1")?;
+/// let text = serde_json::to_string(&Saved { lens: lens.clone() }).unwrap();
+/// let back: Saved = serde_json::from_str(&text).unwrap();
+/// assert_eq!(tolray::lens::json::to_string(&back.lens), tolray::lens::json::to_string(&lens));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub mod as_text {
+    use super::{from_str, to_string, Lens};
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// Writes the lens as a string of DeepLens JSON.
+    ///
+    /// # Errors
+    /// The serializer's.
+    pub fn serialize<S: Serializer>(lens: &Lens, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(&to_string(lens))
+    }
+
+    /// Reads a lens from a string of DeepLens JSON.
+    ///
+    /// # Errors
+    /// The deserializer's, and the lens reader's message for invalid text.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Lens, D::Error> {
+        let text = String::deserialize(d)?;
+        from_str(&text).map_err(|e| serde::de::Error::custom(e.message))
+    }
+
+    /// [`as_text`](self) for an optional lens (`null` when absent).
+    pub mod option {
+        use super::{from_str, to_string, Lens};
+        use serde::{Deserialize, Deserializer, Serializer};
+
+        /// Writes the lens as a string of DeepLens JSON, or `null`.
+        ///
+        /// # Errors
+        /// The serializer's.
+        pub fn serialize<S: Serializer>(
+            lens: &Option<Lens>,
+            s: S,
+        ) -> std::result::Result<S::Ok, S::Error> {
+            match lens {
+                Some(l) => s.serialize_some(&to_string(l)),
+                None => s.serialize_none(),
+            }
+        }
+
+        /// Reads an optional string of DeepLens JSON.
+        ///
+        /// # Errors
+        /// The deserializer's, and the lens reader's message for invalid text.
+        pub fn deserialize<'de, D: Deserializer<'de>>(
+            d: D,
+        ) -> std::result::Result<Option<Lens>, D::Error> {
+            Option::<String>::deserialize(d)?
+                .map(|t| from_str(&t).map_err(|e| serde::de::Error::custom(e.message)))
+                .transpose()
+        }
+    }
+}
+
 /// Writes the lens to `path` atomically.
 ///
 /// # Errors

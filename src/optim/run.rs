@@ -52,7 +52,7 @@ fn save_checkpoint(state: &TrainState, out: &Path) -> Result<()> {
     let text = serde_json::to_string(state)
         .map_err(|e| Error::new(ErrorKind::Invalid, format!("checkpoint: {e}")))?;
     write_atomic(&out.join("checkpoint.json"), (text + "\n").as_bytes())?;
-    write_atomic(&out.join("lens-latest.json"), state.lens_json.as_bytes())
+    json::write_file(&state.lens, &out.join("lens-latest.json"))
 }
 
 /// Runs (or continues) training from `state` to its last iteration, writing into `out_dir`
@@ -153,9 +153,9 @@ pub fn run_training(
         let stop = opts.stop.load(Ordering::SeqCst);
         if done || state.next_iter % every == 0 || stop {
             save_checkpoint(state, out_dir)?;
-            write_atomic(
+            json::write_file(
+                &state.lens,
                 &out_dir.join(format!("lens-iter{}.json", state.next_iter)),
-                state.lens_json.as_bytes(),
             )?;
         }
         if stop && !done {
@@ -202,13 +202,10 @@ pub struct TrainReport {
 /// # Errors
 /// A corrupted design in `state`, and the errors of [`held_out`].
 pub fn final_report(state: &TrainState, out_dir: &Path, eval_trials: usize) -> Result<TrainReport> {
-    let initial = json::read_file(&out_dir.join("lens-initial.json")).or_else(|_| state.lens())?;
-    let final_lens = state.lens()?;
-    let stage1 = state
-        .stage1_lens_json
-        .as_deref()
-        .map(json::from_str)
-        .transpose()?;
+    let initial =
+        json::read_file(&out_dir.join("lens-initial.json")).unwrap_or_else(|_| state.lens.clone());
+    let final_lens = state.lens.clone();
+    let stage1 = state.stage1_lens.clone();
     let cfg = &state.config;
     let total = state.total_iters();
     let eval_seed = cfg.seed.wrapping_add(1_000_003);
@@ -401,7 +398,7 @@ mod tests {
         report.write(&part).unwrap();
         assert_eq!(
             json::read_file(&part.join("lens-final.json")).unwrap(),
-            state.lens().unwrap()
+            state.lens.clone()
         );
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -353,38 +353,40 @@ pub struct IterLog {
 pub struct TrainState {
     /// Settings.
     pub config: TrainConfig,
-    /// The current design (as DeepLens JSON text).
-    pub lens_json: String,
+    /// The current design (stored in checkpoints as DeepLens JSON text, `lens_json`).
+    #[serde(rename = "lens_json", with = "crate::lens::json::as_text")]
+    pub lens: Lens,
     /// Design variables.
     pub vars: Vec<Param>,
     /// Adam state of the current stage.
     pub adam: Adam,
     /// Next iteration to run (global).
     pub next_iter: usize,
-    /// The design at the end of stage 1, if reached (JSON).
-    pub stage1_lens_json: Option<String>,
+    /// The design at the end of stage 1, if reached (`stage1_lens_json` in checkpoints).
+    #[serde(
+        rename = "stage1_lens_json",
+        default,
+        with = "crate::lens::json::as_text::option"
+    )]
+    pub stage1_lens: Option<Lens>,
 }
 
 impl TrainState {
-    /// A fresh state for `lens`.
+    /// A fresh state for `lens`. The state holds the lens as its checkpoint restores it (what
+    /// DeepLens JSON keeps of it), so that a resumed run traces what an uninterrupted one does.
     pub fn new(lens: &Lens, config: TrainConfig) -> TrainState {
-        let vars = design_variables(lens);
-        let adam = Adam::new(learning_rates(lens, &vars, &config));
+        let lens = crate::lens::json::from_str(&crate::lens::json::to_string(lens))
+            .unwrap_or_else(|_| lens.clone());
+        let vars = design_variables(&lens);
+        let adam = Adam::new(learning_rates(&lens, &vars, &config));
         TrainState {
             config,
-            lens_json: crate::lens::json::to_string(lens),
+            lens,
             vars,
             adam,
             next_iter: 0,
-            stage1_lens_json: None,
+            stage1_lens: None,
         }
-    }
-    /// The current design.
-    ///
-    /// # Errors
-    /// If the stored JSON is invalid (a corrupted checkpoint).
-    pub fn lens(&self) -> Result<Lens> {
-        crate::lens::json::from_str(&self.lens_json)
     }
     /// Total iterations of both stages.
     pub fn total_iters(&self) -> usize {
@@ -441,13 +443,10 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
     };
     if stage == Stage::Tolerance && stage_it == 0 {
         // A new stage starts with fresh optimizer moments.
-        let lens = state.lens()?;
-        state.adam = Adam::new(learning_rates(&lens, &state.vars, &cfg));
-        state
-            .stage1_lens_json
-            .get_or_insert_with(|| state.lens_json.clone());
+        state.adam = Adam::new(learning_rates(&state.lens, &state.vars, &cfg));
+        state.stage1_lens.get_or_insert_with(|| state.lens.clone());
     }
-    let mut lens = state.lens()?;
+    let mut lens = state.lens.clone();
     let trace = TraceOptions {
         apertures: cfg.apertures,
     };
@@ -588,10 +587,10 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
         set_param(&mut lens, p, v)?;
     }
     project(&mut lens, &cfg.constraints);
-    state.lens_json = crate::lens::json::to_string(&lens);
+    state.lens = lens;
     state.next_iter += 1;
     if state.next_iter == cfg.pretrain_iters && cfg.tolerance_iters > 0 {
-        state.stage1_lens_json = Some(state.lens_json.clone());
+        state.stage1_lens = Some(state.lens.clone());
     }
     Ok(IterLog {
         iter: it,
