@@ -711,6 +711,20 @@ typedef struct tolray_rays_out {
     uint32_t *status;
 } tolray_rays_out;
 
+/**
+ * Called after every finished training iteration with the caller's `user` pointer, the
+ * iteration (global over both stages, from 0), the number of iterations of the run, the
+ * iteration's loss and its spot size (µm: RMS in stage 1, mean distance in stage 2). A nonzero
+ * return asks the run to stop after this iteration, with a checkpoint to resume from (a Ctrl-C
+ * handler sets a flag that the callback returns). Called on the thread that called
+ * [`tolray_train`]; it must not unwind.
+ */
+typedef int32_t (*tolray_train_progress)(void *user,
+                                         size_t iter,
+                                         size_t total,
+                                         double loss,
+                                         double spot_um);
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -1130,6 +1144,52 @@ tolray_status tolray_trace(const struct tolray_system *system,
                            size_t n,
                            const struct tolray_rays_in *rays,
                            const struct tolray_rays_out *out);
+
+/**
+ * Trains `lens` with the paper's two stages, as `tolray train` does, writing into the folder
+ * `out_dir` (created if missing): `lens-initial.json`, `log.jsonl` (one JSON line per
+ * iteration), `checkpoint.json` and `lens-iterN.json` every `checkpoint_every` iterations (0
+ * counts as 1), and at the end `training.png`, `report.txt`, `report.json` and
+ * `lens-final.json` (the designs evaluated on `eval_trials` held-out tolerance patterns, 1 to
+ * 100000). `config_json` is NULL for the lens' defaults or a JSON object whose keys replace
+ * them (e.g. `{"pretrain_iters": 100, "tolerance_iters": 100, "samples": 64, "seed": 0}`; the
+ * keys are those of `report.json`'s `"config"`; an unknown key is `TOLRAY_ERROR_ARGUMENT`).
+ * `progress` (may be NULL) is called after every iteration; when it returns nonzero the run
+ * stops after that iteration with a checkpoint, `*stopped` is 1, and [`tolray_train_resume`]
+ * continues it to exactly the files of an uninterrupted run. Otherwise `*stopped` is 0.
+ * Iterations are deterministic for the settings' seed, whatever the thread count.
+ *
+ * # Safety
+ * `lens` is a live handle; `config_json` is NULL or a NUL-terminated string; `out_dir` is a
+ * NUL-terminated string; `progress` is NULL or a function with this signature that does not
+ * unwind; `user` is passed to it untouched; `stopped` points to a writable `uint32_t`.
+ */
+tolray_status tolray_train(const struct tolray_lens *lens,
+                           const char *config_json,
+                           const char *out_dir,
+                           uint32_t checkpoint_every,
+                           uint32_t eval_trials,
+                           tolray_train_progress progress,
+                           void *user,
+                           uint32_t *stopped);
+
+/**
+ * Continues the run whose checkpoint is in `out_dir` (a run of [`tolray_train`] that was
+ * stopped, or `tolray train`'s) exactly where it stopped, with the same outputs, callback and
+ * `*stopped` as [`tolray_train`]. `TOLRAY_ERROR_IO` when `out_dir/checkpoint.json` cannot be
+ * read, `TOLRAY_ERROR_PARSE` when it is not a training checkpoint.
+ *
+ * # Safety
+ * `out_dir` is a NUL-terminated string; `progress` is NULL or a function with the signature of
+ * [`tolray_train_progress`] that does not unwind; `user` is passed to it untouched; `stopped`
+ * points to a writable `uint32_t`.
+ */
+tolray_status tolray_train_resume(const char *out_dir,
+                                  uint32_t checkpoint_every,
+                                  uint32_t eval_trials,
+                                  tolray_train_progress progress,
+                                  void *user,
+                                  uint32_t *stopped);
 
 /**
  * The library version as a static NUL-terminated string, e.g. `"0.1.0"`. Never fails.

@@ -757,3 +757,186 @@ fn oversized_spot_pupils_are_refused_with_a_status() {
         tolray_lens_free(lens);
     }
 }
+
+/// `tolray_train` and `tolray_train_resume`: the training runner through the C ABI. A run that
+/// the progress callback stops (as a Ctrl-C handler would) and that is resumed writes exactly
+/// the files of an uninterrupted run; the settings JSON overrides the defaults and refuses
+/// unknown keys; bad arguments are statuses with messages.
+#[test]
+fn training_runs_stops_and_resumes_through_the_c_abi() {
+    use std::ffi::{c_void, CString};
+    use tolray::ffi::tolray_status::*;
+    use tolray::ffi::{tolray_lens_free, tolray_lens_load, tolray_train, tolray_train_resume};
+    struct Calls {
+        seen: Vec<(usize, usize, f64, f64)>,
+        stop_at: usize,
+    }
+    unsafe extern "C" fn progress(
+        user: *mut c_void,
+        iter: usize,
+        total: usize,
+        loss: f64,
+        spot: f64,
+    ) -> i32 {
+        // SAFETY: `user` is the `Calls` this test passes.
+        let c = unsafe { &mut *user.cast::<Calls>() };
+        c.seen.push((iter, total, loss, spot));
+        i32::from(iter + 1 == c.stop_at)
+    }
+    let dir = std::env::temp_dir().join(format!("tolray-capi-train-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let c = |s: &str| CString::new(s).unwrap();
+    let cfg = c(r#"{"pretrain_iters": 4, "tolerance_iters": 3, "samples": 4, "seed": 5}"#);
+    let mut lens = std::ptr::null_mut();
+    // SAFETY: valid C strings and out-pointers throughout; handles are freed at the end.
+    unsafe {
+        assert_eq!(tolray_lens_load(c"lens1".as_ptr(), &mut lens), TOLRAY_OK);
+        let whole = c(dir.join("whole").to_str().unwrap());
+        let mut calls = Calls {
+            seen: Vec::new(),
+            stop_at: usize::MAX,
+        };
+        let mut stopped = 9u32;
+        let user = (&mut calls as *mut Calls).cast::<c_void>();
+        let st = tolray_train(
+            lens,
+            cfg.as_ptr(),
+            whole.as_ptr(),
+            2,
+            4,
+            Some(progress),
+            user,
+            &mut stopped,
+        );
+        assert_eq!(st, TOLRAY_OK, "{}", last_error());
+        assert_eq!(stopped, 0);
+        let iters: Vec<usize> = calls.seen.iter().map(|s| s.0).collect();
+        assert_eq!(iters, (0..7).collect::<Vec<_>>());
+        assert!(calls
+            .seen
+            .iter()
+            .all(|s| s.1 == 7 && s.2.is_finite() && s.3 > 0.0));
+
+        // Stopped by the callback after iteration 2 (in stage 1), resumed, stopped again in
+        // stage 2 and resumed again: the same files.
+        let cut = c(dir.join("cut").to_str().unwrap());
+        let mut calls = Calls {
+            seen: Vec::new(),
+            stop_at: 3,
+        };
+        let user = (&mut calls as *mut Calls).cast::<c_void>();
+        let st = tolray_train(
+            lens,
+            cfg.as_ptr(),
+            cut.as_ptr(),
+            2,
+            4,
+            Some(progress),
+            user,
+            &mut stopped,
+        );
+        assert_eq!((st, stopped), (TOLRAY_OK, 1), "{}", last_error());
+        assert!(!dir.join("cut/report.json").exists());
+        calls.stop_at = 6;
+        let st = tolray_train_resume(cut.as_ptr(), 2, 4, Some(progress), user, &mut stopped);
+        assert_eq!((st, stopped), (TOLRAY_OK, 1), "{}", last_error());
+        let st = tolray_train_resume(cut.as_ptr(), 2, 4, None, std::ptr::null_mut(), &mut stopped);
+        assert_eq!((st, stopped), (TOLRAY_OK, 0), "{}", last_error());
+        let iters: Vec<usize> = calls.seen.iter().map(|s| s.0).collect();
+        assert_eq!(iters, [0, 1, 2, 3, 4, 5]);
+        for f in [
+            "lens-final.json",
+            "log.jsonl",
+            "report.json",
+            "report.txt",
+            "lens-initial.json",
+        ] {
+            assert!(
+                std::fs::read(dir.join("whole").join(f)).unwrap()
+                    == std::fs::read(dir.join("cut").join(f)).unwrap(),
+                "{f} differs after the resumes"
+            );
+        }
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("whole/report.json")).unwrap())
+                .unwrap();
+        assert_eq!(report["config"]["samples"], 4);
+        assert_eq!(report["config"]["seed"], 5);
+        assert_eq!(report["designs"].as_array().unwrap().len(), 3);
+        assert!(dir.join("whole/training.png").exists());
+
+        // Errors: statuses with messages, nothing written where nothing could start.
+        let x = c(dir.join("x").to_str().unwrap());
+        let bad = [
+            (
+                c(r#"{"pretrain_itrs": 4}"#),
+                TOLRAY_ERROR_ARGUMENT,
+                "unknown key \"pretrain_itrs\"",
+            ),
+            (c("{"), TOLRAY_ERROR_PARSE, "config_json"),
+            (c("[1]"), TOLRAY_ERROR_PARSE, "not a JSON object"),
+            (
+                c(r#"{"samples": "many"}"#),
+                TOLRAY_ERROR_INVALID_INPUT,
+                "samples",
+            ),
+        ];
+        for (json, status, says) in bad {
+            let st = tolray_train(
+                lens,
+                json.as_ptr(),
+                x.as_ptr(),
+                1,
+                4,
+                None,
+                std::ptr::null_mut(),
+                &mut stopped,
+            );
+            assert_eq!(st, status, "{json:?}");
+            assert!(last_error().contains(says), "{json:?}: {}", last_error());
+        }
+        let st = tolray_train(
+            lens,
+            cfg.as_ptr(),
+            x.as_ptr(),
+            1,
+            0,
+            None,
+            std::ptr::null_mut(),
+            &mut stopped,
+        );
+        assert_eq!(st, TOLRAY_ERROR_ARGUMENT);
+        assert!(last_error().contains("eval_trials 0"), "{}", last_error());
+        let st = tolray_train(
+            lens,
+            cfg.as_ptr(),
+            x.as_ptr(),
+            1,
+            4,
+            None,
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+        );
+        assert_eq!(st, TOLRAY_ERROR_NULL_ARGUMENT);
+        assert!(
+            !dir.join("x").exists(),
+            "nothing written before the arguments are checked"
+        );
+        let st = tolray_train_resume(x.as_ptr(), 1, 4, None, std::ptr::null_mut(), &mut stopped);
+        assert_eq!(st, TOLRAY_ERROR_IO);
+        assert!(last_error().contains("checkpoint.json"), "{}", last_error());
+        tolray_lens_free(lens);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// This thread's last C ABI error message.
+fn last_error() -> String {
+    let mut buf = [0 as std::ffi::c_char; 4096];
+    // SAFETY: `buf` holds 4096 bytes.
+    unsafe { tolray::ffi::tolray_last_error(buf.as_mut_ptr(), buf.len()) };
+    // SAFETY: NUL-terminated by tolray_last_error.
+    unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }
+        .to_string_lossy()
+        .into_owned()
+}

@@ -22,9 +22,11 @@
 
 mod analysis;
 mod handles;
+mod train;
 
 pub use analysis::*;
 pub use handles::*;
+pub use train::*;
 
 use crate::error::{Error, ErrorKind};
 use std::cell::RefCell;

@@ -167,6 +167,49 @@ pub fn run_training(
     Ok(RunOutcome::Finished { logs })
 }
 
+/// How [`run_to_report`] ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RunEnd {
+    /// Every iteration ran; the report is written.
+    Finished(Box<TrainReport>),
+    /// Stopped on request with a checkpoint: resume from `checkpoint.json`.
+    Stopped {
+        /// The next iteration to run (global, over both stages).
+        next_iter: usize,
+    },
+}
+
+/// A whole run, as `tolray train` and the C ABI's `tolray_train` drive it: for a fresh run
+/// (not [`RunOptions::resumed`]) the starting design is written to `lens-initial.json`; then
+/// [`run_training`]; when it finishes, `training.png` (the loss and spot curves), and the
+/// [`final_report`] on `eval_trials` held-out patterns, written by [`TrainReport::write`].
+///
+/// # Errors
+/// As [`run_training`] and [`final_report`]; I/O errors naming the file.
+pub fn run_to_report(
+    state: &mut TrainState,
+    out_dir: &Path,
+    opts: RunOptions<'_>,
+    eval_trials: usize,
+    progress: impl FnMut(&IterLog),
+) -> Result<RunEnd> {
+    if !opts.resumed {
+        std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+        json::write_file(&state.lens, &out_dir.join("lens-initial.json"))?;
+    }
+    let logs = match run_training(state, out_dir, opts, progress)? {
+        RunOutcome::Finished { logs } => logs,
+        RunOutcome::Stopped { next_iter } => return Ok(RunEnd::Stopped { next_iter }),
+    };
+    crate::figures::save(
+        &crate::figures::training_figure(&logs, "Training"),
+        &out_dir.join("training.png"),
+    )?;
+    let report = final_report(state, out_dir, eval_trials)?;
+    report.write(out_dir)?;
+    Ok(RunEnd::Finished(Box::new(report)))
+}
+
 /// One design of a [`TrainReport`] with its held-out evaluation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DesignReport {

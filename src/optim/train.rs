@@ -9,7 +9,8 @@
 
 use super::adam::{cosine_schedule, Adam};
 pub use super::run::{
-    final_report, fmt_list, run_training, DesignReport, RunOptions, RunOutcome, TrainReport,
+    final_report, fmt_list, run_to_report, run_training, DesignReport, RunEnd, RunOptions,
+    RunOutcome, TrainReport,
 };
 use super::{
     bundle_spot, gradient, param_value, set_param, spot_size, Bundles, Objective, SpotMeasure,

@@ -15,10 +15,7 @@ use tolray::decoder::DecoderKind;
 use tolray::deep::study::{self, StudyConfig};
 use tolray::deep::DeepConfig;
 use tolray::image::source::TrainImages;
-use tolray::lens::json;
-use tolray::optim::train::{
-    final_report, run_training, RunOptions, RunOutcome, TrainConfig, TrainState,
-};
+use tolray::optim::train::{run_to_report, RunEnd, RunOptions, TrainConfig, TrainState};
 use tolray::tolerance::ToleranceSpec;
 use tolray::{Lens, Object};
 
@@ -233,9 +230,6 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
                 cfg.spec = ToleranceSpec::read(p)?;
                 cfg.spec.validate(&l).map_err(|e| e.context(p.display()))?;
             }
-            std::fs::create_dir_all(&out)
-                .with_context(|| format!("{}: cannot create directory", out.display()))?;
-            json::write_file(&l, &out.join("lens-initial.json"))?;
             TrainState::new(&l, cfg)
         }
     };
@@ -406,7 +400,7 @@ fn train(
         every,
         stop: &STOP_REQUESTED,
     };
-    let outcome = run_training(&mut state, out, opts, |l| {
+    let end = run_to_report(&mut state, out, opts, eval_trials, |l| {
         bar.set_message(format!(
             "{:?} loss {:.5} spot {:.2} µm{}",
             l.stage,
@@ -417,9 +411,9 @@ fn train(
         ));
         bar.inc(1);
     })?;
-    let logs = match outcome {
-        RunOutcome::Finished { logs } => logs,
-        RunOutcome::Stopped { next_iter } => {
+    let report = match end {
+        RunEnd::Finished(report) => report,
+        RunEnd::Stopped { next_iter } => {
             bar.abandon();
             eprintln!(
                 "interrupted: checkpoint at iteration {} in {}; continue with --resume {}",
@@ -431,14 +425,7 @@ fn train(
         }
     };
     bar.finish_and_clear();
-    tolray::figures::save(
-        &tolray::figures::training_figure(&logs, "Training"),
-        &out.join("training.png"),
-    )?;
-    // Final report: initial, stage-1 and final designs; held-out patterns with another seed.
-    let report = final_report(&state, out, eval_trials)?;
     emit(&report.text);
-    report.write(out)?;
     eprintln!(
         "wrote {}/report.txt, report.json, lens-final.json, training.png, log.jsonl",
         out.display()
