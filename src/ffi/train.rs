@@ -77,8 +77,12 @@ fn config(lens: &crate::Lens, text: Option<&str>) -> FfiResult<TrainConfig> {
     Ok(cfg)
 }
 
-/// Runs `state` to its end or a stop request, then writes the report.
-fn drive(
+/// Runs `state` to its end or a stop request, then writes the report; `*stopped` says which.
+///
+/// # Safety
+/// As [`tolray_train`] says of `progress`, `user` and `stopped`.
+#[allow(clippy::too_many_arguments)]
+unsafe fn drive(
     mut state: TrainState,
     out: &Path,
     resumed: bool,
@@ -86,7 +90,11 @@ fn drive(
     eval_trials: u32,
     progress: tolray_train_progress,
     user: *mut c_void,
-) -> FfiResult<bool> {
+    stopped: *mut u32,
+) -> FfiResult<()> {
+    if stopped.is_null() {
+        return Err(FfiError::null("stopped"));
+    }
     if eval_trials == 0 || eval_trials > 100_000 {
         return Err(FfiError::argument(format!(
             "eval_trials {eval_trials}: give 1 to 100000"
@@ -108,7 +116,9 @@ fn drive(
             }
         }
     })?;
-    Ok(matches!(end, RunEnd::Stopped { .. }))
+    // SAFETY: `stopped` is writable (the caller's promise) and not NULL (checked above).
+    unsafe { *stopped = u32::from(matches!(end, RunEnd::Stopped { .. })) };
+    Ok(())
 }
 
 /// Trains `lens` with the paper's two stages, as `tolray train` does, writing into the folder
@@ -149,24 +159,22 @@ pub unsafe extern "C" fn tolray_train(
             Some(unsafe { c_str(config_json, "config_json") }?)
         };
         // SAFETY: `out_dir` is NULL or a C string, as # Safety says; NULL is refused.
-        let out = unsafe { c_str(out_dir, "out_dir") }?;
-        if stopped.is_null() {
-            return Err(FfiError::null("stopped"));
-        }
+        let out = Path::new(unsafe { c_str(out_dir, "out_dir") }?);
         let cfg = config(&lens.lens, text)?;
         let state = TrainState::new(&lens.lens, cfg);
-        let s = drive(
-            state,
-            Path::new(out),
-            false,
-            checkpoint_every,
-            eval_trials,
-            progress,
-            user,
-        )?;
-        // SAFETY: `stopped` is writable (# Safety) and not NULL (checked above).
-        unsafe { *stopped = u32::from(s) };
-        Ok(())
+        // SAFETY: `progress`, `user` and `stopped` are as # Safety says.
+        unsafe {
+            drive(
+                state,
+                out,
+                false,
+                checkpoint_every,
+                eval_trials,
+                progress,
+                user,
+                stopped,
+            )
+        }
     })
 }
 
@@ -191,22 +199,20 @@ pub unsafe extern "C" fn tolray_train_resume(
     boundary("tolray_train_resume", || {
         // SAFETY: `out_dir` is NULL or a C string, as # Safety says; NULL is refused.
         let out = Path::new(unsafe { c_str(out_dir, "out_dir") }?);
-        if stopped.is_null() {
-            return Err(FfiError::null("stopped"));
-        }
         let state: TrainState = crate::files::read_json(&out.join("checkpoint.json"))?;
         state.config.validate()?;
-        let s = drive(
-            state,
-            out,
-            true,
-            checkpoint_every,
-            eval_trials,
-            progress,
-            user,
-        )?;
-        // SAFETY: `stopped` is writable (# Safety) and not NULL (checked above).
-        unsafe { *stopped = u32::from(s) };
-        Ok(())
+        // SAFETY: `progress`, `user` and `stopped` are as # Safety says.
+        unsafe {
+            drive(
+                state,
+                out,
+                true,
+                checkpoint_every,
+                eval_trials,
+                progress,
+                user,
+                stopped,
+            )
+        }
     })
 }
