@@ -600,9 +600,7 @@ fn psf_defaults_are_options_tolray_psf_takes() {
             tolray_psf_options_default(sys, opts.as_mut_ptr()),
             tolray_status::TOLRAY_ERROR_ARGUMENT
         );
-        let mut buf = vec![0 as std::ffi::c_char; 512];
-        tolray_last_error(buf.as_mut_ptr(), buf.len());
-        let msg = std::ffi::CStr::from_ptr(buf.as_ptr()).to_string_lossy();
+        let msg = last_error();
         assert!(
             msg.contains("sensor pitch") && msg.contains("70.7"),
             "{msg}"
@@ -743,11 +741,7 @@ fn oversized_spot_pupils_are_refused_with_a_status() {
         let st = unsafe { tolray_spot(sys, &field, wl.as_ptr(), 1, &pupil, 1, stats.as_mut_ptr()) };
         assert_eq!(st, want, "grid {n}");
         if n == 3000 {
-            let mut buf = [0 as std::ffi::c_char; 256];
-            // SAFETY: `buf` holds 256 bytes.
-            unsafe { tolray_last_error(buf.as_mut_ptr(), buf.len()) };
-            // SAFETY: NUL-terminated by tolray_last_error.
-            let msg = unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }.to_string_lossy();
+            let msg = last_error();
             assert!(msg.contains("at most 4194304"), "{msg}");
         }
     }
