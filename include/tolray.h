@@ -326,7 +326,8 @@
 #define TOLRAY_PARAM_CONIC 1
 
 /**
- * Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
+ * Polynomial sag coefficient `term` (0..7) of a surface: r^2..r^16 on an even asphere
+ * (mm^(1-2(term+1))), r^1..r^8 on an odd asphere, y^2..y^16 on a toroid's profile.
  */
 #define TOLRAY_PARAM_ASPHERE 2
 
@@ -438,7 +439,8 @@ typedef struct tolray_param {
      */
     uint32_t surface;
     /**
-     * Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16).
+     * Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
+     * (on an odd asphere 0 is r^1; on a toroid, y^2).
      */
     uint32_t term;
 } tolray_param;

@@ -1,6 +1,6 @@
 //! Exact dual-number gradients against central finite differences, for every variable kind, on
-//! lens1, lens2, the Cooke triplet, an aspheric lens and a two-mirror telescope, nominal and
-//! perturbed.
+//! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
+//! odd-asphere and an ideal-thin-lens system, nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -16,7 +16,9 @@ use tolray::{Lens, Object};
 fn all_vars(lens: &Lens) -> Vec<Param> {
     let mut v = Vec::new();
     for (i, s) in lens.surfaces.iter().enumerate() {
-        if s.role != tolray::lens::SurfaceRole::Aperture {
+        // An ideal thin lens is flat: its shape has no variables.
+        let thin = matches!(s.shape, tolray::lens::Shape::Paraxial { .. });
+        if s.role != tolray::lens::SurfaceRole::Aperture && !thin {
             v.push(Param::Curvature(i));
             if s.k != 0.0 || s.is_aspheric() {
                 v.push(Param::Conic(i));
@@ -93,7 +95,16 @@ fn step(lens: &Lens, p: Param) -> f64 {
         // the fourth-order formula keeps the truncation error far below 1e-6 at these steps.
         Param::Curvature(_) => 1e-7,
         Param::Conic(_) => 1e-6 * v.max(1.0),
-        Param::Asphere(_, j) => 1e-5 * v.max(1e-12 / 10f64.powi(j as i32)),
+        // Or, if larger, the step that moves the sag by 1e-7 mm at the semi-diameter (a large
+        // high-order term would otherwise get a step whose effect drowns in rounding).
+        Param::Asphere(i, j) => {
+            let s = &lens.surfaces[i];
+            let power = match s.shape {
+                tolray::lens::Shape::Odd => j as i32 + 1,
+                _ => 2 * j as i32 + 2,
+            };
+            (1e-5 * v.max(1e-12 / 10f64.powi(j as i32))).max(1e-7 / s.semi_aperture_mm.powi(power))
+        }
         // Gaps: the launch (entrance pupil, field angle) moves with them too, and re-launching
         // at each step adds rounding a smaller step would magnify.
         Param::Gap(_) => 1e-4 * v.max(1.0),
@@ -142,6 +153,21 @@ fn gradients_match_finite_differences_nominal() {
     }
     check("asphere", &asphere_lens(), false);
     check("cassegrain", &cassegrain(), false);
+    check("toroid", &zmx("toroid.zmx"), false);
+    check("odd asphere", &zmx("oddasphere.zmx"), false);
+    check("ideal thin lens", &zmx("thinlens.zmx"), false);
+}
+
+/// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
+/// oddasphere.zmx (an odd-asphere front with a cone term).
+fn zmx(name: &str) -> Lens {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/").to_string() + name;
+    tolray::lens::zemax::read_file(
+        std::path::Path::new(&path),
+        &tolray::lens::GlassCatalogs::builtin(),
+    )
+    .unwrap()
+    .lens
 }
 
 /// The two-mirror telescope of tests/data/cassegrain.json, defocused by 5 mm: in focus its
@@ -163,6 +189,9 @@ fn gradients_match_finite_differences_perturbed() {
     }
     check("asphere", &asphere_lens(), true);
     check("cassegrain", &cassegrain(), true);
+    check("toroid", &zmx("toroid.zmx"), true);
+    check("odd asphere", &zmx("oddasphere.zmx"), true);
+    check("ideal thin lens", &zmx("thinlens.zmx"), true);
 }
 
 #[test]

@@ -3,7 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use tolray::lens::material::LAMBDA_D_NM;
-use tolray::lens::{Adjustments, Material, Surface, System};
+use tolray::lens::{Adjustments, GlassCatalogs, Material, Surface, System};
 use tolray::math::{Mat3, Rigid, Vec3};
 use tolray::trace::reference::trace_ray;
 use tolray::trace::{trace, RayBatch, RayStatus, TraceOptions};
@@ -67,7 +67,22 @@ fn lenses() -> Vec<(String, Lens)> {
         .collect();
     v.push(("asphere".into(), asphere_lens()));
     v.push(("cassegrain".into(), cassegrain()));
+    v.push(("toroid".into(), zmx("toroid.zmx")));
+    v.push(("odd asphere".into(), zmx("oddasphere.zmx")));
+    v.push(("ideal thin lens".into(), zmx("thinlens.zmx")));
+    // The toroid's front turned the other way about x (a negative radius of rotation).
+    let mut t = zmx("toroid.zmx");
+    t.surfaces[1].shape = tolray::lens::Shape::Toroidal { c_rot: -1.0 / 30.0 };
+    v.push(("toroid, negative rotation".into(), t));
     v
+}
+
+/// A hand-made test lens of tests/data/zemax.
+fn zmx(name: &str) -> Lens {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/").to_string() + name;
+    tolray::lens::zemax::read_file(std::path::Path::new(&path), &GlassCatalogs::builtin())
+        .unwrap()
+        .lens
 }
 
 /// A two-mirror telescope (tests/data/cassegrain.json): reflections, negative gaps after the
@@ -511,5 +526,64 @@ fn field_angles_of_90_degrees_or_more_are_refused() {
         let e = gen(x, y).unwrap_err();
         assert_eq!(e.kind, tolray::ErrorKind::Argument, "({x}, {y})");
         assert!(e.message.contains("below 90°"), "{}", e.message);
+    }
+}
+
+/// An ideal thin lens (OpticStudio PARAXIAL, DeepLens ThinLens) images perfectly: every ray of
+/// a parallel beam at angles (θx, θy) meets the focal plane at (f tan θx, f tan θy), whatever
+/// its height, in the kernel and the reference tracer; the paraxial EFL is f; a diverging lens
+/// sends the beam back through its virtual focus.
+#[test]
+fn an_ideal_thin_lens_focuses_each_direction_to_one_point() {
+    use tolray::lens::Shape;
+    for f in [50.0, -40.0] {
+        let mut lens = zmx("thinlens.zmx");
+        // Stop, then the thin lens alone, the image plane |f| behind it: at the focus for
+        // f > 0, where each beam meets at (f tan θx, f tan θy); for f < 0 each ray leaves as
+        // if from the virtual focus (f tan θ, at z = f from the lens), which fixes where it
+        // lands.
+        lens.surfaces.truncate(2);
+        lens.surfaces[1].shape = Shape::Paraxial { focal_mm: f };
+        let gap = f.abs();
+        lens.surfaces[1].d_next_mm = gap;
+        let z_lens = lens.surfaces[0].d_next_mm;
+        let para = lens.paraxial(LAMBDA_D_NM).unwrap();
+        assert!((para.efl_mm - f).abs() < 1e-12 * f.abs(), "{}", para.efl_mm);
+        let sys = lens.compile();
+        let n = sys.indices(LAMBDA_D_NM);
+        let mut b = RayBatch::<f64>::new();
+        let mut rays = Vec::new();
+        for (ax, ay) in [(0.0f64, 0.0f64), (0.0, 5.0), (3.0, -4.0), (-10.0, 7.0)] {
+            let (tx, ty) = (ax.to_radians().tan(), ay.to_radians().tan());
+            let d = Vec3::new(tx, ty, 1.0).normalized();
+            for k in 0..49 {
+                let o = Vec3::new((k % 7) as f64 - 3.0, (k / 7) as f64 - 3.0, -1.0);
+                b.push(o, d);
+                // Height at the lens, then the straight line from the (virtual) focus.
+                let (hx, hy) = (o.x + (z_lens - o.z) * tx, o.y + (z_lens - o.z) * ty);
+                let want = [
+                    f * tx + (hx - f * tx) * (1.0 - gap / f),
+                    f * ty + (hy - f * ty) * (1.0 - gap / f),
+                ];
+                if f > 0.0 {
+                    assert_eq!(want, [f * tx, f * ty]);
+                }
+                rays.push((o, d, want));
+            }
+        }
+        trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions { apertures: false });
+        for (i, (o, d, want)) in rays.iter().enumerate() {
+            let k = b.get(i);
+            let r = trace_ray(&sys, &n, *o, *d, false, None);
+            assert!(k.status.is_alive() && r.status.is_alive(), "f {f} ray {i}");
+            for (x, y) in [(k.o.x, k.o.y), (r.o.x, r.o.y)] {
+                assert!(
+                    (x - want[0]).abs() < 1e-12 * (1.0 + f.abs())
+                        && (y - want[1]).abs() < 1e-12 * (1.0 + f.abs()),
+                    "f {f} ray {i}: ({x}, {y}) vs {want:?}"
+                );
+            }
+            assert!((k.d - r.d).norm() < 1e-14, "f {f} ray {i} direction");
+        }
     }
 }

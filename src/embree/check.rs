@@ -45,7 +45,7 @@ use crate::lens::material::LAMBDA_D_NM;
 use crate::lens::{Lens, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::tolerance::{Perturbation, ToleranceSpec};
-use crate::trace::reference::{intersect_local, refract, surface_sag, trace_ray};
+use crate::trace::reference::{intersect_local, refract, surface_sag_xy, trace_ray, unit_normal};
 use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, RayStatus, TraceOptions};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -427,8 +427,8 @@ impl Stepper<'_> {
         let mut dn = q.dl;
         if row.refract {
             let nrm = match mode {
-                NormalMode::Analytic => match surface_sag(row, h.x * h.x + h.y * h.y) {
-                    Some((_, dz)) => Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized(),
+                NormalMode::Analytic => match surface_sag_xy(row, h.x, h.y) {
+                    Some((_, zx, zy)) => unit_normal([zx, zy]),
                     None => {
                         s.status = RayStatus::Missed(i);
                         return;
@@ -491,13 +491,13 @@ impl SurfaceAcc {
         let (row, mesh) = (st.row, st.mesh);
         let analytic = intersect_local(row, q.p, q.dl);
         match (q.hit, analytic) {
-            (Some(hit), Some((ta, dza))) => {
+            (Some(hit), Some((ta, ga))) => {
                 let te = q.t0 + hit.t as f64;
                 let dt = te - ta;
                 let dist = dt.abs();
                 let ha = q.p + q.dl * ta;
                 let he = q.p + q.dl * te;
-                let gp = (q.dl.z - 2.0 * dza * (ha.x * q.dl.x + ha.y * q.dl.y)).abs();
+                let gp = (q.dl.z - (ga[0] * q.dl.x + ga[1] * q.dl.y)).abs();
                 let hit_frame = q.org + q.dir * hit.t as f64;
                 let m = inf_norm(q.org).max(inf_norm(hit_frame));
                 let eps = (m * (1.0 + mesh.max_slope) + (hit.t as f64).abs()) * 2f64.powi(-22);
@@ -513,7 +513,7 @@ impl SurfaceAcc {
                 self.max_dist = self.max_dist.max(dist);
                 self.max_hit_bound = self.max_hit_bound.max(allowed / gp);
                 self.max_eps = self.max_eps.max(eps);
-                if let Some((z, _)) = surface_sag(row, he.x * he.x + he.y * he.y) {
+                if let Some((z, _, _)) = surface_sag_xy(row, he.x, he.y) {
                     self.max_surface = self.max_surface.max((he.z - z).abs());
                 }
                 if let Some(tx) = exact_t(mesh, hit.prim, q.org, q.dir) {
@@ -555,6 +555,24 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
     (1.02 * used + 0.05).min(row.clip.reach_mm)
 }
 
+/// Refuses surfaces the check cannot mesh or trace: it tessellates even aspheres (rings of equal
+/// sag) and refracts with Snell's law, so odd aspheres, toroids and ideal thin lenses are
+/// refused by name.
+fn supported(sys: &System<f64>) -> Result<()> {
+    for (i, row) in sys.rows.iter().enumerate() {
+        let what = match row.shape {
+            crate::lens::Shape::Even => continue,
+            crate::lens::Shape::Odd => "an odd asphere",
+            crate::lens::Shape::Toroidal { .. } => "a toroid",
+            crate::lens::Shape::Paraxial { .. } => "an ideal thin lens",
+        };
+        return Err(Error::invalid(format!(
+            "surface {i} is {what}; the Embree check covers even aspheres, conics, spheres, planes and mirrors"
+        )));
+    }
+    Ok(())
+}
+
 /// Refuses, before anything is meshed, a chord bound that some surface of `sys` cannot be
 /// meshed to (too many triangles), as [`check_system`] would after meshing the surfaces before
 /// it.
@@ -562,6 +580,7 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 /// # Errors
 /// [`crate::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
 pub fn check_feasible(sys: &System<f64>, rays: &Rays, opts: &CheckOptions) -> Result<()> {
+    supported(sys)?;
     let indices = bundle_indices(sys, rays);
     let used = used_radii(sys, rays, &indices);
     for (i, row) in sys.rows.iter().enumerate() {
@@ -586,7 +605,7 @@ fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> 
             for (i, row) in sys.rows.iter().enumerate() {
                 let p = row.rot.apply_t(o - row.pos);
                 let dl = row.rot.apply_t(d);
-                let Some((t, dz)) = intersect_local(row, p, dl) else {
+                let Some((t, grad)) = intersect_local(row, p, dl) else {
                     break;
                 };
                 let h = p + dl * t;
@@ -597,7 +616,7 @@ fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> 
                 }
                 let mut dn = dl;
                 if row.refract {
-                    let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
+                    let nrm = unit_normal(grad);
                     let n1 = if i == 0 { 1.0 } else { n[i - 1] };
                     let bent = if row.reflect {
                         Some(dl - nrm * (2.0 * dl.dot(nrm)))
@@ -635,6 +654,7 @@ pub fn check_system(
     rays: &Rays,
     opts: &CheckOptions,
 ) -> Result<CaseReport> {
+    supported(sys)?;
     let nb = rays.bundles.len();
     let indices = bundle_indices(sys, rays);
     let start = |b: &Bundle| -> Vec<RayState> {

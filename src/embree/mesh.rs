@@ -50,7 +50,7 @@
 //! ~4e-6 mm). [`Mesh::deviation`] measures what the f32 mesh actually does.
 
 use crate::error::{Error, Result};
-use crate::lens::{SurfaceKind, SurfaceRow};
+use crate::lens::{Shape, SurfaceKind, SurfaceRow};
 use crate::math::Vec3;
 use crate::trace::reference::{intersect_local, surface_sag};
 
@@ -469,6 +469,15 @@ impl Mesh {
         frame: Frame,
         footprint: Option<&[(Vec3<f64>, Vec3<f64>)]>,
     ) -> Result<Mesh> {
+        if row.shape != Shape::Even {
+            return Err(Error::invalid(format!(
+                "surface {surface}: the Embree check tessellates even aspheres (rings of equal sag); this surface is {}",
+                match row.shape {
+                    Shape::Odd => "an odd asphere",
+                    _ => "a toroid",
+                }
+            )));
+        }
         let Plan {
             disk_mm: a,
             counts,

@@ -45,7 +45,8 @@ pub struct tolray_param {
     pub kind: u32,
     /// Surface index, from 0 (for glass variables: the surface the glass follows).
     pub surface: u32,
-    /// Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16).
+    /// Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
+    /// (on an odd asphere 0 is r^1; on a toroid, y^2).
     pub term: u32,
 }
 
@@ -53,7 +54,8 @@ pub struct tolray_param {
 pub const TOLRAY_PARAM_CURVATURE: u32 = 0;
 /// Conic constant of a surface.
 pub const TOLRAY_PARAM_CONIC: u32 = 1;
-/// Even-asphere coefficient of a surface (`term` 0..7 for r^2..r^16), mm^(1-2(term+1)).
+/// Polynomial sag coefficient `term` (0..7) of a surface: r^2..r^16 on an even asphere
+/// (mm^(1-2(term+1))), r^1..r^8 on an odd asphere, y^2..y^16 on a toroid's profile.
 pub const TOLRAY_PARAM_ASPHERE: u32 = 2;
 /// Gap after a surface (thickness or air space), mm. Changing it moves every later surface and
 /// the image plane; the last surface's gap is its distance to the image plane.

@@ -12,10 +12,16 @@
 //! `{"type": "circular", "min": 0, "max": 5}`, `{"type": "rectangular", "half_x": 4, "half_y": 3}`,
 //! `{"type": "elliptical", "half_x": 4, "half_y": 3}`, each with optional `"decenter": [x, y]`
 //! (mm) and `"obscuration": true`.
+//!
+//! Also tolray's own (DeepLens ignores it, so such files are tolray's): `"shape"` on an
+//! `Aspheric` or `Mirror` surface, `"even"` (the default: `ai` on ρ², ρ⁴, ...), `"odd"` (`ai` =
+//! β1..β8 on ρ¹..ρ⁸, OpticStudio ODDASPHE) or `"toroidal"` with `"c_rot"` (1/mm; `roc`, `k`
+//! and `ai` describe the y-z profile, OpticStudio TOROIDAL). DeepLens' `ThinLens` (`"f"`, the
+//! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
 
 use super::{
-    Aperture, ApertureShape, GlassCatalogs, Lens, Material, Object, Sensor, Surface, SurfaceRole,
-    N_ASPH,
+    Aperture, ApertureShape, GlassCatalogs, Lens, Material, Object, Sensor, Shape, Surface,
+    SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use serde_json::{json, Map, Value};
@@ -358,16 +364,16 @@ fn surface_from(
 ) -> Result<(Surface, Option<f64>)> {
     let ty = s.get("type").and_then(Value::as_str).ok_or_else(|| {
         Error::invalid(format!(
-            "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop, Plane or Mirror)"
+            "{at}missing \"type\" (Spheric, Aspheric, Aperture, Stop, Plane, Mirror or ThinLens)"
         ))
     })?;
     let role = match ty {
-        "Spheric" | "Aspheric" | "Plane" => SurfaceRole::Refractive,
+        "Spheric" | "Aspheric" | "Plane" | "ThinLens" => SurfaceRole::Refractive,
         "Aperture" | "Stop" => SurfaceRole::Aperture,
         "Mirror" => SurfaceRole::Mirror,
         other => {
             return Err(Error::invalid(format!(
-                "{at}unsupported surface type \"{other}\" (tolray traces Spheric, Aspheric, Aperture, Stop, Plane and Mirror)"
+                "{at}unsupported surface type \"{other}\" (tolray traces Spheric, Aspheric, Aperture, Stop, Plane, Mirror and ThinLens)"
             )))
         }
     };
@@ -386,7 +392,7 @@ fn surface_from(
                 _ => c,
             }
         }
-        (None, None) if role == SurfaceRole::Aperture || ty == "Plane" => 0.0,
+        (None, None) if role == SurfaceRole::Aperture || ty == "Plane" || ty == "ThinLens" => 0.0,
         (None, None) => {
             return Err(Error::invalid(format!(
                 "{at}missing \"roc\" (radius, mm) or \"c\" (curvature, 1/mm)"
@@ -459,11 +465,47 @@ fn surface_from(
         Some(d) => finite(d, at, "d_next")?,
         None => f64::NAN,
     };
+    let shape = match s.get("shape") {
+        None => Shape::Even,
+        Some(Value::String(v)) => match v.as_str() {
+            "even" => Shape::Even,
+            "odd" => Shape::Odd,
+            "toroidal" => Shape::Toroidal {
+                c_rot: finite(num(s, "c_rot", at)?.unwrap_or(0.0), at, "c_rot")?,
+            },
+            other => {
+                return Err(Error::invalid(format!(
+                    "{at}unknown \"shape\" \"{other}\" (even, odd or toroidal)"
+                )))
+            }
+        },
+        Some(other) => {
+            return Err(Error::new(
+                ErrorKind::Parse,
+                format!("{at}\"shape\" must be a string, found {other}"),
+            ))
+        }
+    };
+    let shape = if ty == "ThinLens" {
+        let f = num(s, "f", at)?
+            .ok_or_else(|| Error::invalid(format!("{at}missing \"f\" (focal length, mm)")))?;
+        Shape::Paraxial {
+            focal_mm: finite(f, at, "f")?,
+        }
+    } else {
+        shape
+    };
+    if shape != Shape::Even && role == SurfaceRole::Aperture {
+        return Err(Error::invalid(format!(
+            "{at}an {ty} surface is flat; \"shape\" belongs on Aspheric or Mirror surfaces"
+        )));
+    }
     let surface = Surface {
         role,
         c,
         k,
         asph,
+        shape,
         semi_aperture_mm: r,
         aperture: aperture(s, at)?,
         d_next_mm: d_next,
@@ -513,6 +555,7 @@ pub fn to_value(lens: &Lens) -> Value {
             let mut m = Map::new();
             m.insert("idx".into(), json!(i));
             let ty = match s.role {
+                _ if matches!(s.shape, Shape::Paraxial { .. }) => "ThinLens",
                 SurfaceRole::Aperture => "Aperture",
                 SurfaceRole::Refractive if s.k != 0.0 || s.is_aspheric() => "Aspheric",
                 SurfaceRole::Refractive => "Spheric",
@@ -520,7 +563,9 @@ pub fn to_value(lens: &Lens) -> Value {
             };
             m.insert("type".into(), json!(ty));
             m.insert("r".into(), json!(s.semi_aperture_mm));
-            if s.role != SurfaceRole::Aperture {
+            if let Shape::Paraxial { focal_mm } = s.shape {
+                m.insert("f".into(), json!(focal_mm));
+            } else if s.role != SurfaceRole::Aperture {
                 let roc = if s.c == 0.0 { 0.0 } else { 1.0 / s.c };
                 if roc.is_finite() {
                     m.insert("(c)".into(), json!(s.c));
@@ -535,6 +580,16 @@ pub fn to_value(lens: &Lens) -> Value {
                 m.insert("k".into(), json!(s.k));
                 m.insert("ai".into(), json!(s.asph.to_vec()));
                 m.insert("use_ai2".into(), json!(true));
+                match s.shape {
+                    Shape::Even | Shape::Paraxial { .. } => {}
+                    Shape::Odd => {
+                        m.insert("shape".into(), json!("odd"));
+                    }
+                    Shape::Toroidal { c_rot } => {
+                        m.insert("shape".into(), json!("toroidal"));
+                        m.insert("c_rot".into(), json!(c_rot));
+                    }
+                }
             }
             m.insert("d_next".into(), json!(s.d_next_mm));
             m.insert("pos_xy".into(), json!(s.pos_xy_mm));

@@ -195,6 +195,58 @@ impl Aperture {
     }
 }
 
+/// The form of a surface's sag beyond its base conic (`c`, `k`), and what [`Surface::asph`]
+/// holds.
+///
+/// ```
+/// use tolray::lens::{Shape, Surface, Material};
+/// // A cylinder lens face: radius 2.02 mm in y, flat in x (OpticStudio TOROIDAL, PARM 1 = 0).
+/// let mut s = Surface::sphere(1.0 / 2.02, 2.0, 3.8, Material::Air);
+/// s.shape = Shape::Toroidal { c_rot: 0.0 };
+/// assert_eq!(s.sag_xy(1.5, 0.0), Some(0.0));
+/// assert!(s.sag_xy(0.0, 1.5).unwrap() > 0.6);
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Shape {
+    /// Rotationally symmetric even asphere: `asph` = a2, a4, ..., a16 on ρ², ρ⁴, ..., ρ¹⁶
+    /// (OpticStudio STANDARD and EVENASPH, DeepLens "Aspheric").
+    #[default]
+    Even,
+    /// Rotationally symmetric odd asphere: `asph` = β1, ..., β8 on ρ¹, ρ², ..., ρ⁸ (OpticStudio
+    /// ODDASPHE). β1 makes a cone point at the vertex, where the normal is taken as the axis.
+    Odd,
+    /// A toroid (OpticStudio TOROIDAL): the profile in the y-z plane (`c`, `k`, and `asph` on
+    /// y², y⁴, ..., y¹⁶) rotated about an axis parallel to y through the point z = 1/`c_rot`
+    /// on the axis. `c_rot = 0` sweeps the profile straight along x: a cylinder.
+    Toroidal {
+        /// Curvature of the rotation, 1/mm (1 / OpticStudio's radius of rotation; 0 = none).
+        c_rot: f64,
+    },
+    /// A flat ideal thin lens (OpticStudio PARAXIAL, DeepLens "ThinLens") between equal media:
+    /// each ray's slopes change by minus its height over the focal length, so every ray of
+    /// one direction meets the focal plane at one point (perfect imaging). `c`, `k` and `asph`
+    /// are 0.
+    Paraxial {
+        /// Focal length, mm (negative for a diverging lens).
+        focal_mm: f64,
+    },
+}
+
+impl Shape {
+    /// Index in [`Surface::asph`] of the coefficient on the squared radius (the one that adds
+    /// to the paraxial curvature, 2·a).
+    pub fn r2_index(self) -> usize {
+        match self {
+            Shape::Odd => 1,
+            _ => 0,
+        }
+    }
+    /// True for shapes without rotational symmetry about the surface's axis.
+    pub fn is_rotational(self) -> bool {
+        !matches!(self, Shape::Toroidal { .. })
+    }
+}
+
 /// One surface of a prescription.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Surface {
@@ -204,8 +256,11 @@ pub struct Surface {
     pub c: f64,
     /// Conic constant (0 = sphere, -1 = paraboloid).
     pub k: f64,
-    /// Even-asphere coefficients a2, a4, ..., a16 (sag terms a_{2i} ρ^{2i}, mm^{1-2i}).
+    /// Polynomial coefficients of the sag; their powers depend on [`Surface::shape`] (even
+    /// asphere: a2, a4, ..., a16 on ρ², ..., ρ¹⁶, in mm^{1-2i}).
     pub asph: [f64; N_ASPH],
+    /// The sag's form: even asphere (the default), odd asphere or toroid.
+    pub shape: Shape,
     /// Semi-diameter, mm: the surface's size (drawings, edge thickness, the clear size). It clips
     /// rays only through an [`ApertureShape::SemiDiameter`] aperture (as DeepLens' `r` does) or
     /// on the stop.
@@ -233,6 +288,7 @@ impl Surface {
             c,
             k: 0.0,
             asph: [0.0; N_ASPH],
+            shape: Shape::Even,
             semi_aperture_mm,
             aperture: Some(Aperture::SEMI_DIAMETER),
             d_next_mm,
@@ -256,24 +312,53 @@ impl Surface {
         self.aperture
             .or(self.is_stop.then_some(Aperture::SEMI_DIAMETER))
     }
-    /// True if any asphere coefficient is non-zero.
+    /// True if the surface is not a plain conic: an asphere coefficient is non-zero or the
+    /// shape is not the even asphere.
     pub fn is_aspheric(&self) -> bool {
-        self.asph.iter().any(|&a| a != 0.0)
+        self.shape != Shape::Even || self.asph.iter().any(|&a| a != 0.0)
     }
-    /// Sag z(ρ) at radial distance `rho` mm, or `None` beyond the conic's rim.
+    /// Sag at radial distance `rho` mm in the meridional (y-z) section, or `None` beyond the
+    /// conic's rim. For rotationally symmetric shapes this is the sag at every azimuth.
     pub fn sag(&self, rho: f64) -> Option<f64> {
-        let u = rho * rho;
-        let arg = 1.0 - (1.0 + self.k) * self.c * self.c * u;
-        if arg < 0.0 {
-            return None;
+        self.sag_xy(0.0, rho)
+    }
+    /// Sag z(x, y), mm, or `None` where the surface is undefined (beyond the conic's rim, or
+    /// beyond a toroid's rotation).
+    pub fn sag_xy(&self, x: f64, y: f64) -> Option<f64> {
+        let conic = |u: f64| {
+            let arg = 1.0 - (1.0 + self.k) * self.c * self.c * u;
+            (arg >= 0.0).then(|| self.c * u / (1.0 + arg.sqrt()))
+        };
+        let even = |u: f64| {
+            let mut z = conic(u)?;
+            let mut p = u;
+            for a in self.asph {
+                z += a * p;
+                p *= u;
+            }
+            Some(z)
+        };
+        match self.shape {
+            Shape::Even => even(x * x + y * y),
+            Shape::Odd => {
+                let u = x * x + y * y;
+                let r = u.sqrt();
+                let mut z = conic(u)?;
+                let mut p = r;
+                for a in self.asph {
+                    z += a * p;
+                    p *= r;
+                }
+                Some(z)
+            }
+            Shape::Paraxial { .. } => Some(0.0),
+            Shape::Toroidal { c_rot } => {
+                let zy = even(y * y)?;
+                let g = c_rot / (1.0 - c_rot * zy);
+                let q = 1.0 - g * g * x * x;
+                (g.is_finite() && q >= 0.0).then(|| zy + g * x * x / (1.0 + q.sqrt()))
+            }
         }
-        let mut z = self.c * u / (1.0 + arg.sqrt());
-        let mut p = u;
-        for a in self.asph {
-            z += a * p;
-            p *= u;
-        }
-        Some(z)
     }
 }
 
@@ -543,6 +628,46 @@ impl Lens {
                 .all(|v| v.is_finite());
             if !finite {
                 return Err(at("a number is not finite".into()));
+            }
+            if let Shape::Toroidal { c_rot } = s.shape {
+                if !(c_rot.abs() <= 1e3) {
+                    return Err(at(format!(
+                        "toroid rotation curvature {c_rot} (1/mm) is not finite or beyond ±1e3"
+                    )));
+                }
+                if s.asph[N_ASPH - 1] != 0.0 {
+                    return Err(at(
+                        "a toroid's profile has terms up to y^14 (OpticStudio's PARM 2 to 8); the y^16 term must be 0".into(),
+                    ));
+                }
+            }
+            if let Shape::Paraxial { focal_mm } = s.shape {
+                if !(focal_mm.abs() >= 1e-3 && focal_mm.abs() <= 1e9) {
+                    return Err(at(format!(
+                        "ideal thin lens focal length {focal_mm} mm: needs 1e-3 <= |f| <= 1e9"
+                    )));
+                }
+                if s.c != 0.0 || s.k != 0.0 || s.asph.iter().any(|&a| a != 0.0) {
+                    return Err(at(
+                        "an ideal thin lens is flat: its curvature, conic and asphere terms must be 0"
+                            .into(),
+                    ));
+                }
+                let before = i
+                    .checked_sub(1)
+                    .map_or(&Material::Air, |j| &self.surfaces[j].material);
+                if s.role != SurfaceRole::Refractive || s.material != *before {
+                    return Err(at(format!(
+                        "an ideal thin lens sits in one medium; here {} before it and {} after",
+                        before.json_name(),
+                        s.material.json_name()
+                    )));
+                }
+            }
+            if s.shape != Shape::Even && s.role == SurfaceRole::Aperture {
+                return Err(at(
+                    "a bare aperture is flat; it cannot be an odd asphere or a toroid".into(),
+                ));
             }
             // Magnitudes past these give no lens but overflow in the tracer (NaN or inf spots):
             // a radius under 1 µm, a conic beyond ±1e6, lengths beyond 1 km.

@@ -1,7 +1,7 @@
 //! First-order (paraxial) optics by y-nu ray tracing.
 
 use super::material::model_index;
-use super::{Lens, Material, Object, Param};
+use super::{Lens, Material, Object, Param, Shape};
 use crate::error::{Error, Result};
 use crate::real::Real;
 use serde::Serialize;
@@ -54,6 +54,8 @@ struct Ynu<S> {
 /// the gaps after it are negative, so the y-nu equations hold unchanged through mirrors.
 struct Prescription<S> {
     curvature: Vec<S>,
+    /// Power of an ideal thin lens (n / f), 0 for other surfaces.
+    thin_power: Vec<S>,
     bends: Vec<bool>,
     n: Vec<S>,
     gap: Vec<S>,
@@ -72,14 +74,26 @@ impl<S: Real> Prescription<S> {
         let dirs = lens.travel_directions();
         let mut p = Prescription {
             curvature: Vec::with_capacity(lens.surfaces.len()),
+            thin_power: Vec::with_capacity(lens.surfaces.len()),
             bends: Vec::with_capacity(lens.surfaces.len()),
             n: Vec::with_capacity(lens.surfaces.len()),
             gap: Vec::with_capacity(lens.surfaces.len()),
         };
         for (i, s) in lens.surfaces.iter().enumerate() {
             let c = lift(Param::Curvature(i), S::cst(s.c));
-            let a2 = lift(Param::Asphere(i, 0), S::cst(s.asph[0]));
+            // The ρ² term adds 2 a to the vertex curvature (y² for a toroid: the paraxial
+            // trace is in the y-z plane, as OpticStudio's).
+            let j = s.shape.r2_index();
+            let a2 = lift(Param::Asphere(i, j), S::cst(s.asph[j]));
             p.curvature.push(c + S::cst(2.0) * a2);
+            // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
+            p.thin_power.push(match s.shape {
+                Shape::Paraxial { focal_mm } => {
+                    let n_before = p.n.last().copied().unwrap_or(S::cst(1.0));
+                    n_before / S::cst(focal_mm)
+                }
+                _ => S::cst(0.0),
+            });
             p.bends.push(lens.refracts(i));
             let n = match s.material {
                 Material::Model { nd, vd } => model_index(
@@ -106,7 +120,7 @@ impl<S: Real> Prescription<S> {
             heights[i] = y;
             let n0 = if i == 0 { S::cst(1.0) } else { self.n[i - 1] };
             if self.bends[i] {
-                let power = self.curvature[i] * (self.n[i] - n0);
+                let power = self.curvature[i] * (self.n[i] - n0) + self.thin_power[i];
                 u = (n0 * u - y * power) / self.n[i];
             }
             if i < last {

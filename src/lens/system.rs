@@ -1,6 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
-use super::{Aperture, ApertureShape, Lens, Material, N_ASPH};
+use super::{Aperture, ApertureShape, Lens, Material, Shape, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
 use crate::real::Real;
 
@@ -22,7 +22,8 @@ pub enum Param {
     Curvature(usize),
     /// Conic constant of surface `i`.
     Conic(usize),
-    /// Asphere coefficient `j` (0 = a2, 1 = a4, ...) of surface `i`.
+    /// Asphere coefficient `j` of surface `i`: [`crate::lens::Surface::asph`]`[j]` (0 = a2,
+    /// 1 = a4, ... on an even asphere; β(j+1) on an odd asphere; the y^(2j+2) term of a toroid).
     Asphere(usize, usize),
     /// Gap after surface `i`, mm (the last surface's gap is the image distance).
     Gap(usize),
@@ -176,6 +177,14 @@ pub struct SurfaceRow<S> {
     pub asph: [S; N_ASPH],
     /// Number of leading asphere coefficients in use.
     pub n_asph: usize,
+    /// The sag's form (what `asph` means); anything but [`Shape::Even`] is traced by the
+    /// asphere routine.
+    pub shape: Shape,
+    /// Curvature of a toroid's rotation, 1/mm (0 otherwise).
+    pub c_rot: S,
+    /// Power of an ideal thin lens (1 / focal length), 1/mm; 0 otherwise. Such a surface is a
+    /// [`SurfaceKind::Plane`] that turns each ray's slopes by minus its height times the power.
+    pub power: S,
     /// Squared semi-diameter, mm² (the surface's size; clipping is [`SurfaceRow::clip`]).
     pub ap2: S,
     /// The hard aperture (or the stop's semi-diameter) that clips rays here.
@@ -269,7 +278,9 @@ impl<S: Real> System<S> {
                 .map_or(0, |j| j + 1);
             // Flat refracting surfaces use the quadric routine, which is exact at c = 0 and keeps
             // curvature derivatives; only bare apertures take the plane shortcut.
-            let kind = if n_asph > 0 {
+            let kind = if matches!(s.shape, Shape::Paraxial { .. }) {
+                SurfaceKind::Plane
+            } else if n_asph > 0 || s.shape != Shape::Even {
                 SurfaceKind::Asphere
             } else if !lens.refracts(i) {
                 SurfaceKind::Plane
@@ -284,6 +295,15 @@ impl<S: Real> System<S> {
                 k1: S::cst(1.0) + k,
                 asph,
                 n_asph,
+                shape: s.shape,
+                c_rot: S::cst(match s.shape {
+                    Shape::Toroidal { c_rot } => c_rot,
+                    _ => 0.0,
+                }),
+                power: S::cst(match s.shape {
+                    Shape::Paraxial { focal_mm } => 1.0 / focal_mm,
+                    _ => 0.0,
+                }),
                 ap2: S::cst(s.semi_aperture_mm * s.semi_aperture_mm),
                 clip: Clip::new(s.clipping_aperture(), s.semi_aperture_mm),
                 rotated: !is_identity(&rot),
@@ -359,6 +379,9 @@ impl<S: Real> System<S> {
                     k1: T::cst(r.k1.value()),
                     asph: r.asph.map(|a| T::cst(a.value())),
                     n_asph: r.n_asph,
+                    shape: r.shape,
+                    c_rot: T::cst(r.c_rot.value()),
+                    power: T::cst(r.power.value()),
                     ap2: T::cst(r.ap2.value()),
                     clip: r.clip.convert(),
                     rotated: r.rotated,

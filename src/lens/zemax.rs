@@ -5,8 +5,11 @@
 //! OpticStudio writes it), UTF-8 or ASCII. tolray reads:
 //!
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
-//! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH` and `COORDBRK`; `CURV` (1/lens unit), `CONI`,
-//!   `PARM` (even-asphere terms r² .. r¹⁶, or the coordinate break's decenters, tilts and order),
+//! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` and
+//!   `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² .. r¹⁶, odd-asphere
+//!   terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal lens' focal
+//!   length, or the coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
+//!   terms are refused),
 //!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter: the surface's
 //!   size, which clips nothing, as in OpticStudio; `MEMA` when there is no `DIAM`; without
 //!   either, the paraxial beam's size), hard apertures `CLAP`, `OBSC`, `SQAP`, `OBSQ`, `ELAP`,
@@ -41,7 +44,8 @@
 //!
 //! # Writing
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
-//! `SURF` per tolray surface (`STANDARD` or `EVENASPH`), with a `COORDBRK` pair around every
+//! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL` or `PARAXIAL`),
+//! with a `COORDBRK` pair around every
 //! surface that carries a decenter or a tilt, so perturbed lenses survive the round trip. Model
 //! glasses are written as `___BLANK` model glasses (tolray's dispersion law between the lines
 //! differs slightly from OpticStudio's model glass; n_d and V_d are exact), catalog glasses by
@@ -50,7 +54,7 @@
 
 use super::material::{GlassCatalogs, Material, LAMBDA_D_NM};
 use super::text::decode;
-use super::{Aperture, ApertureShape, Lens, Object, Sensor, Surface, SurfaceRole, N_ASPH};
+use super::{Aperture, ApertureShape, Lens, Object, Sensor, Shape, Surface, SurfaceRole, N_ASPH};
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
 use std::path::Path;
@@ -266,6 +270,8 @@ struct RawSurf {
     curv: Option<At<f64>>,
     coni: Option<At<f64>>,
     parm: Vec<(usize, f64, usize)>,
+    /// Extra data (`XDAT`): number, value, line.
+    xdat: Vec<(usize, f64, usize)>,
     /// `None` value: INFINITY.
     disz: Option<At<Option<f64>>>,
     /// Semi-diameter and whether it is fixed (solve type 1).
@@ -564,6 +570,14 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
                     ));
                 }
             }
+            "XDAT" if surf.is_some() => {
+                let s = need_surf(surf)?;
+                let k = args.first().and_then(|t| t.parse::<usize>().ok());
+                let v = args.get(1).and_then(|t| t.parse::<f64>().ok());
+                if let (Some(k), Some(v)) = (k, v) {
+                    s.xdat.push((k, v, line));
+                }
+            }
             "XDAT" | "YDAT" => {
                 if args.get(1).and_then(|t| t.parse::<f64>().ok()).unwrap_or(0.0) != 0.0 {
                     warnings.push(format!("line {line}: {cmd} (extra surface data) ignored"));
@@ -841,18 +855,99 @@ impl Walker {
         let scale = self.scale;
         let c = s.curv.as_ref().map_or(0.0, |c| c.v) / scale;
         let mut asph = [0.0; N_ASPH];
+        let mut shape = Shape::Even;
         for &(p, v, line) in &s.parm {
-            if ty == "EVENASPH" && (1..=N_ASPH).contains(&p) {
-                // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
-                asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
-            } else if v != 0.0 {
-                let what = if ty == "EVENASPH" {
-                    "tolray reads even-asphere terms r^2 to r^16 (PARM 1 to 8)"
-                } else {
-                    "a STANDARD surface has no parameters"
-                };
-                warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
+            match ty.as_str() {
+                "EVENASPH" if (1..=N_ASPH).contains(&p) => {
+                    // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
+                    asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
+                }
+                "ODDASPHE" if (1..=N_ASPH).contains(&p) => {
+                    // β_p ρ^p: lens units^{1-p} to mm^{1-p}.
+                    shape = Shape::Odd;
+                    asph[p - 1] = v * scale.powi(1 - p as i32);
+                }
+                "TOROIDAL" if p == 1 => {
+                    // The radius of rotation; 0 means none (a cylinder).
+                    let r = v * scale;
+                    let c_rot = if r == 0.0 { 0.0 } else { 1.0 / r };
+                    if !c_rot.is_finite() {
+                        return Err(invalid(line, format!("PARM 1 = {v}: radius of rotation")));
+                    }
+                    shape = Shape::Toroidal { c_rot };
+                }
+                "PARAXIAL" if p == 1 => {
+                    if v == 0.0 {
+                        return Err(invalid(
+                            line,
+                            "PARM 1 = 0: a PARAXIAL surface needs a focal length",
+                        ));
+                    }
+                    shape = Shape::Paraxial {
+                        focal_mm: v * scale,
+                    };
+                }
+                // The OPD mode changes how OpticStudio computes optical path, not rays.
+                "PARAXIAL" if p == 2 => {}
+                "TOROIDAL" if (2..=N_ASPH).contains(&p) => {
+                    // α_{p-1} y^{2(p-1)}.
+                    let j = p - 1;
+                    asph[j - 1] = v * scale.powi(1 - 2 * j as i32);
+                }
+                _ if v != 0.0 => {
+                    let what = match ty.as_str() {
+                        "EVENASPH" => "tolray reads even-asphere terms r^2 to r^16 (PARM 1 to 8)",
+                        "ODDASPHE" => "tolray reads odd-asphere terms r^1 to r^8 (PARM 1 to 8)",
+                        "TOROIDAL" => {
+                            "tolray reads the radius of rotation (PARM 1) and y^2 to y^14 (PARM 2 to 8)"
+                        }
+                        "PARAXIAL" => "a PARAXIAL surface has a focal length (PARM 1) and an OPD mode (PARM 2)",
+                        _ => "a STANDARD surface has no parameters",
+                    };
+                    warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
+                }
+                _ => {}
             }
+        }
+        if ty == "ODDASPHE" {
+            shape = Shape::Odd;
+        }
+        if ty == "PARAXIAL" {
+            if !matches!(shape, Shape::Paraxial { .. }) {
+                return Err(invalid(
+                    s.type_line(),
+                    "a PARAXIAL surface needs its focal length (PARM 1)",
+                ));
+            }
+            if c != 0.0 || s.coni.as_ref().is_some_and(|k| k.v != 0.0) {
+                let l = s.curv.as_ref().map_or(s.line, |c| c.line);
+                return Err(invalid(
+                    l,
+                    "a PARAXIAL surface is flat (CURV and CONI must be 0)",
+                ));
+            }
+        }
+        if ty == "TOROIDAL" {
+            if !matches!(shape, Shape::Toroidal { .. }) {
+                shape = Shape::Toroidal { c_rot: 0.0 };
+            }
+            // XDAT 1: the number of Zernike terms, XDAT 2: their normalization radius, XDAT 3..:
+            // the coefficients.
+            let terms = s.xdat.iter().rev().find(|x| x.0 == 1).map_or(0.0, |x| x.1);
+            if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 3 && x.1 != 0.0) {
+                if terms > 0.0 {
+                    return Err(invalid(
+                        line,
+                        format!(
+                            "XDAT {n} = {v}: a Zernike term on a TOROIDAL surface; tolray traces toroids without Zernike terms"
+                        ),
+                    ));
+                }
+            }
+        } else if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} (extra surface data) ignored: a {ty} surface has none tolray reads"
+            ));
         }
         let mirror = s.glas.as_ref().is_some_and(|g| {
             g.v.first()
@@ -947,6 +1042,7 @@ impl Walker {
                     c,
                     k: s.coni.as_ref().map_or(0.0, |c| c.v),
                     asph,
+                    shape,
                     semi_aperture_mm: semi.unwrap_or(0.0),
                     aperture,
                     d_next_mm: 0.0,
@@ -1196,12 +1292,14 @@ fn build(
     for (k, s) in surfs.iter().enumerate().take(last).skip(1) {
         match s.type_name().as_str() {
             "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
-            "STANDARD" | "EVENASPH" => walk.surface(k, s, catalogs, &mut warnings)?,
+            "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" => {
+                walk.surface(k, s, catalogs, &mut warnings)?
+            }
             other => {
                 return Err(invalid(
                     s.type_line(),
                     format!(
-                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH and COORDBRK"
+                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL and COORDBRK"
                     ),
                 ))
             }
@@ -1873,10 +1971,12 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         }
         let asph = s.is_aspheric();
         l.push(
-            if asph {
-                "TYPE EVENASPH"
-            } else {
-                "TYPE STANDARD"
+            match s.shape {
+                Shape::Paraxial { .. } => "TYPE PARAXIAL",
+                Shape::Odd => "TYPE ODDASPHE",
+                Shape::Toroidal { .. } => "TYPE TOROIDAL",
+                Shape::Even if asph => "TYPE EVENASPH",
+                Shape::Even => "TYPE STANDARD",
             }
             .into(),
         );
@@ -1884,10 +1984,26 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         if s.k != 0.0 || asph {
             l.push(format!("CONI {}", fmt(s.k)));
         }
-        if asph {
-            for (j, a) in s.asph.iter().enumerate() {
-                l.push(format!("PARM {} {}", j + 1, fmt(*a)));
+        match s.shape {
+            Shape::Paraxial { focal_mm } => {
+                // PARM 1: the focal length; PARM 2: OpticStudio's OPD mode 1 (the default).
+                l.push(format!("PARM 1 {}", fmt(focal_mm)));
+                l.push("PARM 2 1".into());
             }
+            Shape::Toroidal { c_rot } => {
+                // PARM 1: the radius of rotation (0: none); PARM 2..8: y² .. y¹⁴.
+                let r = if c_rot == 0.0 { 0.0 } else { 1.0 / c_rot };
+                l.push(format!("PARM 1 {}", fmt(r)));
+                for (j, a) in s.asph.iter().take(N_ASPH - 1).enumerate() {
+                    l.push(format!("PARM {} {}", j + 2, fmt(*a)));
+                }
+            }
+            _ if asph => {
+                for (j, a) in s.asph.iter().enumerate() {
+                    l.push(format!("PARM {} {}", j + 1, fmt(*a)));
+                }
+            }
+            _ => {}
         }
         l.push(format!(
             "DISZ {}",

@@ -224,12 +224,15 @@ impl TrainConfig {
     }
 }
 
-/// The design variables of a lens: every refracting surface's curvature and every gap (the last
-/// is the image distance); the stop's size and the glasses stay fixed.
+/// The design variables of a lens: every refracting surface's curvature (not an ideal thin
+/// lens, which is flat) and every gap (the last is the image distance); the stop's size and the
+/// glasses stay fixed.
 pub fn design_variables(lens: &Lens) -> Vec<Param> {
     let mut v = Vec::new();
     for (i, s) in lens.surfaces.iter().enumerate() {
-        if s.role == SurfaceRole::Refractive {
+        if s.role == SurfaceRole::Refractive
+            && !matches!(s.shape, crate::lens::Shape::Paraxial { .. })
+        {
             v.push(Param::Curvature(i));
         }
     }

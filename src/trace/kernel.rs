@@ -25,7 +25,7 @@
 //! per-surface setup (about 7% faster than block by block).
 
 use super::{Block, CODE_BACKWARD, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
-use crate::lens::{SurfaceKind, SurfaceRow, System};
+use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::real::Real;
 
@@ -222,6 +222,130 @@ pub(crate) fn asphere_sag<S: Real>(row: &SurfaceRow<S>, u: S) -> (S, S, bool) {
     (z, dz, ok)
 }
 
+/// Sag and gradient (z, ∂z/∂x, ∂z/∂y) of an odd asphere: the base conic plus β1 ρ + ... + β8 ρ⁸
+/// (`asph` = β1..β8); `ok` is false beyond the conic's rim. At the vertex the cone term β1 ρ
+/// has no slope; the normal there is taken as the axis.
+#[inline(always)]
+fn odd_sag<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool) {
+    let one = S::cst(1.0);
+    let zero = S::cst(0.0);
+    let u = x * x + y * y;
+    let arg = one - row.k1 * row.c * row.c * u;
+    let ok = zero_lt(arg);
+    let q = S::pick(ok, arg, one).sqrt();
+    let z = row.c * u / (one + q);
+    // (dz/dρ) / ρ of the conic.
+    let slope_over_r = row.c / q;
+    // ρ without the infinite derivative of the square root at 0.
+    let off_axis = zero_lt(u);
+    let r = S::pick(off_axis, S::pick(off_axis, u, one).sqrt(), zero);
+    let n = row.n_asph;
+    // Horner: P(ρ) = ρ (β1 + ρ (β2 + ...)), and P'(ρ)/ρ = β1/ρ + Σ_{i>=2} i β_i ρ^(i-2).
+    let mut poly = zero;
+    let mut rest = zero;
+    for j in (0..n).rev() {
+        poly = poly * r + row.asph[j];
+        if j >= 1 {
+            rest = rest * r + S::cst((j + 1) as f64) * row.asph[j];
+        }
+    }
+    let inv_r = S::pick(off_axis, one / S::pick(off_axis, r, one), zero);
+    let g = slope_over_r + rest + row.asph[0] * inv_r;
+    (z + poly * r, x * g, y * g, ok)
+}
+
+/// Sag and gradient of a toroid: the y-z profile z_y(y) (base conic and even terms, the even
+/// asphere routine at u = y²) rotated about the axis parallel to y at z = 1/c_rot. With
+/// g = c_rot / (1 - c_rot z_y), z = z_y + g x² / (1 + sqrt(1 - g² x²)), ∂z/∂x = g x / sqrt(..)
+/// and ∂z/∂y = z_y' / sqrt(..): exact at c_rot = 0 (a cylinder), without the subtraction of
+/// R - sqrt((R - z_y)² - x²).
+#[inline(always)]
+fn toroid_sag<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool) {
+    let one = S::cst(1.0);
+    let (zy, dzu, ok1) = asphere_sag(row, y * y);
+    let dzy = S::cst(2.0) * y * dzu;
+    let w = one - row.c_rot * zy;
+    let ok2 = !w.is_zero();
+    let g = row.c_rot / S::pick(ok2, w, one);
+    let qq = one - g * g * x * x;
+    let ok3 = zero_lt(qq);
+    let sq = S::pick(ok3, qq, one).sqrt();
+    let z = zy + g * x * x / (one + sq);
+    let inv = one / sq;
+    (z, g * x * inv, dzy * inv, ok1 & ok2 & ok3)
+}
+
+/// Sag and gradient (z, ∂z/∂x, ∂z/∂y) of a surface traced by the asphere routine, by shape.
+#[inline(always)]
+pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool) {
+    match row.shape {
+        // A thin lens is a plane row and never reaches the asphere routine.
+        Shape::Even | Shape::Paraxial { .. } => {
+            let (z, dz, ok) = asphere_sag(row, x * x + y * y);
+            let two = S::cst(2.0);
+            (z, two * x * dz, two * y * dz, ok)
+        }
+        Shape::Odd => odd_sag(row, x, y),
+        Shape::Toroidal { .. } => toroid_sag(row, x, y),
+    }
+}
+
+/// Newton on f(t) = z(t) - sag(x(t), y(t)) from `t` for the shapes without the even asphere's
+/// radial form; returns (t, ok, unnormalized normal pointing toward -z). The even asphere keeps
+/// its own loop in [`intersect`] (one dz/du for both slopes, and the operations, hence the
+/// numbers, of every earlier build).
+#[inline(always)]
+fn newton_xy<S: Real>(
+    row: &SurfaceRow<S>,
+    p: Vec3<S>,
+    d: Vec3<S>,
+    t0: S,
+    ok0: bool,
+) -> (S, bool, Vec3<S>) {
+    let mut t = t0;
+    let mut ok = ok0;
+    let mut converged = false;
+    for _ in 0..40 {
+        let h = p + d * t;
+        let (z, zx, zy, in_rim) = sag_xy(row, h.x, h.y);
+        ok &= in_rim;
+        let f = h.z - z;
+        let fp = d.z - (zx * d.x + zy * d.y);
+        let step = f / fp;
+        t -= step;
+        if !(step.value().abs() > 4.0 * S::EPSILON * (1.0 + t.value().abs())) {
+            converged = step.value().is_finite();
+            break;
+        }
+    }
+    let h = p + d * t;
+    let (_, zx, zy, in_rim) = sag_xy(row, h.x, h.y);
+    ok &= converged && in_rim;
+    (t, ok, Vec3::new(zx, zy, -S::cst(1.0)))
+}
+
+/// Start for a toroid's Newton: the ray's crossing of the y-z profile's base conic swept along
+/// x, c (y² + k1 z²) - 2 z = 0 (exact for a cylinder without even terms), nearest the vertex
+/// plane, in the same cancellation-free form as the quadric routine.
+#[inline(always)]
+fn cylinder_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
+    let zero = S::cst(0.0);
+    let one = S::cst(1.0);
+    let (c, k1) = (row.c, row.k1);
+    let mut ok = !d.z.is_zero();
+    let y0 = p.y * d.z - d.y * p.z;
+    let a = c * (d.y * d.y + k1 * d.z * d.z);
+    let b = c * (y0 * d.y) - d.z * d.z;
+    let cc = c * (y0 * y0);
+    let disc = b * b - a * cc;
+    ok &= !disc.lt(zero);
+    let s = S::pick(ok, disc, zero).sqrt();
+    let den = b + s.copysign(b);
+    ok &= !den.is_zero();
+    let t = -(p.z * den + cc) / S::pick(ok, d.z * den, one);
+    (t, ok)
+}
+
 /// Intersection in the surface frame: returns (t, ok, unnormalized normal pointing toward -z).
 #[inline(always)]
 fn intersect<S: Real, const KIND: u8>(
@@ -234,6 +358,10 @@ fn intersect<S: Real, const KIND: u8>(
     if KIND == PLANE {
         let t = -p.z / d.z;
         return (t, !d.z.is_zero(), Vec3::new(zero, zero, -one));
+    }
+    if KIND == ASPHERE && matches!(row.shape, Shape::Toroidal { .. }) {
+        let (t, ok) = cylinder_root(row, p, d);
+        return newton_xy(row, p, d, t, ok);
     }
     // Quadric c (x² + y² + k1 z²) - 2 z = 0, solved from the ray's crossing of the vertex plane
     // (where the constant term is small). Of the two roots this takes the one nearest that
@@ -258,6 +386,9 @@ fn intersect<S: Real, const KIND: u8>(
         // Only the vertex-side sheet of the quadric is the lens surface.
         ok &= (c * k1 * h.z).lt(one);
         return (t, ok, Vec3::new(c * h.x, c * h.y, c * k1 * h.z - one));
+    }
+    if row.shape == Shape::Odd {
+        return newton_xy(row, p, d, t, ok);
     }
     // Even asphere: Newton on f(t) = z(t) - sag(x(t)² + y(t)²) from the quadric root.
     let mut converged = false;
@@ -337,7 +468,21 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
                 let (gm, em) = (S::pick(mirror, refl, g), S::pick(mirror, one, eta));
                 d * em + nrm * gm
             } else {
-                d
+                // A bare aperture passes rays straight. An ideal thin lens (power P) turns the
+                // slopes by -h P: the direction (d.x - h.x P d.z, d.y - h.y P d.z, d.z),
+                // normalized, keeps the sign of travel; the select keeps P = 0 rows exact.
+                let paraxial = !row.power.is_zero();
+                let v = Vec3::new(
+                    d.x - h.x * row.power * d.z,
+                    d.y - h.y * row.power * d.z,
+                    d.z,
+                );
+                let v = v * (one / v.dot(v).sqrt());
+                Vec3::new(
+                    S::pick(paraxial, v.x, d.x),
+                    S::pick(paraxial, v.y, d.y),
+                    S::pick(paraxial, v.z, d.z),
+                )
             };
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))

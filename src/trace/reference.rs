@@ -6,7 +6,7 @@
 //! that the kernel agrees with it.
 
 use super::RayStatus;
-use crate::lens::{SurfaceKind, SurfaceRow, System};
+use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 
 /// Result of tracing one ray to the image plane (global frame, mm).
@@ -37,43 +37,99 @@ fn sag(c: f64, k1: f64, asph: &[f64], u: f64) -> Option<(f64, f64)> {
     Some((z, dz))
 }
 
-/// Sag `z` (mm) and `dz/du` of a compiled surface at `u = x² + y²` (mm²), in its local frame;
-/// `None` beyond the conic's rim.
+/// Sag `z` (mm) and `dz/du` of a compiled even-asphere surface at `u = x² + y²` (mm²), in its
+/// local frame; `None` beyond the conic's rim. Only for [`Shape::Even`] rows (the Embree mesh).
 pub fn surface_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
     sag(row.c, row.k1, &row.asph[..row.n_asph], u)
+}
+
+/// Sag `z` (mm) and its gradient (`∂z/∂x`, `∂z/∂y`) of a compiled surface of any shape at
+/// `(x, y)` in its local frame, written from the shapes' definitions term by term (powers, not
+/// the kernel's Horner forms); `None` where the surface is undefined.
+pub fn surface_sag_xy(row: &SurfaceRow<f64>, x: f64, y: f64) -> Option<(f64, f64, f64)> {
+    let asph = &row.asph[..row.n_asph];
+    match row.shape {
+        Shape::Even => {
+            let (z, dzu) = sag(row.c, row.k1, asph, x * x + y * y)?;
+            Some((z, 2.0 * x * dzu, 2.0 * y * dzu))
+        }
+        Shape::Odd => {
+            let u = x * x + y * y;
+            let (mut z, dzu) = sag(row.c, row.k1, &[], u)?;
+            let r = u.sqrt();
+            // dz/dr / r of the polynomial; the cone term β1 ρ has no slope at the vertex.
+            let mut slope_over_r = 2.0 * dzu;
+            for (j, b) in asph.iter().enumerate() {
+                let i = j as i32 + 1;
+                z += b * r.powi(i);
+                if i >= 2 {
+                    slope_over_r += i as f64 * b * r.powi(i - 2);
+                } else if r > 0.0 {
+                    slope_over_r += b / r;
+                }
+            }
+            Some((z, x * slope_over_r, y * slope_over_r))
+        }
+        Shape::Paraxial { .. } => Some((0.0, 0.0, 0.0)),
+        Shape::Toroidal { .. } => {
+            // The y-z profile, rotated about the axis parallel to y at z = 1 / c_rot: with
+            // R = 1 / c_rot, z = R - sqrt((R - z_y)² - x²) on the vertex side.
+            let (zy, dzu) = sag(row.c, row.k1, asph, y * y)?;
+            let dzy = 2.0 * y * dzu;
+            if row.c_rot == 0.0 {
+                return Some((zy, 0.0, dzy));
+            }
+            let rr = 1.0 / row.c_rot;
+            let w = rr - zy;
+            let s2 = w * w - x * x;
+            if !(s2 > 0.0) {
+                return None;
+            }
+            let s = s2.sqrt().copysign(w);
+            Some((rr - s, x / s, w * dzy / s))
+        }
+    }
 }
 
 /// Intersects the local-frame ray `p + t dl` with the surface of `row` by Newton's method on the
 /// sag, started at the vertex plane, or, when that start fails (the ray crosses the vertex
 /// plane beyond a steep surface's rim, where the sag is undefined, though it meets the surface
 /// nearer the axis), at the base conic's vertex-side intersection nearest that crossing.
-/// Returns `t` and `dz/du` at the hit, or `None` when the ray is parallel to the vertex plane
-/// or Newton does not converge from either start (a miss).
-pub fn intersect_local(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>) -> Option<(f64, f64)> {
+/// Returns `t` and the sag's gradient (`∂z/∂x`, `∂z/∂y`) at the hit, or `None` when the ray is
+/// parallel to the vertex plane or Newton does not converge from either start (a miss).
+pub fn intersect_local(
+    row: &SurfaceRow<f64>,
+    p: Vec3<f64>,
+    dl: Vec3<f64>,
+) -> Option<(f64, [f64; 2])> {
     if dl.z == 0.0 {
         return None;
     }
     let t = -p.z / dl.z;
     if row.kind == SurfaceKind::Plane {
-        return Some((t, 0.0));
+        return Some((t, [0.0; 2]));
     }
     newton(row, p, dl, t).or_else(|| newton(row, p, dl, conic_start(row, p, dl, t)?))
 }
 
-/// Newton on `z(t) - sag(x(t)² + y(t)²)` from `t`.
-fn newton(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t: f64) -> Option<(f64, f64)> {
-    let asph = &row.asph[..row.n_asph];
+/// The unit normal of a surface with sag gradient `g`, pointing toward +z.
+pub fn unit_normal(g: [f64; 2]) -> Vec3<f64> {
+    Vec3::new(-g[0], -g[1], 1.0).normalized()
+}
+
+/// Newton on `z(t) - sag(x(t), y(t))` from `t`.
+fn newton(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t: f64) -> Option<(f64, [f64; 2])> {
     let mut t = t;
     for _ in 0..100 {
         let h = p + dl * t;
-        let (z, dzu) = sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y)?;
+        let (z, zx, zy) = surface_sag_xy(row, h.x, h.y)?;
         let f = h.z - z;
-        let fp = dl.z - 2.0 * dzu * (h.x * dl.x + h.y * dl.y);
+        let fp = dl.z - (zx * dl.x + zy * dl.y);
         let step = f / fp;
         t -= step;
         if step.abs() < 1e-13 * (1.0 + t.abs()) {
             let h = p + dl * t;
-            return sag(row.c, row.k1, asph, h.x * h.x + h.y * h.y).map(|(_, dzu)| (t, dzu));
+            return surface_sag_xy(row, h.x, h.y).map(|(_, zx, zy)| (t, [zx, zy]));
         }
     }
     None
@@ -128,7 +184,7 @@ pub fn trace_ray(
         let fail = |status| RefRay { o, d, opl, status };
         let p = row.rot.apply_t(o - row.pos);
         let dl = row.rot.apply_t(d);
-        let Some((t, dz)) = intersect_local(row, p, dl) else {
+        let Some((t, grad)) = intersect_local(row, p, dl) else {
             return fail(RayStatus::Missed(i as u32));
         };
         if !row.virtual_ok && crate::trace::kernel::behind(t, p) {
@@ -139,14 +195,18 @@ pub fn trace_ray(
             return fail(RayStatus::Vignetted(i as u32));
         }
         let mut dn = dl;
-        if row.reflect {
+        if let Shape::Paraxial { focal_mm } = row.shape {
+            // The ideal thin lens: slopes change by minus the height over the focal length.
+            let (mx, my) = (dl.x / dl.z - h.x / focal_mm, dl.y / dl.z - h.y / focal_mm);
+            dn = Vec3::new(mx, my, 1.0).normalized() * dl.z.signum();
+        } else if row.reflect {
             // The law of reflection: the normal component reverses.
-            let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
+            let nrm = unit_normal(grad);
             dn = dl - nrm * (2.0 * dl.dot(nrm));
         } else if row.refract {
             let n1 = if i == 0 { 1.0 } else { n[i - 1] };
             // Unit normal along +z-ish, then Snell on the tangential component.
-            let nrm = Vec3::new(-2.0 * h.x * dz, -2.0 * h.y * dz, 1.0).normalized();
+            let nrm = unit_normal(grad);
             match refract(dl, nrm, n1, n[i]) {
                 Some(v) => dn = v,
                 None => return fail(RayStatus::Tir(i as u32)),

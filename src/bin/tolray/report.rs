@@ -65,10 +65,20 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         "surf", "type", "radius", "conic", "gap", "semi-ap", "material after"
     ));
     for (i, sf) in lens.surfaces.iter().enumerate() {
+        use tolray::lens::{Shape, SurfaceRole};
         let ty = match (sf.role, sf.is_stop, sf.is_aspheric()) {
-            (tolray::lens::SurfaceRole::Aperture, _, _) => "stop",
-            (tolray::lens::SurfaceRole::Mirror, _, _) => "mirror",
-            (_, _, true) => "asphere",
+            (SurfaceRole::Aperture, _, _) => "stop",
+            (SurfaceRole::Mirror, _, _) => match sf.shape {
+                Shape::Toroidal { .. } => "tor. mirror",
+                _ => "mirror",
+            },
+            (_, _, true) => match sf.shape {
+                Shape::Odd => "odd asph.",
+                Shape::Toroidal { c_rot: 0.0 } => "cylinder",
+                Shape::Toroidal { .. } => "toroid",
+                Shape::Paraxial { .. } => "thin lens",
+                Shape::Even => "asphere",
+            },
             (_, true, _) => "sphere/stop",
             _ => "sphere",
         };
@@ -84,6 +94,23 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
             sf.semi_aperture_mm,
             sf.material.json_name()
         ));
+        if let Shape::Paraxial { focal_mm } = sf.shape {
+            s.push_str(&format!(
+                "  {:>4} {:>10} ideal thin lens, focal length {focal_mm:.4} mm\n",
+                "", ""
+            ));
+        }
+        if let Shape::Toroidal { c_rot } = sf.shape {
+            let rr = if c_rot == 0.0 {
+                "inf".to_string()
+            } else {
+                format!("{:.4}", 1.0 / c_rot)
+            };
+            s.push_str(&format!(
+                "  {:>4} {:>10} radius in y above; radius of rotation (x) {rr} mm\n",
+                "", ""
+            ));
+        }
     }
     for w in lens.warnings() {
         s.push_str(&format!("warning: {w}\n"));
