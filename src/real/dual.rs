@@ -163,8 +163,6 @@ impl<T: Real, const N: usize> Real for Dual<T, N> {
     const NAME: &'static str = "dual";
 }
 
-impl<const N: usize> crate::trace::Traceable for Dual<f64, N> {}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,7 +2,8 @@
 //!
 //! Per surface: move the ray into the surface frame (translation, then the inverse rotation when
 //! the surface is rotated), intersect (plane, cancellation-free quadric, or Newton for an even
-//! asphere started from the quadric root), clip at the clear aperture, refract by the vector
+//! asphere started from the quadric root; odd aspheres, toroids and ideal thin lenses take a
+//! separate scalar loop, [`shaped`]), clip at the clear aperture, refract by the vector
 //! form of Snell's law, and move back. Conditions are evaluated on values and applied as
 //! selects; a dead ray keeps its last state and its status.
 //!
@@ -27,11 +28,14 @@
 use super::{Block, CODE_BACKWARD, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
-use crate::real::Real;
+use crate::real::{Dual, Real};
 
 const PLANE: u8 = 0;
 const QUADRIC: u8 = 1;
 const ASPHERE: u8 = 2;
+/// Odd aspheres, toroids and ideal thin lenses: one out-of-line loop per number type (see
+/// [`shaped`]).
+const SHAPED: u8 = 3;
 
 /// A number type the tracer can run on. `f32` and `f64` override [`Traceable::trace_blocks`] with
 /// builds for several instruction sets chosen at run time; other types use the generic build.
@@ -62,6 +66,72 @@ impl Traceable for f64 {
     fn trace_blocks(sys: &System<f64>, n: &[f64], clip: bool, blocks: &mut [Block<f64>]) {
         trace_blocks_f64(sys, n, clip, blocks);
     }
+}
+
+/// Dual numbers trace with the generic build. The widths the library differentiates with (1 and
+/// [`crate::optim::GRAD_WIDTH`]) call builds compiled once, in this crate: a crate that takes
+/// gradients (the tests, a user's program) links them instead of compiling the kernel again for
+/// its width (minutes of optimization each).
+impl<const N: usize> Traceable for Dual<f64, N> {
+    fn trace_blocks(sys: &System<Self>, n: &[Self], clip: bool, blocks: &mut [Block<Self>]) {
+        const W: usize = crate::optim::GRAD_WIDTH;
+        // `if const`: the other branches of each width are not compiled.
+        if const { N == W } {
+            let (sys, n, blocks) = same_width::<N, W>(sys, n, blocks);
+            trace_blocks_dual_grad(sys, n, clip, blocks);
+        } else if const { N == 1 } {
+            let (sys, n, blocks) = same_width::<N, 1>(sys, n, blocks);
+            trace_blocks_dual1(sys, n, clip, blocks);
+        } else {
+            trace_blocks_generic(sys, n, clip, blocks);
+        }
+    }
+}
+
+/// The arguments of a trace: system, indices, blocks.
+type TraceArgs<'a, S> = (&'a System<S>, &'a [S], &'a mut [Block<S>]);
+
+/// The arguments of a dual-number trace of width `A` as width `B`, which must be the same.
+fn same_width<'a, const A: usize, const B: usize>(
+    sys: &'a System<Dual<f64, A>>,
+    n: &'a [Dual<f64, A>],
+    blocks: &'a mut [Block<Dual<f64, A>>],
+) -> TraceArgs<'a, Dual<f64, B>> {
+    assert_eq!(A, B);
+    let (len_n, len_b) = (n.len(), blocks.len());
+    // SAFETY: A == B (asserted), so `Dual<f64, A>` and `Dual<f64, B>` are one type and each cast
+    // is from a type to itself: same layout, same lifetimes, the same exclusive borrow of
+    // `blocks` passed on.
+    unsafe {
+        (
+            &*(sys as *const System<Dual<f64, A>>).cast::<System<Dual<f64, B>>>(),
+            std::slice::from_raw_parts(n.as_ptr().cast::<Dual<f64, B>>(), len_n),
+            std::slice::from_raw_parts_mut(
+                blocks.as_mut_ptr().cast::<Block<Dual<f64, B>>>(),
+                len_b,
+            ),
+        )
+    }
+}
+
+#[inline(never)]
+fn trace_blocks_dual_grad(
+    sys: &System<Dual<f64, { crate::optim::GRAD_WIDTH }>>,
+    n: &[Dual<f64, { crate::optim::GRAD_WIDTH }>],
+    clip: bool,
+    blocks: &mut [Block<Dual<f64, { crate::optim::GRAD_WIDTH }>>],
+) {
+    trace_blocks_generic(sys, n, clip, blocks);
+}
+
+#[inline(never)]
+fn trace_blocks_dual1(
+    sys: &System<Dual<f64, 1>>,
+    n: &[Dual<f64, 1>],
+    clip: bool,
+    blocks: &mut [Block<Dual<f64, 1>>],
+) {
+    trace_blocks_generic(sys, n, clip, blocks);
 }
 
 /// Blocks per group: a group and its scratch copy stay in the L1 cache.
@@ -114,6 +184,9 @@ fn surface<S: Real>(
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
+    if row.shape != Shape::Even {
+        return shaped(row, n1, eta, code, clip, src, dst);
+    }
     macro_rules! go {
         ($kind:expr, $rot:expr, $clip:expr) => {
             lanes::<S, { $kind }, { $rot }, { $clip }>(row, n1, eta, code, src, dst)
@@ -132,6 +205,28 @@ fn surface<S: Real>(
         (SurfaceKind::Asphere, false, true) => go!(ASPHERE, false, true),
         (SurfaceKind::Asphere, true, false) => go!(ASPHERE, true, false),
         (SurfaceKind::Asphere, true, true) => go!(ASPHERE, true, true),
+    }
+}
+
+/// A surface pass for the shapes other than the even asphere (odd asphere, toroid, ideal thin
+/// lens). Out of line and not inlined: these loops stay scalar (a per-lane Newton with an early
+/// exit), are rare, and inlined into every instantiation of the vectorized loops they made the
+/// cold build of every number type several times slower without making anything faster.
+#[inline(never)]
+fn shaped<S: Real>(
+    row: &SurfaceRow<S>,
+    n1: S,
+    eta: S,
+    code: u32,
+    clip: bool,
+    src: &[Block<S>],
+    dst: &mut [Block<S>],
+) {
+    match (row.rotated, clip) {
+        (false, false) => lanes::<S, SHAPED, false, false>(row, n1, eta, code, src, dst),
+        (false, true) => lanes::<S, SHAPED, false, true>(row, n1, eta, code, src, dst),
+        (true, false) => lanes::<S, SHAPED, true, false>(row, n1, eta, code, src, dst),
+        (true, true) => lanes::<S, SHAPED, true, true>(row, n1, eta, code, src, dst),
     }
 }
 
@@ -279,7 +374,7 @@ fn toroid_sag<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool) {
 #[inline(always)]
 pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool) {
     match row.shape {
-        // A thin lens is a plane row and never reaches the asphere routine.
+        // A thin lens is flat and never reaches Newton.
         Shape::Even | Shape::Paraxial { .. } => {
             let (z, dz, ok) = asphere_sag(row, x * x + y * y);
             let two = S::cst(2.0);
@@ -346,29 +441,17 @@ fn cylinder_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bo
     (t, ok)
 }
 
-/// Intersection in the surface frame: returns (t, ok, unnormalized normal pointing toward -z).
+/// The ray's crossing of the quadric c (x² + y² + k1 z²) - 2 z = 0 nearest its crossing of the
+/// vertex plane: (t, ok).
 #[inline(always)]
-fn intersect<S: Real, const KIND: u8>(
-    row: &SurfaceRow<S>,
-    p: Vec3<S>,
-    d: Vec3<S>,
-) -> (S, bool, Vec3<S>) {
+fn quadric_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
+    // Solved from the ray's crossing of the vertex plane (where the constant term is small). Of
+    // the two roots this takes the one nearest that crossing, without cancellation; it tends to
+    // the plane solution as c -> 0. The crossing (x0, y0) and the coefficients are kept
+    // multiplied by powers of d.z, which leaves a single division: with X0 = x0 d.z, B = b d.z,
+    // C = cc d.z², D = den d.z, t = t0 - cc / den = -(z D + C) / (d.z D).
     let zero = S::cst(0.0);
     let one = S::cst(1.0);
-    if KIND == PLANE {
-        let t = -p.z / d.z;
-        return (t, !d.z.is_zero(), Vec3::new(zero, zero, -one));
-    }
-    if KIND == ASPHERE && matches!(row.shape, Shape::Toroidal { .. }) {
-        let (t, ok) = cylinder_root(row, p, d);
-        return newton_xy(row, p, d, t, ok);
-    }
-    // Quadric c (x² + y² + k1 z²) - 2 z = 0, solved from the ray's crossing of the vertex plane
-    // (where the constant term is small). Of the two roots this takes the one nearest that
-    // crossing, without cancellation; it tends to the plane solution as c -> 0.
-    // The crossing (x0, y0) and the coefficients are kept multiplied by powers of d.z, which
-    // leaves a single division: with X0 = x0 d.z, B = b d.z, C = cc d.z², D = den d.z,
-    // t = t0 - cc / den = -(z D + C) / (d.z D).
     let (c, k1) = (row.c, row.k1);
     let mut ok = !d.z.is_zero();
     let (x0, y0) = (p.x * d.z - d.x * p.z, p.y * d.z - d.y * p.z);
@@ -380,15 +463,37 @@ fn intersect<S: Real, const KIND: u8>(
     let s = S::pick(ok, disc, zero).sqrt();
     let den = b + s.copysign(b);
     ok &= !den.is_zero();
-    let mut t = -(p.z * den + cc) / S::pick(ok, d.z * den, one);
+    let t = -(p.z * den + cc) / S::pick(ok, d.z * den, one);
+    (t, ok)
+}
+
+/// Intersection in the surface frame: returns (t, ok, unnormalized normal pointing toward -z).
+#[inline(always)]
+fn intersect<S: Real, const KIND: u8>(
+    row: &SurfaceRow<S>,
+    p: Vec3<S>,
+    d: Vec3<S>,
+) -> (S, bool, Vec3<S>) {
+    let zero = S::cst(0.0);
+    let one = S::cst(1.0);
+    if KIND == PLANE || (KIND == SHAPED && row.kind == SurfaceKind::Plane) {
+        let t = -p.z / d.z;
+        return (t, !d.z.is_zero(), Vec3::new(zero, zero, -one));
+    }
+    if KIND == SHAPED {
+        let (t, ok) = match row.shape {
+            Shape::Toroidal { .. } => cylinder_root(row, p, d),
+            _ => quadric_root(row, p, d),
+        };
+        return newton_xy(row, p, d, t, ok);
+    }
+    let (mut t, mut ok) = quadric_root(row, p, d);
+    let (c, k1) = (row.c, row.k1);
     if KIND == QUADRIC {
         let h = p + d * t;
         // Only the vertex-side sheet of the quadric is the lens surface.
         ok &= (c * k1 * h.z).lt(one);
         return (t, ok, Vec3::new(c * h.x, c * h.y, c * k1 * h.z - one));
-    }
-    if row.shape == Shape::Odd {
-        return newton_xy(row, p, d, t, ok);
     }
     // Even asphere: Newton on f(t) = z(t) - sag(x(t)² + y(t)²) from the quadric root.
     let mut converged = false;
@@ -459,30 +564,28 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
                 S::pick(flip, -nrm.z, nrm.z),
             );
             let k = one - eta * eta * (one - a * a * inv_nn);
-            let tir = (KIND != PLANE) & !mirror & k.lt(zero);
+            // An ideal thin lens (a flat row of nonzero power, only in the shaped loop).
+            let paraxial = KIND == SHAPED && !row.power.is_zero();
+            let tir = (KIND != PLANE) & !mirror & !paraxial & k.lt(zero);
             let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
-            let dr = if KIND != PLANE {
+            let dr = if paraxial {
+                // The slopes turn by -h P: the direction (d.x - h.x P d.z, d.y - h.y P d.z, d.z),
+                // normalized, keeps the sign of travel.
+                let v = Vec3::new(
+                    d.x - h.x * row.power * d.z,
+                    d.y - h.y * row.power * d.z,
+                    d.z,
+                );
+                v * (one / v.dot(v).sqrt())
+            } else if KIND != PLANE {
                 // A mirror reflects: d + 2 (a / N.N) N, with N facing the incoming ray; the
                 // select keeps the lane loop free of branches.
                 let refl = S::cst(2.0) * a * inv_nn;
                 let (gm, em) = (S::pick(mirror, refl, g), S::pick(mirror, one, eta));
                 d * em + nrm * gm
             } else {
-                // A bare aperture passes rays straight. An ideal thin lens (power P) turns the
-                // slopes by -h P: the direction (d.x - h.x P d.z, d.y - h.y P d.z, d.z),
-                // normalized, keeps the sign of travel; the select keeps P = 0 rows exact.
-                let paraxial = !row.power.is_zero();
-                let v = Vec3::new(
-                    d.x - h.x * row.power * d.z,
-                    d.y - h.y * row.power * d.z,
-                    d.z,
-                );
-                let v = v * (one / v.dot(v).sqrt());
-                Vec3::new(
-                    S::pick(paraxial, v.x, d.x),
-                    S::pick(paraxial, v.y, d.y),
-                    S::pick(paraxial, v.z, d.z),
-                )
+                // A bare aperture passes rays straight.
+                d
             };
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))
