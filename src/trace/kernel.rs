@@ -421,24 +421,11 @@ fn newton_xy<S: Real>(
 
 /// Start for a toroid's Newton: the ray's crossing of the y-z profile's base conic swept along
 /// x, c (y² + k1 z²) - 2 z = 0 (exact for a cylinder without even terms), nearest the vertex
-/// plane, in the same cancellation-free form as the quadric routine.
+/// plane: the quadric's root with the ray's x parts left out.
 #[inline(always)]
 fn cylinder_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
     let zero = S::cst(0.0);
-    let one = S::cst(1.0);
-    let (c, k1) = (row.c, row.k1);
-    let mut ok = !d.z.is_zero();
-    let y0 = p.y * d.z - d.y * p.z;
-    let a = c * (d.y * d.y + k1 * d.z * d.z);
-    let b = c * (y0 * d.y) - d.z * d.z;
-    let cc = c * (y0 * y0);
-    let disc = b * b - a * cc;
-    ok &= !disc.lt(zero);
-    let s = S::pick(ok, disc, zero).sqrt();
-    let den = b + s.copysign(b);
-    ok &= !den.is_zero();
-    let t = -(p.z * den + cc) / S::pick(ok, d.z * den, one);
-    (t, ok)
+    quadric_root(row, Vec3::new(zero, p.y, p.z), Vec3::new(zero, d.y, d.z))
 }
 
 /// The ray's crossing of the quadric c (x² + y² + k1 z²) - 2 z = 0 nearest its crossing of the
