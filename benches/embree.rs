@@ -9,7 +9,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use tolray::embree::{
-    check_system, CheckOptions, Cover, Device, Frame, Mesh, Rays, Scene, SceneOptions,
+    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, Scene, SceneOptions,
 };
 use tolray::math::Vec3;
 use tolray::trace::reference::intersect_local;
@@ -72,7 +72,7 @@ fn bench(c: &mut Criterion) {
     g.finish();
 
     let opts = CheckOptions::default();
-    let rays = Rays::generate(&lens, &opts).unwrap();
+    let rays = check_rays(&lens, &opts).unwrap();
     let mut g = c.benchmark_group("embree/check-case/lens2");
     g.sample_size(10);
     for cover in [Cover::Footprint, Cover::Disk] {

@@ -41,7 +41,7 @@ use tolray::decoder::{Crop, Decoder, DecoderKind};
 use tolray::lens::agf::AgfCatalog;
 use tolray::lens::material::{GlassCatalogs, Material};
 use tolray::lens::{json, zemax};
-use tolray::psf::{psf_of, PsfOptions, PsfRays};
+use tolray::psf::{psf_of, PsfOptions};
 use tolray::tolerance::{Perturbation, ToleranceSpec};
 use tolray::trace::{raw, Field, Pupil, PupilPattern, TraceOptions};
 use tolray::{Lens, Object};
@@ -780,7 +780,7 @@ fn lens_work(l: &Lens, round_trips: bool) -> Verdict {
         scale: 1.0,
         aim: false,
     };
-    if let Ok(rays) = PsfRays::new(
+    if let Ok(rays) = tolray::trace::Bundles::pairs(
         l,
         &[(Field::fraction(0.5), l.primary_wavelength_nm)],
         &po.pupil,

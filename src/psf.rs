@@ -13,8 +13,7 @@ use crate::math::Vec3;
 use crate::real::Real;
 use crate::trace::rays::Beam;
 use crate::trace::{
-    trace_serial, Block, Field, LaunchSource, Pupil, RayBatch, RaySet, TraceOptions, Traceable,
-    LANES,
+    trace_serial, Block, Bundles, Field, Pupil, RayBatch, TraceOptions, Traceable, LANES,
 };
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
@@ -168,44 +167,11 @@ impl<S: Real> Splat<S> {
     }
 }
 
-/// Rays for PSFs, generated once from the design lens (aimed at its paraxial entrance pupil at
-/// its primary wavelength); [`psf_of_launched`] launches them again with a gradient's seeded
-/// variables.
-#[derive(Clone, Debug)]
-pub struct PsfRays {
-    /// (field, wavelength, rays) per PSF.
-    pub sets: Vec<(Field, f64, RaySet)>,
-    /// The design the rays were launched from.
-    pub launch: LaunchSource,
-}
-
-impl PsfRays {
-    /// Rays for each (field, wavelength) pair.
-    ///
-    /// # Errors
-    /// Paraxial and ray-generation errors.
-    pub fn new(lens: &Lens, pairs: &[(Field, f64)], pupil: &Pupil) -> Result<PsfRays> {
-        let para = lens.paraxial(lens.primary_wavelength_nm)?;
-        let pts = pupil.points();
-        let sets = pairs
-            .par_iter()
-            .map(|&(f, wl)| {
-                let set = RaySet::generate_at(lens, &para, f, &pts, pupil.aim, wl)?;
-                Ok((f, wl, set))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(PsfRays {
-            sets,
-            launch: LaunchSource::new(lens, &para),
-        })
-    }
-}
-
 /// The PSF of ray set `k` of `rays` through `sys`, in any number type, centred as `opts` says,
 /// and the chief ray's sensor point (`None` when the chief ray is lost).
 pub fn psf_of<S: Traceable>(
     sys: &System<S>,
-    rays: &PsfRays,
+    rays: &Bundles,
     k: usize,
     opts: &PsfOptions,
     trace: TraceOptions,
@@ -213,19 +179,18 @@ pub fn psf_of<S: Traceable>(
     psf_of_launched(sys, rays, k, None, opts, trace)
 }
 
-/// As [`psf_of`], with the rays launched from `optics` (from [`LaunchSource::optics`] of
+/// As [`psf_of`], with the rays launched from `optics` (from [`Bundles::optics`] of
 /// `rays.launch`; `None` traces the stored rays).
 pub fn psf_of_launched<S: Traceable>(
     sys: &System<S>,
-    rays: &PsfRays,
+    rays: &Bundles,
     k: usize,
     optics: Option<&LaunchOptics<S>>,
     opts: &PsfOptions,
     trace: TraceOptions,
 ) -> (Vec<S>, Option<[S; 2]>) {
-    let (_, wl, set) = &rays.sets[k];
-    let mut b: RayBatch<S> = set.launched_batch(&rays.launch.lens, optics, true);
-    psf_of_batch(sys, *wl, &mut b, opts, trace)
+    let mut b: RayBatch<S> = rays.batch(k, optics, true);
+    psf_of_batch(sys, rays.sets[k].wavelength_nm, &mut b, opts, trace)
 }
 
 /// The PSF of the rays of `b`, the last of which is the chief ray, traced through `sys` at
@@ -295,7 +260,7 @@ pub fn psf_map(
     let to_f64 = |psf: Vec<f32>| psf.into_iter().map(f64::from).collect();
     if opts.pupil.aim {
         let pairs: Vec<(Field, f64)> = fields.iter().map(|&f| (f, wavelength_nm)).collect();
-        let rays = PsfRays::new(lens, &pairs, &opts.pupil)?;
+        let rays = Bundles::pairs(lens, &pairs, &opts.pupil)?;
         return Ok((0..pairs.len())
             .into_par_iter()
             .map(|k| to_f64(psf_of(&sys32, &rays, k, opts, TraceOptions::default()).0))

@@ -234,10 +234,10 @@ mod rust_side {
     use tolray::analysis::spot::{spot_diagram, SpotOptions};
     use tolray::lens::{Lens, Param, System};
     use tolray::math::Vec3;
-    use tolray::optim::{gradient, Bundles, PsfLoss, SpotLoss, SpotMeasure};
-    use tolray::psf::{PsfOptions, PsfRays};
+    use tolray::optim::{gradient, PsfLoss, SpotLoss, SpotMeasure};
+    use tolray::psf::PsfOptions;
     use tolray::tolerance::ToleranceSpec;
-    use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
+    use tolray::trace::{trace, Bundles, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
 
     pub const D: f64 = 587.5618;
     pub const RGB: [f64; 3] = [486.1327, 587.5618, 656.2725];
@@ -302,17 +302,11 @@ mod rust_side {
     pub fn spot_loss(perturbed_lens: bool) -> (f64, Vec<f64>) {
         let lens = triplet();
         let fields = [Field::fraction(0.0), Field::fraction(0.7)];
-        let bundles = Bundles::new(
-            &lens,
-            &fields,
-            &[D],
-            &Pupil::grid(8),
-            TraceOptions::default(),
-        )
-        .unwrap();
+        let bundles = Bundles::new(&lens, &fields, &[D], &Pupil::grid(8)).unwrap();
         let obj = SpotLoss {
             bundles,
             measure: SpotMeasure::Mean,
+            trace: TraceOptions::default(),
         };
         let (l, adj) = if perturbed_lens {
             let (l, adj, _) = perturbed();
@@ -331,7 +325,7 @@ mod rust_side {
         opts.ks = 15;
         opts.pupil.pattern = PupilPattern::Random { n: 2048, seed: 0 };
         let loss = PsfLoss {
-            rays: PsfRays::new(&lens, &[(Field::fraction(0.7), D)], &opts.pupil).unwrap(),
+            rays: Bundles::pairs(&lens, &[(Field::fraction(0.7), D)], &opts.pupil).unwrap(),
             opts,
             trace: TraceOptions::default(),
         };

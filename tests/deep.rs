@@ -536,9 +536,8 @@ fn crop_rays(
 #[test]
 fn the_vjp_seam_is_exact_in_f64() {
     use tolray::deep::PatternObjective;
-    use tolray::optim::{gradient, value, Bundles};
-    use tolray::psf::PsfRays;
-    use tolray::trace::{Pupil, TraceOptions};
+    use tolray::optim::{gradient, value};
+    use tolray::trace::{Bundles, Pupil, TraceOptions};
     let lens = focused_lens1();
     let (psf, field, pairs) = crop_rays(&lens);
     let n = 51 * 51;
@@ -553,8 +552,8 @@ fn the_vjp_seam_is_exact_in_f64() {
     // The objective at a design: its rays launched from that design, the similarity's reference
     // its own PSFs.
     let make = |l: &Lens| PatternObjective {
-        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4), trace).unwrap(),
-        psf_rays: PsfRays::new(l, &pairs, &psf.pupil).unwrap(),
+        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4)).unwrap(),
+        psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
         psf,
         similarity: true,
         image_grad: g.clone(),
@@ -736,9 +735,8 @@ fn refocused_training_keeps_the_design_at_its_best_focus() {
 #[test]
 fn the_refocused_crop_objective_is_exact_in_f64() {
     use tolray::deep::PatternObjective;
-    use tolray::optim::{gradient, gradient_with_unit, value, Bundles};
-    use tolray::psf::PsfRays;
-    use tolray::trace::{Pupil, TraceOptions};
+    use tolray::optim::{gradient, gradient_with_unit, value};
+    use tolray::trace::{Bundles, Pupil, TraceOptions};
     let mut lens = focused_lens1();
     let last = lens.surfaces.len() - 1;
     let none = Adjustments::none(last + 1);
@@ -750,8 +748,8 @@ fn the_refocused_crop_objective_is_exact_in_f64() {
         .sample(&lens, 3, 7)
         .unwrap();
     let make = |l: &Lens| PatternObjective {
-        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4), trace).unwrap(),
-        psf_rays: PsfRays::new(l, &pairs, &psf.pupil).unwrap(),
+        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4)).unwrap(),
+        psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
         psf,
         similarity: true,
         image_grad: vec![vec![0.0; 51 * 51]; 3],

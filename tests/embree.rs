@@ -6,7 +6,7 @@ mod common;
 
 use common::tolray;
 use tolray::embree::{
-    check_system, CheckOptions, Cover, Device, Frame, Mesh, RayHit, Rays, Scene, SceneOptions,
+    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, RayHit, Scene, SceneOptions,
 };
 use tolray::lens::{Adjustments, System};
 use tolray::tolerance::ToleranceSpec;
@@ -218,7 +218,7 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
     let cassegrain = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/cassegrain.json");
     for name in ["lens1", "lens2", "cooke-triplet", cassegrain] {
         let lens = Lens::load(name).unwrap();
-        let rays = Rays::generate(&lens, &opts).unwrap();
+        let rays = check_rays(&lens, &opts).unwrap();
         let mut systems = vec![(None, lens.compile())];
         for k in 0..5 {
             let p = spec.sample(&lens, 1, k).unwrap();
@@ -306,7 +306,7 @@ fn footprint_meshes_give_the_whole_disks_hits() {
             cover: Cover::Footprint,
             ..disk.clone()
         };
-        let rays = Rays::generate(&lens, &disk).unwrap();
+        let rays = check_rays(&lens, &disk).unwrap();
         let p = spec.sample(&lens, 1, 0).unwrap();
         let (pl, adj) = p.apply(&lens).unwrap();
         for sys in [lens.compile(), System::compile(&pl, &adj, &|_, v| v)] {
@@ -451,7 +451,7 @@ fn global_frame_meshes_also_pass() {
         frame: Frame::Global,
         ..small_options()
     };
-    let rays = Rays::generate(&lens, &opts).unwrap();
+    let rays = check_rays(&lens, &opts).unwrap();
     let r = check_system(device(), &sys, &rays, &opts).unwrap();
     let local = check_system(device(), &sys, &rays, &small_options()).unwrap();
     let f32g = r
@@ -565,7 +565,7 @@ fn half_the_bound_fails_on_every_sharp_surface() {
             bound_scale: 0.5,
             ..small_options()
         };
-        let rays = Rays::generate(&lens, &opts).unwrap();
+        let rays = check_rays(&lens, &opts).unwrap();
         let r = check_system(device(), &lens.compile(), &rays, &opts).unwrap();
         let mut sharp = 0;
         for s in &r.surfaces {

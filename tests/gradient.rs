@@ -4,11 +4,9 @@
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
-use tolray::optim::{
-    gradient, param_value, set_param, value, Bundles, Objective, SpotLoss, SpotMeasure,
-};
+use tolray::optim::{gradient, param_value, set_param, value, Objective, SpotLoss, SpotMeasure};
 use tolray::tolerance::ToleranceSpec;
-use tolray::trace::{Field, Pupil, TraceOptions};
+use tolray::trace::{Bundles, Field, Pupil, TraceOptions};
 use tolray::{Lens, Object};
 
 /// Every design variable of a lens: curvatures of refracting surfaces, every gap (the last is
@@ -76,15 +74,9 @@ fn central_diff<O: Objective>(
 /// launched from `lens`.
 fn spot_loss(lens: &Lens, fields: &[Field], n: usize, measure: SpotMeasure) -> SpotLoss {
     SpotLoss {
-        bundles: Bundles::new(
-            lens,
-            fields,
-            &[LAMBDA_D_NM, 486.1327],
-            &Pupil::grid(n),
-            TraceOptions { apertures: false },
-        )
-        .unwrap(),
+        bundles: Bundles::new(lens, fields, &[LAMBDA_D_NM, 486.1327], &Pupil::grid(n)).unwrap(),
         measure,
+        trace: TraceOptions { apertures: false },
     }
 }
 
@@ -203,12 +195,12 @@ fn passes_of_different_width_agree() {
         &[Field::fraction(0.5)],
         &[LAMBDA_D_NM],
         &Pupil::grid(6),
-        TraceOptions::default(),
     )
     .unwrap();
     let obj = SpotLoss {
         bundles: b,
         measure: SpotMeasure::Mean,
+        trace: TraceOptions::default(),
     };
     let vars = all_vars(&lens);
     let (_, g8) = gradient::<_, 8>(&obj, &lens, &adj, &vars).unwrap();
@@ -231,7 +223,7 @@ fn passes_of_different_width_agree() {
 #[test]
 fn psf_similarity_loss_gradient_matches_finite_differences() {
     use tolray::optim::PsfLoss;
-    use tolray::psf::{PsfOptions, PsfRays};
+    use tolray::psf::PsfOptions;
     for name in ["lens2", "cooke-triplet"] {
         let mut lens = Lens::load(name).unwrap();
         lens.object = Object::Infinite;
@@ -245,7 +237,7 @@ fn psf_similarity_loss_gradient_matches_finite_differences() {
         ];
         // The loss as evaluated at a design: rays launched from it, its own PSFs the reference.
         let make = |l: &Lens| PsfLoss {
-            rays: PsfRays::new(l, &pairs, &opts.pupil).unwrap(),
+            rays: Bundles::pairs(l, &pairs, &opts.pupil).unwrap(),
             opts,
             trace: TraceOptions { apertures: false },
         };
@@ -373,17 +365,11 @@ fn the_gradient_includes_the_launch() {
     // Aimed rays keep their launch: the gradient is that of the stored rays.
     let mut aimed = Pupil::grid(6);
     aimed.aim = true;
-    let bundles = Bundles::new(
-        &lens,
-        &fields,
-        &[LAMBDA_D_NM],
-        &aimed,
-        TraceOptions { apertures: false },
-    )
-    .unwrap();
+    let bundles = Bundles::new(&lens, &fields, &[LAMBDA_D_NM], &aimed).unwrap();
     let held = SpotLoss {
         bundles,
         measure: SpotMeasure::Rms,
+        trace: TraceOptions { apertures: false },
     };
     let (_, ga) = gradient::<_, 8>(&held, &lens, &adj, &vars).unwrap();
     for (k, &p) in vars.iter().enumerate() {

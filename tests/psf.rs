@@ -2,9 +2,9 @@
 //! similarity of a PSF with itself is 1 and drops for a perturbed lens.
 
 use tolray::lens::material::LAMBDA_D_NM;
-use tolray::psf::{psf_map, psf_of, psf_similarity, PsfOptions, PsfRays};
+use tolray::psf::{psf_map, psf_of, psf_similarity, PsfOptions};
 use tolray::tolerance::ToleranceSpec;
-use tolray::trace::{Field, TraceOptions};
+use tolray::trace::{Bundles, Field, TraceOptions};
 use tolray::{Lens, Object};
 
 #[test]
@@ -18,7 +18,7 @@ fn stopped_down_lens_focuses_into_the_centre_pixel() {
     let bfd = l.paraxial(LAMBDA_D_NM).unwrap().bfd_mm;
     l.surfaces.last_mut().unwrap().d_next_mm = bfd;
     let opts = PsfOptions::for_lens(&l);
-    let rays = PsfRays::new(&l, &[(Field::fraction(0.0), LAMBDA_D_NM)], &opts.pupil).unwrap();
+    let rays = Bundles::pairs(&l, &[(Field::fraction(0.0), LAMBDA_D_NM)], &opts.pupil).unwrap();
     let (p, chief) = psf_of(&l.compile(), &rays, 0, &opts, TraceOptions::default());
     let c = p[25 * 51 + 25];
     assert!(chief.is_some());
@@ -50,7 +50,7 @@ fn psf_map_sums_and_similarities() {
     };
     assert!(psf_similarity(&map[5], &mirror(&map[6]), 51) > 0.999);
     // A perturbed lens has a less similar PSF than the nominal one.
-    let rays = PsfRays::new(&l, &[(Field::fraction(0.7), LAMBDA_D_NM)], &opts.pupil).unwrap();
+    let rays = Bundles::pairs(&l, &[(Field::fraction(0.7), LAMBDA_D_NM)], &opts.pupil).unwrap();
     let nominal = psf_of(&l.compile(), &rays, 0, &opts, TraceOptions::default()).0;
     let mut spec = ToleranceSpec::default();
     for op in spec.operands.iter_mut() {
@@ -70,7 +70,7 @@ fn psf_map_sums_and_similarities() {
 }
 
 /// The PSF map's fast path (rays generated straight into f32 blocks, a block at a time) gives the
-/// PSFs of the general path (`PsfRays` in f64, then `psf_of` on the f32 system), for a finite and
+/// PSFs of the general path (`Bundles::pairs` in f64, then `psf_of` on the f32 system), for a finite and
 /// an infinite object.
 #[test]
 fn psf_map_fast_path_matches_psf_of() {
@@ -87,7 +87,7 @@ fn psf_map_fast_path_matches_psf_of() {
             .into_iter()
             .map(|f| (f, LAMBDA_D_NM))
             .collect();
-        let rays = PsfRays::new(&l, &pairs, &opts.pupil).unwrap();
+        let rays = Bundles::pairs(&l, &pairs, &opts.pupil).unwrap();
         let sys32: tolray::lens::System<f32> = sys.convert();
         for (k, tile) in map.iter().enumerate() {
             let p = psf_of(&sys32, &rays, k, &opts, TraceOptions::default()).0;

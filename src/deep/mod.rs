@@ -26,14 +26,13 @@ use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
 use crate::optim::GRAD_WIDTH;
 use crate::optim::{
-    bundle_spot, gradient, gradient_with_unit, param_value, set_param, Bundles, FocusMoments,
-    Objective, SpotMeasure,
+    gradient, gradient_with_unit, param_value, set_param, spot_sum, FocusMoments, Objective,
+    SpotMeasure,
 };
 use crate::psf::{
     grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
-    PsfRays,
 };
-use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
+use crate::trace::{Bundles, Field, Pupil, PupilPattern, TraceOptions, Traceable};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -452,7 +451,7 @@ pub struct PatternObjective {
     /// Spot bundles at the crop's field (one per wavelength).
     pub spot: Bundles,
     /// Rays of the crop's RGB PSF.
-    pub psf_rays: PsfRays,
+    pub psf_rays: Bundles,
     /// PSF settings.
     pub psf: PsfOptions,
     /// Whether the similarity term is on (tolerance phases; off in the nominal phase).
@@ -471,21 +470,16 @@ pub struct PatternObjective {
 
 impl Objective for PatternObjective {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
-        let optics = self.spot.optics(lift);
-        let mut spot = S::cst(0.0);
-        for k in 0..self.spot.sets.len() {
-            let pts = self.spot.launched_sensor_points(sys, optics.as_ref(), k);
-            spot += bundle_spot(&pts, SpotMeasure::Mean);
-        }
+        let spot = spot_sum(&self.spot, sys, lift, SpotMeasure::Mean, self.trace);
         let mut total =
-            spot * S::cst(self.weight * self.lambda_spot / self.spot.sets.len().max(1) as f64);
-        let optics = self.psf_rays.launch.optics(lift);
+            spot * S::cst(self.weight * self.lambda_spot / self.spot.len().max(1) as f64);
+        let optics = self.psf_rays.optics(lift);
         let design = self.similarity.then(|| self.psf_rays.launch.design(lift));
         let at = |s: &System<S>, k: usize| {
             psf_of_launched(s, &self.psf_rays, k, optics.as_ref(), &self.psf, self.trace).0
         };
         let mut sim = S::cst(0.0);
-        for k in 0..self.psf_rays.sets.len() {
+        for k in 0..self.psf_rays.len() {
             let p = at(sys, k);
             if let Some(d) = &design {
                 sim += psf_similarity_of(&at(d, k), &p, self.psf.ks);
@@ -497,7 +491,7 @@ impl Objective for PatternObjective {
             }
         }
         if self.similarity {
-            let n = S::cst(1.0 / self.psf_rays.sets.len().max(1) as f64);
+            let n = S::cst(1.0 / self.psf_rays.len().max(1) as f64);
             total += (S::cst(1.0) - sim * n) * S::cst(self.weight * self.lambda_psf);
         }
         total
@@ -518,7 +512,7 @@ pub struct BatchCrop {
     /// phase), launched from the design at the start of the iteration.
     pub refocus: Option<Arc<FocusObjective>>,
     /// Rays of its RGB PSF, launched from the design at the start of the iteration.
-    pub rays: PsfRays,
+    pub rays: Bundles,
     /// Spot bundles at its field (likewise).
     pub spot: Bundles,
     /// Nominal-design PSFs (the similarity term's constant reference; tolerance phases only).
@@ -589,7 +583,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 .iter()
                 .map(|&w| (fields[tile], w))
                 .collect();
-            let rays = PsfRays::new(lens, &pairs, &psf.pupil)?;
+            let rays = Bundles::pairs(lens, &pairs, &psf.pupil)?;
             let ideal = if phase.samples_tolerances() {
                 (0..pairs.len())
                     .map(|k| psf_of(&nominal, &rays, k, &psf, trace).0)
@@ -602,7 +596,6 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 &[fields[tile]],
                 &o.wavelengths_nm,
                 &Pupil::grid((o.spot_grid / 2).max(2)),
-                trace,
             )?;
             let xpad = cfg.train_images.crop(side, o.seed, stream)?.data;
             let mut noise = vec![0f32; 3 * c * c];
@@ -676,6 +669,8 @@ pub struct FocusObjective {
     pub bundles: Bundles,
     /// Number of fields.
     pub fields: usize,
+    /// Trace options.
+    pub trace: TraceOptions,
 }
 
 impl FocusObjective {
@@ -689,8 +684,9 @@ impl FocusObjective {
         let o = refocus_options(lens);
         let trace = TraceOptions { apertures };
         Ok(FocusObjective {
-            bundles: Bundles::new(lens, &o.fields, &o.wavelengths_nm, &o.pupil, trace)?,
+            bundles: Bundles::new(lens, &o.fields, &o.wavelengths_nm, &o.pupil)?,
             fields: o.fields.len(),
+            trace,
         })
     }
 }
@@ -699,9 +695,12 @@ impl Objective for FocusObjective {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
         let optics = self.bundles.optics(lift);
         let mut rays: Vec<Vec<[S; 4]>> = vec![Vec::new(); self.fields];
-        for k in 0..self.bundles.sets.len() {
-            let f = self.bundles.sets[k].0;
-            rays[f].extend(self.bundles.launched_sensor_rays(sys, optics.as_ref(), k));
+        for k in 0..self.bundles.len() {
+            let f = self.bundles.sets[k].field_index;
+            rays[f].extend(
+                self.bundles
+                    .launched_sensor_rays(sys, optics.as_ref(), k, self.trace),
+            );
         }
         let moments: Vec<FocusMoments<S>> =
             rays.iter().filter_map(|r| FocusMoments::of(r)).collect();
@@ -771,7 +770,7 @@ pub fn eval_batch(
         .map(|(j, bc)| -> Result<_> {
             let (plens, adj) = crop_lens(lens, bc)?;
             let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-            let psfs: Vec<Vec<f64>> = (0..bc.rays.sets.len())
+            let psfs: Vec<Vec<f64>> = (0..bc.rays.len())
                 .map(|k| psf_of(&sys, &bc.rays, k, &psf, trace).0)
                 .collect();
             for (k, p) in psfs.iter().enumerate() {
@@ -779,7 +778,7 @@ pub fn eval_batch(
                     p,
                     &format!(
                         "iteration {}, crop {j}, {} nm",
-                        batch.iter, bc.rays.sets[k].1
+                        batch.iter, bc.rays.sets[k].wavelength_nm
                     ),
                 )?;
             }
@@ -789,10 +788,8 @@ pub fn eval_batch(
                 *a += b;
             }
             let x = crop_centre(&bc.xpad, c + ks - 1, (ks - 1) / 2, c);
-            let spot_mm = (0..bc.spot.sets.len())
-                .map(|k| bundle_spot(&bc.spot.sensor_points(&sys, k), SpotMeasure::Mean))
-                .sum::<f64>()
-                / bc.spot.sets.len().max(1) as f64;
+            let spot_mm = spot_sum(&bc.spot, &sys, &|_, v| v, SpotMeasure::Mean, trace)
+                / bc.spot.len().max(1) as f64;
             let sim = if bc.ideal.is_empty() {
                 1.0
             } else {

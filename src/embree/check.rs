@@ -46,7 +46,9 @@ use crate::lens::{Lens, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::tolerance::{Perturbation, ToleranceSpec};
 use crate::trace::reference::{intersect_local, refract, surface_sag_xy, trace_ray, unit_normal};
-use crate::trace::{trace_serial, Field, Pupil, RayBatch, RaySet, RayStatus, TraceOptions};
+use crate::trace::{
+    trace_serial, Bundle, Bundles, Field, Pupil, RayBatch, RayStatus, TraceOptions,
+};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -116,59 +118,19 @@ impl Default for CheckOptions {
     }
 }
 
-/// One field at one wavelength: the rays to trace.
-#[derive(Clone, Debug)]
-struct Bundle {
-    field: Field,
-    wavelength_nm: f64,
-    origins: Vec<Vec3<f64>>,
-    directions: Vec<Vec3<f64>>,
-}
-
-/// The rays of every field and wavelength, generated once from the nominal lens (as the Monte
-/// Carlo analysis does), so every case traces the same rays.
-#[derive(Clone, Debug)]
-pub struct Rays {
-    bundles: Vec<Bundle>,
-}
-
-impl Rays {
-    /// Generates the rays of `opts` for `lens`.
-    ///
-    /// # Errors
-    /// [`crate::ErrorKind::Argument`] without fields or wavelengths; paraxial and ray-generation
-    /// errors.
-    pub fn generate(lens: &Lens, opts: &CheckOptions) -> Result<Rays> {
-        if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
-            return Err(Error::argument(
-                "a cross-check needs at least one field and one wavelength",
-            ));
-        }
-        let para = lens.paraxial(opts.wavelengths_nm[0])?;
-        let mut bundles = Vec::new();
-        for &field in &opts.fields {
-            for &wl in &opts.wavelengths_nm {
-                let set = RaySet::generate(lens, &para, field, &opts.pupil, wl)?;
-                bundles.push(Bundle {
-                    field,
-                    wavelength_nm: wl,
-                    origins: set.origins,
-                    directions: set.directions,
-                });
-            }
-        }
-        Ok(Rays { bundles })
+/// The rays of every field and wavelength of `opts`, generated once from the nominal lens (as
+/// the Monte Carlo analysis does), so every case traces the same rays.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] without fields or wavelengths; paraxial and ray-generation
+/// errors.
+pub fn check_rays(lens: &Lens, opts: &CheckOptions) -> Result<Bundles> {
+    if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
+        return Err(Error::argument(
+            "a cross-check needs at least one field and one wavelength",
+        ));
     }
-
-    /// Number of rays over all fields and wavelengths.
-    pub fn len(&self) -> usize {
-        self.bundles.iter().map(|b| b.origins.len()).sum()
-    }
-
-    /// True if there are no rays.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
+    Bundles::new(lens, &opts.fields, &opts.wavelengths_nm, &opts.pupil)
 }
 
 /// A surface's check is sharp when its f32 allowance is at most this fraction of its chord
@@ -542,8 +504,8 @@ impl SurfaceAcc {
 }
 
 /// The refractive indices after each surface at each bundle's wavelength.
-fn bundle_indices(sys: &System<f64>, rays: &Rays) -> Vec<Vec<f64>> {
-    rays.bundles
+fn bundle_indices(sys: &System<f64>, rays: &Bundles) -> Vec<Vec<f64>> {
+    rays.sets
         .iter()
         .map(|b| sys.indices(b.wavelength_nm))
         .collect()
@@ -579,7 +541,7 @@ fn supported(sys: &System<f64>) -> Result<()> {
 ///
 /// # Errors
 /// [`crate::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
-pub fn check_feasible(sys: &System<f64>, rays: &Rays, opts: &CheckOptions) -> Result<()> {
+pub fn check_feasible(sys: &System<f64>, rays: &Bundles, opts: &CheckOptions) -> Result<()> {
     supported(sys)?;
     let indices = bundle_indices(sys, rays);
     let used = used_radii(sys, rays, &indices);
@@ -596,11 +558,11 @@ pub fn check_feasible(sys: &System<f64>, rays: &Rays, opts: &CheckOptions) -> Re
 
 /// Largest radius (local frame, mm) at which the analytic trace of `rays` meets each surface,
 /// counting the surface where a ray is vignetted.
-fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> {
+fn used_radii(sys: &System<f64>, rays: &Bundles, indices: &[Vec<f64>]) -> Vec<f64> {
     let mut used = vec![0.0f64; sys.rows.len()];
-    for (b, bundle) in rays.bundles.iter().enumerate() {
+    for (b, bundle) in rays.sets.iter().enumerate() {
         let n = &indices[b];
-        for (&o0, &d0) in bundle.origins.iter().zip(&bundle.directions) {
+        for (&o0, &d0) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
             let (mut o, mut d) = (o0, d0.normalized());
             for (i, row) in sys.rows.iter().enumerate() {
                 let p = row.rot.apply_t(o - row.pos);
@@ -651,16 +613,17 @@ fn used_radii(sys: &System<f64>, rays: &Rays, indices: &[Vec<f64>]) -> Vec<f64> 
 pub fn check_system(
     device: &Device,
     sys: &System<f64>,
-    rays: &Rays,
+    rays: &Bundles,
     opts: &CheckOptions,
 ) -> Result<CaseReport> {
     supported(sys)?;
-    let nb = rays.bundles.len();
+    let nb = rays.sets.len();
     let indices = bundle_indices(sys, rays);
     let start = |b: &Bundle| -> Vec<RayState> {
-        b.origins
+        b.rays
+            .origins
             .iter()
-            .zip(&b.directions)
+            .zip(&b.rays.directions)
             .map(|(&o, &d)| RayState {
                 o,
                 d: d.normalized(),
@@ -672,7 +635,7 @@ pub fn check_system(
     let modes = [NormalMode::Analytic, NormalMode::Mesh];
     let mut states: Vec<Vec<Vec<RayState>>> = modes
         .iter()
-        .map(|_| rays.bundles.iter().map(start).collect())
+        .map(|_| rays.sets.iter().map(start).collect())
         .collect();
     let mut timing = Timing {
         ray_surfaces: (rays.len() * sys.rows.len()) as u64,
@@ -831,9 +794,9 @@ pub fn check_system(
     // The analytic traces of the same rays: the f64 kernel (compared) and the scalar reference
     // (timed only), one thread each.
     let mut fields = Vec::with_capacity(nb);
-    for (b, bundle) in rays.bundles.iter().enumerate() {
-        let mut batch = RayBatch::<f64>::with_capacity(bundle.origins.len());
-        for (o, d) in bundle.origins.iter().zip(&bundle.directions) {
+    for (b, bundle) in rays.sets.iter().enumerate() {
+        let mut batch = RayBatch::<f64>::with_capacity(bundle.rays.origins.len());
+        for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
             batch.push(*o, *d);
         }
         let t0 = Instant::now();
@@ -846,7 +809,7 @@ pub fn check_system(
         timing.kernel_s += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
         let mut alive_ref = 0usize;
-        for (o, d) in bundle.origins.iter().zip(&bundle.directions) {
+        for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
             let r = trace_ray(sys, &indices[b], *o, *d, true, None);
             alive_ref += r.status.is_alive() as usize;
         }
@@ -870,10 +833,10 @@ pub fn check_system(
         }
         let label = format!(
             "field {} at {} nm",
-            bundle.field.label(),
+            bundle.rays.field.label(),
             bundle.wavelength_nm
         );
-        let n = bundle.origins.len();
+        let n = bundle.rays.origins.len();
         let sa = spot_stats(&pa, n, None).map_err(|e| e.context(&label))?;
         let se = spot_stats(&pe, n, None).map_err(|e| e.context(&label))?;
         let sm = spot_stats(&pm, n, None).map_err(|e| e.context(&label))?;
@@ -884,7 +847,7 @@ pub fn check_system(
                 .fold(0.0, f64::max)
         };
         let fc = FieldCheck {
-            field: bundle.field,
+            field: bundle.rays.field,
             wavelength_nm: bundle.wavelength_nm,
             rays: n,
             compared: pa.len(),
@@ -1033,7 +996,7 @@ pub fn validate(
         return Err(Error::argument("spot bound must be non-negative"));
     }
     opts.spec.validate(lens)?;
-    let rays = Rays::generate(lens, c)?;
+    let rays = check_rays(lens, c)?;
     let nominal_sys = lens.compile();
     check_feasible(&nominal_sys, &rays, c)?;
     let mut cases = Vec::with_capacity(opts.trials + 1);

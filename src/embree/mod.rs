@@ -13,7 +13,7 @@ pub mod device;
 pub mod mesh;
 
 pub use check::{
-    check_system, validate, CaseReport, CheckOptions, Cover, FieldCheck, NormalMode, Rays,
+    check_rays, check_system, validate, CaseReport, CheckOptions, Cover, FieldCheck, NormalMode,
     SurfaceCheck, Timing, ValidateOptions, ValidationReport, ValidationSummary,
 };
 pub use device::{Device, Hit, RayHit, Scene, SceneOptions};

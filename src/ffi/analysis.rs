@@ -4,9 +4,9 @@ use super::handles::{check_wavelength, tolray_param, tolray_system};
 use super::{boundary, c_slice, nonnull, tolray_status, FfiError, FfiResult};
 use crate::analysis::spot::{spot_diagram, SpotOptions};
 use crate::math::Vec3;
-use crate::optim::{self, Bundles, PsfLoss, SpotLoss, SpotMeasure};
-use crate::psf::{self, PsfCentre, PsfOptions, PsfRays};
-use crate::trace::{self, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
+use crate::optim::{self, PsfLoss, SpotLoss, SpotMeasure};
+use crate::psf::{self, PsfCentre, PsfOptions};
+use crate::trace::{self, Bundles, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
 
 /// A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 2, `x` and `y` finite. How a
 /// field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
@@ -563,7 +563,7 @@ pub unsafe extern "C" fn tolray_psf(
                 k = opts.ks
             )));
         }
-        let rays = PsfRays::new(&s.nominal, &[(field, wavelength_nm)], &opts.pupil)?;
+        let rays = Bundles::pairs(&s.nominal, &[(field, wavelength_nm)], &opts.pupil)?;
         let (img, _) = psf::psf_of(&s.sys, &rays, 0, &opts, TraceOptions::default());
         psf::check_landed(&img, "tolray_psf")?;
         // SAFETY: `out` holds `out_len` == img.len() writable doubles.
@@ -660,10 +660,15 @@ pub unsafe extern "C" fn tolray_spot_loss_gradient(
             }
         };
         let vars = params(vars, n_vars, s)?;
-        let bundles = Bundles::new(&s.nominal, &f, &wl, &pupil, TraceOptions::default())?;
+        let bundles = Bundles::new(&s.nominal, &f, &wl, &pupil)?;
+        let trace = TraceOptions::default();
         write_gradient(
             s,
-            &SpotLoss { bundles, measure },
+            &SpotLoss {
+                bundles,
+                measure,
+                trace,
+            },
             &vars,
             value_out,
             grad_out,
@@ -719,7 +724,7 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
             .flat_map(|&f| wl.iter().map(move |&w| (f, w)))
             .collect();
         let loss = PsfLoss {
-            rays: PsfRays::new(&s.nominal, &pairs, &opts.pupil)?,
+            rays: Bundles::pairs(&s.nominal, &pairs, &opts.pupil)?,
             opts,
             trace: TraceOptions::default(),
         };

@@ -6,20 +6,16 @@ mod run;
 pub mod train;
 
 use crate::error::{Error, Result};
-use crate::lens::paraxial::LaunchOptics;
 use crate::lens::{Adjustments, Lens, Param, System};
-use crate::math::Vec3;
 use crate::real::{Dual, Real};
-use crate::trace::{
-    trace_serial, Field, LaunchSource, Pupil, RayBatch, RaySet, TraceOptions, Traceable,
-};
+use crate::trace::{Bundles, TraceOptions, Traceable};
 
 /// Something to minimize, evaluable in any traceable number type so that the same code gives the
 /// value (`f64`) and exact derivatives (`Dual<f64, N>`).
 pub trait Objective: Sync {
     /// The objective for the compiled system `sys`. `lift` is how the design parameters entered
     /// it (the identity for a value; seeded dual numbers for a gradient): an objective whose rays
-    /// or reference are launched from the design ([`Bundles`], [`crate::psf::PsfRays`]) launches
+    /// or reference are launched from the design ([`Bundles`]) launches
     /// them through it again, so that its derivatives include the launch's.
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S;
 }
@@ -97,7 +93,7 @@ pub fn value<O: Objective>(obj: &O, lens: &Lens, adj: &Adjustments) -> f64 {
 ///
 /// The derivative is that of the objective as it is evaluated when the design moves: `lens`
 /// (with `adj`) is traced with each variable seeded, and the rays and references an objective
-/// launches from the design ([`Bundles`], [`crate::psf::PsfRays`]) move with the same
+/// launches from the design ([`Bundles`]) move with the same
 /// variables (the paraxial entrance pupil, the field angle of a fraction of the field, the
 /// design's own PSFs); only aimed rays keep their launch (see
 /// [`crate::trace::RaySet::launched_batch`]).
@@ -189,116 +185,6 @@ pub enum SpotMeasure {
     Mean,
     /// RMS radius about the centroid, sqrt(mean |P_i - P̄|²).
     Rms,
-}
-
-/// Rays of the bundles an objective traces (fields × wavelengths), generated once in f64 from the
-/// design lens and aimed at its paraxial entrance pupil at the first wavelength. The `launched_`
-/// methods launch them again from the design with a gradient's seeded variables (see
-/// [`Objective::eval`]); the others trace the stored rays.
-#[derive(Clone, Debug)]
-pub struct Bundles {
-    /// (field index, wavelength nm, rays).
-    pub sets: Vec<(usize, f64, RaySet)>,
-    /// Trace options.
-    pub trace: TraceOptions,
-    /// The design the rays were launched from.
-    pub launch: LaunchSource,
-}
-
-impl Bundles {
-    /// Rays for every field and wavelength.
-    ///
-    /// # Errors
-    /// Paraxial and ray-generation errors.
-    pub fn new(
-        lens: &Lens,
-        fields: &[Field],
-        wavelengths_nm: &[f64],
-        pupil: &Pupil,
-        trace: TraceOptions,
-    ) -> Result<Bundles> {
-        let para = lens.paraxial(
-            wavelengths_nm
-                .first()
-                .copied()
-                .unwrap_or(lens.primary_wavelength_nm),
-        )?;
-        let mut sets = Vec::new();
-        for (f, field) in fields.iter().enumerate() {
-            for &wl in wavelengths_nm {
-                sets.push((f, wl, RaySet::generate(lens, &para, *field, pupil, wl)?));
-            }
-        }
-        Ok(Bundles {
-            sets,
-            trace,
-            launch: LaunchSource::new(lens, &para),
-        })
-    }
-
-    /// The launch's first-order numbers with the design parameters passed through `lift`, for
-    /// the `launched_` methods (`None` when nothing is differentiated).
-    pub fn optics<S: Real>(&self, lift: &dyn Fn(Param, S) -> S) -> Option<LaunchOptics<S>> {
-        self.launch.optics(lift)
-    }
-
-    /// Traces bundle `k` in `S` and returns, for each ray that arrives, its sensor-plane position
-    /// and slopes `[x, y, dx/dz, dy/dz]` in the sensor frame (what a refocus moves).
-    pub fn sensor_rays<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 4]> {
-        self.launched_sensor_rays(sys, None, k)
-    }
-
-    /// As [`Bundles::sensor_rays`], with the rays launched from `optics` (see
-    /// [`Bundles::optics`]).
-    pub fn launched_sensor_rays<S: Traceable>(
-        &self,
-        sys: &System<S>,
-        optics: Option<&LaunchOptics<S>>,
-        k: usize,
-    ) -> Vec<[S; 4]> {
-        self.arrived(sys, optics, k, |o, d| {
-            let p = sys.image.point_to_local(o);
-            let d = sys.image.rotation.apply_t(d);
-            [p.x, p.y, d.x / d.z, d.y / d.z]
-        })
-    }
-
-    /// Traces bundle `k` in `S` and returns the sensor-plane positions of the rays that arrive.
-    pub fn sensor_points<S: Traceable>(&self, sys: &System<S>, k: usize) -> Vec<[S; 2]> {
-        self.launched_sensor_points(sys, None, k)
-    }
-
-    /// As [`Bundles::sensor_points`], with the rays launched from `optics` (see
-    /// [`Bundles::optics`]).
-    pub fn launched_sensor_points<S: Traceable>(
-        &self,
-        sys: &System<S>,
-        optics: Option<&LaunchOptics<S>>,
-        k: usize,
-    ) -> Vec<[S; 2]> {
-        self.arrived(sys, optics, k, |o, _| {
-            let p = sys.image.point_to_local(o);
-            [p.x, p.y]
-        })
-    }
-
-    /// Traces bundle `k` and maps `f(position, direction)` (global frame) over the rays that
-    /// arrive.
-    fn arrived<S: Traceable, T>(
-        &self,
-        sys: &System<S>,
-        optics: Option<&LaunchOptics<S>>,
-        k: usize,
-        f: impl Fn(Vec3<S>, Vec3<S>) -> T,
-    ) -> Vec<T> {
-        let (_, wl, set) = &self.sets[k];
-        let mut b: RayBatch<S> = set.launched_batch(&self.launch.lens, optics, false);
-        trace_serial(sys, *wl, &mut b, self.trace);
-        b.iter()
-            .filter(|r| r.status.is_alive())
-            .map(|r| f(r.o, r.d))
-            .collect()
-    }
 }
 
 /// Spot size of a point set (see [`SpotMeasure`]), mm; zero for an empty set.
@@ -423,6 +309,8 @@ pub struct SpotLoss {
     pub bundles: Bundles,
     /// Mean distance (the paper) or RMS.
     pub measure: SpotMeasure,
+    /// Trace options.
+    pub trace: TraceOptions,
 }
 
 /// Spot-loss value of a bundle none of whose rays reaches the image, mm: far larger than any spot
@@ -440,15 +328,27 @@ pub fn bundle_spot<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
     }
 }
 
+/// The sum over `bundles` of [`bundle_spot`], mm, with the rays launched through `lift` (the
+/// spot term of every loss: [`SpotLoss`], training and deep optics).
+pub fn spot_sum<S: Traceable>(
+    bundles: &Bundles,
+    sys: &System<S>,
+    lift: &dyn Fn(Param, S) -> S,
+    measure: SpotMeasure,
+    trace: TraceOptions,
+) -> S {
+    let optics = bundles.optics(lift);
+    let mut total = S::cst(0.0);
+    for k in 0..bundles.len() {
+        let pts = bundles.launched_sensor_points(sys, optics.as_ref(), k, trace);
+        total += bundle_spot(&pts, measure);
+    }
+    total
+}
+
 impl Objective for SpotLoss {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
-        let optics = self.bundles.optics(lift);
-        let mut total = S::cst(0.0);
-        for k in 0..self.bundles.sets.len() {
-            let pts = self.bundles.launched_sensor_points(sys, optics.as_ref(), k);
-            total += bundle_spot(&pts, self.measure);
-        }
-        total
+        spot_sum(&self.bundles, sys, lift, self.measure, self.trace)
     }
 }
 
@@ -458,7 +358,7 @@ impl Objective for SpotLoss {
 #[derive(Clone, Debug)]
 pub struct PsfLoss {
     /// Rays of each PSF, launched from the design.
-    pub rays: crate::psf::PsfRays,
+    pub rays: Bundles,
     /// PSF settings.
     pub opts: crate::psf::PsfOptions,
     /// Trace options.

@@ -13,18 +13,16 @@ pub use super::run::{
     RunOutcome, TrainReport,
 };
 use super::{
-    bundle_spot, gradient, param_value, set_param, spot_size, Bundles, Objective, SpotMeasure,
-    GRAD_WIDTH,
+    gradient, param_value, set_param, spot_size, spot_sum, Objective, SpotMeasure, GRAD_WIDTH,
 };
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, SurfaceRole, System};
 use crate::psf::{
     grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
-    PsfRays,
 };
 use crate::real::Real;
 use crate::tolerance::ToleranceSpec;
-use crate::trace::{Field, Pupil, PupilPattern, TraceOptions, Traceable};
+use crate::trace::{Bundles, Field, Pupil, PupilPattern, TraceOptions, Traceable};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -284,18 +282,14 @@ fn penalties<S: Real>(
 struct PretrainObjective<'a> {
     lens: &'a Lens,
     bundles: Bundles,
+    trace: TraceOptions,
     constraints: &'a Constraints,
 }
 
 impl Objective for PretrainObjective<'_> {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
-        let optics = self.bundles.optics(lift);
-        let mut total = S::cst(0.0);
-        for k in 0..self.bundles.sets.len() {
-            let pts = self.bundles.launched_sensor_points(sys, optics.as_ref(), k);
-            total += bundle_spot(&pts, SpotMeasure::Rms);
-        }
-        total * S::cst(1.0 / self.bundles.sets.len() as f64)
+        let total = spot_sum(&self.bundles, sys, lift, SpotMeasure::Rms, self.trace);
+        total * S::cst(1.0 / self.bundles.len() as f64)
             + penalties(self.lens, sys, lift, self.constraints)
     }
 }
@@ -304,7 +298,7 @@ impl Objective for PretrainObjective<'_> {
 /// the similarity to the design's own PSFs (which move with it).
 struct PatternObjective<'a> {
     spot: Bundles,
-    psf_rays: PsfRays,
+    psf_rays: Bundles,
     psf: PsfOptions,
     cfg: &'a TrainConfig,
 }
@@ -314,23 +308,18 @@ impl Objective for PatternObjective<'_> {
         let trace = TraceOptions {
             apertures: self.cfg.apertures,
         };
-        let optics = self.spot.optics(lift);
-        let mut spot = S::cst(0.0);
-        for k in 0..self.spot.sets.len() {
-            let pts = self.spot.launched_sensor_points(sys, optics.as_ref(), k);
-            spot += bundle_spot(&pts, SpotMeasure::Mean);
-        }
-        let optics = self.psf_rays.launch.optics(lift);
+        let spot = spot_sum(&self.spot, sys, lift, SpotMeasure::Mean, trace);
+        let optics = self.psf_rays.optics(lift);
         let design = self.psf_rays.launch.design(lift);
         let mut sim = S::cst(0.0);
-        for k in 0..self.psf_rays.sets.len() {
+        for k in 0..self.psf_rays.len() {
             let at = |s: &System<S>| {
                 psf_of_launched(s, &self.psf_rays, k, optics.as_ref(), &self.psf, trace).0
             };
             sim += psf_similarity_of(&at(&design), &at(sys), self.psf.ks);
         }
-        let nw = S::cst(1.0 / self.psf_rays.sets.len().max(1) as f64);
-        S::cst(self.cfg.lambda_spot / self.spot.sets.len().max(1) as f64) * spot
+        let nw = S::cst(1.0 / self.psf_rays.len().max(1) as f64);
+        S::cst(self.cfg.lambda_spot / self.spot.len().max(1) as f64) * spot
             + S::cst(self.cfg.lambda_psf) * (S::cst(1.0) - sim * nw)
     }
 }
@@ -461,24 +450,20 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                 &cfg.fields,
                 &cfg.wavelengths_nm,
                 &Pupil::grid(cfg.spot_grid),
-                trace,
             )?;
             let obj = PretrainObjective {
                 lens: &lens,
                 bundles,
+                trace,
                 constraints: &cfg.constraints,
             };
             let adj = Adjustments::none(lens.surfaces.len());
             let (v, g) = gradient::<_, GRAD_WIDTH>(&obj, &lens, &adj, &state.vars)?;
-            let spot: f64 = (0..obj.bundles.sets.len())
-                .map(|k| {
-                    spot_size(
-                        &obj.bundles.sensor_points(&lens.compile(), k),
-                        SpotMeasure::Rms,
-                    )
-                })
+            let sys = lens.compile();
+            let spot: f64 = (0..obj.bundles.len())
+                .map(|k| spot_size(&obj.bundles.sensor_points(&sys, k, trace), SpotMeasure::Rms))
                 .sum::<f64>()
-                / obj.bundles.sets.len() as f64;
+                / obj.bundles.len() as f64;
             (v, g, spot * 1e3, None)
         }
         Stage::Tolerance => {
@@ -507,7 +492,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     let (plens, adj) = pattern.apply(&lens)?;
                     let pairs: Vec<(Field, f64)> =
                         cfg.wavelengths_nm.iter().map(|&w| (field, w)).collect();
-                    let psf_rays = PsfRays::new(&lens, &pairs, &psf.pupil)?;
+                    let psf_rays = Bundles::pairs(&lens, &pairs, &psf.pupil)?;
                     // The design's own PSFs (for the logged similarity).
                     let ideal: Vec<Vec<f64>> = (0..pairs.len())
                         .map(|k| psf_of(&nominal, &psf_rays, k, &psf, trace).0)
@@ -517,7 +502,6 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                         &[field],
                         &cfg.wavelengths_nm,
                         &Pupil::grid(cfg.spot_grid / 2),
-                        trace,
                     )?;
                     let obj = PatternObjective {
                         spot,
@@ -527,11 +511,13 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     };
                     let (v, g) = gradient::<_, GRAD_WIDTH>(&obj, &plens, &adj, &state.vars)?;
                     let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-                    let s = (0..obj.spot.sets.len())
-                        .map(|k| spot_size(&obj.spot.sensor_points(&sys, k), SpotMeasure::Mean))
+                    let s = (0..obj.spot.len())
+                        .map(|k| {
+                            spot_size(&obj.spot.sensor_points(&sys, k, trace), SpotMeasure::Mean)
+                        })
                         .sum::<f64>()
-                        / obj.spot.sets.len() as f64;
-                    let sim = (0..obj.psf_rays.sets.len())
+                        / obj.spot.len() as f64;
+                    let sim = (0..obj.psf_rays.len())
                         .map(|k| {
                             psf_similarity(
                                 &ideal[k],
@@ -540,7 +526,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                             )
                         })
                         .sum::<f64>()
-                        / obj.psf_rays.sets.len() as f64;
+                        / obj.psf_rays.len() as f64;
                     Ok((v, g, s, sim))
                 })
                 .collect::<Result<Vec<_>>>()?;
@@ -691,7 +677,7 @@ pub fn held_out(lens: &Lens, cfg: &TrainConfig, trials: usize, seed: u64) -> Res
             let (plens, adj) = pattern.apply(lens)?;
             let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
             let wl = cfg.wavelengths_nm[cfg.wavelengths_nm.len() / 2];
-            let rays = PsfRays::new(lens, &[(field, wl)], &psf.pupil)?;
+            let rays = Bundles::pairs(lens, &[(field, wl)], &psf.pupil)?;
             let ideal = psf_of(&nominal, &rays, 0, &psf, trace).0;
             Ok(psf_similarity(
                 &ideal,

@@ -5,8 +5,8 @@ use super::spec::{OperandKind, Slot, ToleranceSpec};
 use super::Perturbation;
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
-use crate::optim::{Bundles, FocusMoments};
-use crate::trace::{Field, Pupil, TraceOptions};
+use crate::optim::FocusMoments;
+use crate::trace::{Bundles, Field, Pupil, TraceOptions};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -135,18 +135,15 @@ pub struct McReport {
     pub summary: Option<Summary>,
 }
 
-/// Rays of every field and wavelength, generated once from the nominal lens (the optimizer's
-/// [`Bundles`], aimed at the nominal paraxial entrance pupil).
+/// Rays of every field and wavelength, generated once from the nominal lens (aimed at its
+/// paraxial entrance pupil).
 fn bundles(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
     if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
         return Err(Error::argument(
             "a tolerance analysis needs at least one field and one wavelength",
         ));
     }
-    let trace = TraceOptions {
-        apertures: opts.apertures,
-    };
-    Bundles::new(lens, &opts.fields, &opts.wavelengths_nm, &opts.pupil, trace)
+    Bundles::new(lens, &opts.fields, &opts.wavelengths_nm, &opts.pupil)
 }
 
 /// RMS per field (µm) of a compiled system, refocused when `opts.compensate_focus` (one sensor
@@ -157,8 +154,11 @@ fn system_rms(
     opts: &McOptions,
 ) -> Result<(Vec<f64>, Option<f64>)> {
     let mut rays: Vec<Vec<[f64; 4]>> = vec![Vec::new(); opts.fields.len()];
-    for k in 0..bundles.sets.len() {
-        rays[bundles.sets[k].0].extend(bundles.sensor_rays(sys, k));
+    let trace = TraceOptions {
+        apertures: opts.apertures,
+    };
+    for k in 0..bundles.len() {
+        rays[bundles.sets[k].field_index].extend(bundles.sensor_rays(sys, k, trace));
     }
     let moments = rays
         .iter()

@@ -6,11 +6,13 @@
 //! and `f64` instantiations are compiled for several instruction sets and picked at run time.
 //! A ray never becomes NaN silently: it carries a [`RayStatus`].
 
+mod bundles;
 mod kernel;
 pub mod raw;
 pub mod rays;
 pub mod reference;
 
+pub use bundles::{Bundle, Bundles};
 pub use kernel::Traceable;
 pub use rays::{Field, LaunchSource, Pupil, PupilPattern, RaySet};
 

@@ -6,7 +6,7 @@ use crate::usage;
 use clap::Args;
 use std::path::PathBuf;
 use tolray::figures;
-use tolray::psf::PsfRays;
+use tolray::trace::Bundles;
 use tolray::trace::{Field, TraceOptions};
 
 /// Arguments of `tolray psf`.
@@ -54,7 +54,7 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
     let wls = parse_wavelengths(&wavelengths, &l)?;
     let sys = perturbed_system(&l, perturb.as_deref())?;
     let pairs: Vec<(Field, f64)> = wls.iter().map(|&w| (field, w)).collect();
-    let rays = PsfRays::new(&l, &pairs, &opts.pupil)?;
+    let rays = Bundles::pairs(&l, &pairs, &opts.pupil)?;
     let psfs: Vec<Vec<f64>> = (0..pairs.len())
         .map(|k| tolray::psf::psf_of(&sys, &rays, k, &opts, TraceOptions::default()).0)
         .collect();
