@@ -36,6 +36,7 @@ use crate::lens::{Lens, Paraxial, SurfaceRole, System};
 use crate::math::Vec3;
 use crate::trace::reference::trace_ray;
 use crate::trace::{Field, Pupil, PupilPattern, RaySet};
+use plotters::chart::SeriesAnno;
 use plotters::coord::combinators::BindKeyPoints;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
@@ -511,6 +512,48 @@ fn line_glyph(c: RGBColor, s: f64) -> impl Fn((i32, i32)) -> PathElement<(i32, i
     }
 }
 
+/// `pts` as one solid line of `colour`, `width_pt` points wide: a series for `draw_series`.
+fn line(
+    pts: Vec<(f64, f64)>,
+    colour: RGBColor,
+    width_pt: f64,
+    s: f64,
+) -> std::iter::Once<PathElement<(f64, f64)>> {
+    std::iter::once(PathElement::new(pts, colour.stroke_width(px(width_pt, s))))
+}
+
+/// A dashed grey vertical line at `at` across `y`, `width_pt` points wide, with ` label` written
+/// at its top (an empty label writes nothing): stage starts, yield levels. Returns the line's
+/// series, for a legend entry.
+fn mark<'a, 'b, DB: DrawingBackend + 'a, Y: Ranged<ValueType = f64>>(
+    chart: &'b mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, Y>>,
+    s: f64,
+    at: f64,
+    y: (f64, f64),
+    label: &str,
+    width_pt: f64,
+) -> std::result::Result<
+    &'b mut SeriesAnno<'a, DB>,
+    DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>,
+> {
+    let grey = rgb(GREY);
+    if !label.is_empty() {
+        chart.draw_series(std::iter::once(Text::new(
+            format!(" {label}"),
+            (at, y.1),
+            font(10.5, s)
+                .pos(Pos::new(HPos::Left, VPos::Top))
+                .color(&grey),
+        )))?;
+    }
+    chart.draw_series(std::iter::once(DashedPathElement::new(
+        vec![(at, y.0), (at, y.1)],
+        px(5.0, s),
+        px(3.0, s),
+        grey.stroke_width(px(width_pt, s)),
+    )))
+}
+
 // ---------------------------------------------------------------------------------------------
 // Spot diagram.
 
@@ -846,17 +889,15 @@ fn draw_layout<DB: DrawingBackend>(
         .y_label_area_size(labels.1)
         .build_cartesian_2d(xr.clone(), yr)?;
     house_mesh!(chart, s, "z (mm)", "y (mm)").draw()?;
-    chart.draw_series(std::iter::once(PathElement::new(
+    chart.draw_series(line(
         vec![(xr.start, 0.0), (xr.end, 0.0)],
-        RGBColor(170, 170, 170).stroke_width(px(0.6, s)),
-    )))?;
-    let w = px(0.9, s);
+        RGBColor(170, 170, 170),
+        0.6,
+        s,
+    ))?;
     for (c, pts) in rays {
         for run in runs(pts) {
-            chart.draw_series(std::iter::once(PathElement::new(
-                run,
-                rgb(*c).stroke_width(w),
-            )))?;
+            chart.draw_series(line(run, rgb(*c), 0.9, s))?;
         }
     }
     for (name, c) in fields {
@@ -866,17 +907,13 @@ fn draw_layout<DB: DrawingBackend>(
             .label(name.as_str())
             .legend(line_glyph(colour, s));
     }
-    let ink = BLACK.stroke_width(px(1.3, s));
     for o in outlines {
         for run in runs(o) {
-            chart.draw_series(std::iter::once(PathElement::new(run, ink)))?;
+            chart.draw_series(line(run, BLACK, 1.3, s))?;
         }
     }
     chart
-        .draw_series(std::iter::once(PathElement::new(
-            sensor.to_vec(),
-            RGBColor(200, 0, 0).stroke_width(px(2.0, s)),
-        )))?
+        .draw_series(line(sensor.to_vec(), RGBColor(200, 0, 0), 2.0, s))?
         .label("image plane")
         .legend(line_glyph(RGBColor(200, 0, 0), s));
     legend_box(&mut chart, s, SeriesLabelPosition::UpperLeft)
@@ -944,17 +981,19 @@ fn draw_tolerance<DB: DrawingBackend>(
     house_mesh!(chart, s, "mean RMS spot over fields (µm)", "trials").draw()?;
     house_secondary!(chart, s, "cumulative share of trials (%)")?;
     let bar = tint(PALETTE[0], 0.55);
+    // The bars, filled, then again with white outlines that part neighbours.
+    let bars = |style: ShapeStyle| {
+        counts
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c > 0)
+            .map(move |(b, &c)| {
+                let x0 = r.start + b as f64 * w;
+                Rectangle::new([(x0, 0.0), (x0 + w, c as f64)], style)
+            })
+    };
     chart
-        .draw_series(
-            counts
-                .iter()
-                .enumerate()
-                .filter(|(_, &c)| c > 0)
-                .map(|(b, &c)| {
-                    let x0 = r.start + b as f64 * w;
-                    Rectangle::new([(x0, 0.0), (x0 + w, c as f64)], bar.filled())
-                }),
-        )?
+        .draw_series(bars(bar.filled()))?
         .label("trials per bin")
         .legend(move |(x, y)| {
             Rectangle::new(
@@ -965,19 +1004,7 @@ fn draw_tolerance<DB: DrawingBackend>(
                 bar.filled(),
             )
         });
-    chart.draw_series(
-        counts
-            .iter()
-            .enumerate()
-            .filter(|(_, &c)| c > 0)
-            .map(|(b, &c)| {
-                let x0 = r.start + b as f64 * w;
-                Rectangle::new(
-                    [(x0, 0.0), (x0 + w, c as f64)],
-                    WHITE.stroke_width(px(0.8, s)),
-                )
-            }),
-    )?;
+    chart.draw_series(bars(WHITE.stroke_width(px(0.8, s))))?;
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     let n = sorted.len().max(1) as f64;
@@ -986,44 +1013,25 @@ fn draw_tolerance<DB: DrawingBackend>(
         cdf.push((x, i as f64 / n * 100.0));
         cdf.push((x, (i + 1) as f64 / n * 100.0));
     }
-    let line = rgb(PALETTE[1]);
+    let orange = rgb(PALETTE[1]);
     chart
-        .draw_secondary_series(std::iter::once(PathElement::new(
-            cdf,
-            line.stroke_width(px(1.6, s)),
-        )))?
+        .draw_secondary_series(line(cdf, orange, 1.6, s))?
         .label("cumulative distribution (right axis)")
-        .legend(line_glyph(line, s));
+        .legend(line_glyph(orange, s));
     let green = rgb(PALETTE[2]);
     let ymax = top * 1.12;
     chart
-        .draw_series(std::iter::once(PathElement::new(
-            vec![(nominal, 0.0), (nominal, ymax)],
-            green.stroke_width(px(1.8, s)),
-        )))?
+        .draw_series(line(vec![(nominal, 0.0), (nominal, ymax)], green, 1.8, s))?
         .label(format!("nominal design ({} µm)", tick(nominal)))
         .legend(line_glyph(green, s));
-    let grey = rgb(GREY);
     for (k, &(frac, v)) in yields.iter().enumerate() {
-        let dash = DashedPathElement::new(
-            vec![(v, 0.0), (v, ymax)],
-            px(5.0, s),
-            px(3.0, s),
-            grey.stroke_width(px(1.3, s)),
-        );
-        let series = chart.draw_series(std::iter::once(dash))?;
+        let label = format!("{:.0} %", frac * 100.0);
+        let series = mark(&mut chart, s, v, (0.0, ymax), &label, 1.3)?;
         if k == 0 {
             series
                 .label("50 % / 90 % yield")
-                .legend(line_glyph(grey, s));
+                .legend(line_glyph(rgb(GREY), s));
         }
-        chart.draw_series(std::iter::once(Text::new(
-            format!(" {:.0} %", frac * 100.0),
-            (v, ymax),
-            font(10.5, s)
-                .pos(Pos::new(HPos::Left, VPos::Top))
-                .color(&grey),
-        )))?;
     }
     legend_box(&mut chart, s, SeriesLabelPosition::UpperLeft)
 }
@@ -1211,31 +1219,6 @@ pub fn training_figure(logs: &[crate::optim::train::IterLog], title: &str) -> Fi
     }
 }
 
-/// Marks iteration `at` with a dashed grey line labelled `label` across `y`.
-fn stage_mark<'a, DB: DrawingBackend + 'a, Y: Ranged<ValueType = f64>>(
-    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, Y>>,
-    s: f64,
-    at: f64,
-    y: (f64, f64),
-    label: &str,
-) -> DrawResult<DB> {
-    let grey = rgb(GREY);
-    chart.draw_series(std::iter::once(DashedPathElement::new(
-        vec![(at, y.0), (at, y.1)],
-        px(5.0, s),
-        px(3.0, s),
-        grey.stroke_width(px(1.2, s)),
-    )))?;
-    chart.draw_series(std::iter::once(Text::new(
-        format!(" {label}"),
-        (at, y.1),
-        font(10.5, s)
-            .pos(Pos::new(HPos::Left, VPos::Top))
-            .color(&grey),
-    )))?;
-    Ok(())
-}
-
 fn draw_training<DB: DrawingBackend>(
     body: &DrawingArea<DB, Shift>,
     s: f64,
@@ -1257,20 +1240,12 @@ fn draw_training<DB: DrawingBackend>(
         .filter(|p| finite(p) && p.1 > 0.0)
         .collect();
     chart
-        .draw_series(std::iter::once(PathElement::new(
-            loss,
-            blue.stroke_width(px(1.4, s)),
-        )))?
+        .draw_series(line(loss, blue, 1.4, s))?
         .label("loss")
         .legend(line_glyph(blue, s));
     if let Some(at) = stage2 {
-        stage_mark(
-            &mut chart,
-            s,
-            at,
-            (lr.start, lr.end),
-            "stage 2: tolerance-aware",
-        )?;
+        let label = "stage 2: tolerance-aware";
+        mark(&mut chart, s, at, (lr.start, lr.end), label, 1.2)?;
     }
     legend_box(&mut chart, s, SeriesLabelPosition::UpperRight)?;
 
@@ -1294,31 +1269,19 @@ fn draw_training<DB: DrawingBackend>(
     let orange = rgb(PALETTE[1]);
     let spot: Vec<(f64, f64)> = rows.iter().map(|r| (r.0, r.2)).filter(finite).collect();
     chart
-        .draw_series(std::iter::once(PathElement::new(
-            spot,
-            orange.stroke_width(px(1.4, s)),
-        )))?
+        .draw_series(line(spot, orange, 1.4, s))?
         .label("spot (left axis)")
         .legend(line_glyph(orange, s));
     if !sims.is_empty() {
         house_secondary!(chart, s, "PSF similarity")?;
         let green = rgb(PALETTE[2]);
         chart
-            .draw_secondary_series(std::iter::once(PathElement::new(
-                sims,
-                green.stroke_width(px(1.4, s)),
-            )))?
+            .draw_secondary_series(line(sims, green, 1.4, s))?
             .label("PSF similarity (right axis)")
             .legend(line_glyph(green, s));
     }
     if let Some(at) = stage2 {
-        let grey = rgb(GREY);
-        chart.draw_series(std::iter::once(DashedPathElement::new(
-            vec![(at, sr.start), (at, sr.end)],
-            px(5.0, s),
-            px(3.0, s),
-            grey.stroke_width(px(1.2, s)),
-        )))?;
+        mark(&mut chart, s, at, (sr.start, sr.end), "", 1.2)?;
     }
     legend_box(&mut chart, s, SeriesLabelPosition::UpperRight)
 }
@@ -1388,14 +1351,18 @@ fn draw_deep_training<DB: DrawingBackend>(
     let mut chart = frame(&top, s, Right::Margin).build_cartesian_2d(xr.clone(), yr.clone())?;
     house_mesh!(chart, s, "iteration", "PSNR (dB)").draw()?;
     if split > 0 {
-        stage_mark(&mut chart, s, split as f64, (yr.start, yr.end), "stage 2")?;
+        mark(
+            &mut chart,
+            s,
+            split as f64,
+            (yr.start, yr.end),
+            "stage 2",
+            1.2,
+        )?;
     }
     for (_, c, rows) in series {
         let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.0, r.1)).filter(finite).collect();
-        chart.draw_series(std::iter::once(PathElement::new(
-            pts,
-            tint(*c, 0.62).stroke_width(px(1.0, s)),
-        )))?;
+        chart.draw_series(line(pts, tint(*c, 0.62), 1.0, s))?;
     }
     for (name, c, rows) in series {
         let colour = rgb(*c);
@@ -1404,10 +1371,7 @@ fn draw_deep_training<DB: DrawingBackend>(
             .filter_map(|r| r.2.map(|v| (r.0, v)))
             .filter(finite)
             .collect();
-        chart.draw_series(std::iter::once(PathElement::new(
-            val.clone(),
-            colour.stroke_width(px(1.6, s)),
-        )))?;
+        chart.draw_series(line(val.clone(), colour, 1.6, s))?;
         chart
             .draw_series(
                 val.iter()
@@ -1434,7 +1398,7 @@ fn draw_deep_training<DB: DrawingBackend>(
         .build_cartesian_2d(xr, lr.clone().log_scale().with_key_points(log_keys(&lr)))?;
     house_mesh!(chart, s, "iteration", "training batch image loss (log)").draw()?;
     if split > 0 {
-        stage_mark(&mut chart, s, split as f64, (lr.start, lr.end), "")?;
+        mark(&mut chart, s, split as f64, (lr.start, lr.end), "", 1.2)?;
     }
     for (_, c, rows) in series {
         let pts: Vec<(f64, f64)> = rows
@@ -1442,10 +1406,7 @@ fn draw_deep_training<DB: DrawingBackend>(
             .map(|r| (r.0, r.3))
             .filter(|p| finite(p) && p.1 > 0.0)
             .collect();
-        chart.draw_series(std::iter::once(PathElement::new(
-            pts,
-            rgb(*c).stroke_width(px(1.2, s)),
-        )))?;
+        chart.draw_series(line(pts, rgb(*c), 1.2, s))?;
     }
     Ok(())
 }
