@@ -1,7 +1,9 @@
-//! Analyses built on the tracer: spot diagrams and their statistics.
+//! Analyses built on the tracer: spot diagrams, their statistics and the spot moments every
+//! spot size is computed from.
 
 pub mod spot;
 
 pub use spot::{
-    spot_diagram, spot_diagram_rows, spot_stats, SpotFailure, SpotOptions, SpotResult, SpotStats,
+    spot_diagram, spot_diagram_rows, spot_stats, SpotFailure, SpotMoments, SpotOptions, SpotResult,
+    SpotStats,
 };

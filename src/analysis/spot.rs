@@ -2,6 +2,7 @@
 
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
+use crate::real::Real;
 use crate::trace::{self, Field, Pupil, RaySet, TraceOptions};
 use serde::Serialize;
 
@@ -25,7 +26,7 @@ pub struct SpotStats {
 }
 
 /// Statistics of `points` (sensor mm) out of `n_launched` rays, about their centroid and about
-/// `chief` when given.
+/// `chief` when given (from their [`SpotMoments`]).
 ///
 /// # Errors
 /// [`crate::ErrorKind::Numerical`] if no ray reached the image.
@@ -34,19 +35,9 @@ pub fn spot_stats(
     n_launched: usize,
     chief: Option<[f64; 2]>,
 ) -> Result<SpotStats> {
-    if points.is_empty() {
-        return Err(Error::numerical("no ray reached the image plane"));
-    }
-    let inv = 1.0 / points.len() as f64;
-    let cx = points.iter().map(|p| p[0]).sum::<f64>() * inv;
-    let cy = points.iter().map(|p| p[1]).sum::<f64>() * inv;
-    let ms_about = |c: [f64; 2]| {
-        points
-            .iter()
-            .map(|p| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2))
-            .sum::<f64>()
-            * inv
-    };
+    let m = SpotMoments::of_points(points)
+        .ok_or_else(|| Error::numerical("no ray reached the image plane"))?;
+    let [cx, cy] = m.centroid;
     let geo = points
         .iter()
         .map(|p| (p[0] - cx).hypot(p[1] - cy))
@@ -54,12 +45,132 @@ pub fn spot_stats(
     Ok(SpotStats {
         n_launched,
         n_valid: points.len(),
-        centroid_mm: [cx, cy],
-        rms_um: ms_about([cx, cy]).sqrt() * 1e3,
-        rms_chief_um: chief.map(|c| ms_about(c).sqrt() * 1e3),
+        centroid_mm: m.centroid,
+        rms_um: m.rms() * 1e3,
+        rms_chief_um: chief.map(|c| m.ms_about(c).sqrt() * 1e3),
         geo_radius_um: geo * 1e3,
         vignetted_fraction: 1.0 - points.len() as f64 / n_launched.max(1) as f64,
     })
+}
+
+/// The second moments of a spot, in any number type: with the rays' sensor positions `p` and
+/// (for rays) slopes `s = (dx/dz, dy/dz)` in the sensor frame, each taken about its mean,
+/// `a = mean |p|²`, `b = mean p·s` and `c = mean |s|²`, so that the mean-square spot radius
+/// about the centroid after moving the sensor by `δ` along its normal is `a + 2 b δ + c δ²`.
+///
+/// The one accumulator of every spot size: the spot analysis and the Embree check
+/// ([`spot_stats`]), the training losses ([`crate::optim::spot_size`], in dual numbers), the
+/// Monte Carlo's focus compensator and the differentiated refocus of deep-optics training
+/// ([`SpotMoments::best_focus`]), so they measure and refocus identically. Means are sums
+/// scaled once by `1/n`.
+///
+/// # Examples
+/// ```
+/// use tolray::analysis::SpotMoments;
+/// // Two rays crossing the axis 1 mm behind the sensor: [x, y, dx/dz, dy/dz].
+/// let rays: [[f64; 4]; 2] = [[0.1, 0.0, -0.1, 0.0], [-0.1, 0.0, 0.1, 0.0]];
+/// let m = SpotMoments::of_rays(&rays).unwrap();
+/// assert!((m.rms() - 0.1).abs() < 1e-15);
+/// let d = SpotMoments::best_focus(&[m]);
+/// assert!((d - 1.0).abs() < 1e-12 && m.rms_at(d).abs() < 1e-12);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SpotMoments<S> {
+    /// Centroid on the sensor, mm.
+    pub centroid: [S; 2],
+    /// Mean square radius about the centroid, mm².
+    pub a: S,
+    /// Mean product of the centred positions and slopes, mm (0 for points).
+    pub b: S,
+    /// Mean square of the centred slopes (0 for points).
+    pub c: S,
+}
+
+impl<S: Real> SpotMoments<S> {
+    /// The moments of sensor points `[x, y]` (mm); `None` for no point.
+    pub fn of_points(points: &[[S; 2]]) -> Option<SpotMoments<S>> {
+        Self::of(points)
+    }
+
+    /// The moments of rays `[x, y, dx/dz, dy/dz]` in the sensor frame; `None` for no ray.
+    pub fn of_rays(rays: &[[S; 4]]) -> Option<SpotMoments<S>> {
+        Self::of(rays)
+    }
+
+    /// Positions in columns 0 and 1, slopes (when `K` is 4) in 2 and 3.
+    fn of<const K: usize>(rows: &[[S; K]]) -> Option<SpotMoments<S>> {
+        if rows.is_empty() {
+            return None;
+        }
+        let inv = S::cst(1.0 / rows.len() as f64);
+        let mut m = [S::cst(0.0); K];
+        for q in rows {
+            for k in 0..K {
+                m[k] += q[k];
+            }
+        }
+        for v in m.iter_mut() {
+            *v *= inv;
+        }
+        let (mut a, mut b, mut c) = (S::cst(0.0), S::cst(0.0), S::cst(0.0));
+        for q in rows {
+            let (px, py) = (q[0] - m[0], q[1] - m[1]);
+            a += px * px + py * py;
+            if K == 4 {
+                let (sx, sy) = (q[2] - m[2], q[3] - m[3]);
+                b += px * sx + py * sy;
+                c += sx * sx + sy * sy;
+            }
+        }
+        Some(SpotMoments {
+            centroid: [m[0], m[1]],
+            a: a * inv,
+            b: b * inv,
+            c: c * inv,
+        })
+    }
+
+    /// RMS radius about the centroid, mm (0 for a point image, with derivative 0).
+    pub fn rms(&self) -> S {
+        root(self.a)
+    }
+
+    /// Mean square radius about the point `p` (mm), mm²: `a + |centroid − p|²`.
+    pub fn ms_about(&self, p: [S; 2]) -> S {
+        let (dx, dy) = (self.centroid[0] - p[0], self.centroid[1] - p[1]);
+        self.a + dx * dx + dy * dy
+    }
+
+    /// RMS spot radius about the centroid with the sensor moved by `delta` mm, mm.
+    pub fn rms_at(&self, delta: S) -> S {
+        root(self.a + S::cst(2.0) * self.b * delta + self.c * delta * delta)
+    }
+
+    /// The sensor shift (mm, along its normal) that minimizes the sum of the mean-square radii of
+    /// all `moments`: `−Σb / Σc`, and 0 when `Σc` is 0 (parallel rays: no focus to find).
+    pub fn best_focus(moments: &[SpotMoments<S>]) -> S {
+        let (mut sb, mut sc) = (S::cst(0.0), S::cst(0.0));
+        for m in moments {
+            sb += m.b;
+            sc += m.c;
+        }
+        if sc.value() > 0.0 {
+            -(sb / sc)
+        } else {
+            S::cst(0.0)
+        }
+    }
+}
+
+/// `√x` for `x > 0`, else 0 with derivative 0: a radius of exactly 0 (a perfect point image) is
+/// the tip of the cone `|x|`, where sqrt's chain rule would give 0 · ∞ = NaN; 0 there is a
+/// subgradient (the one that makes a perfect focus a stationary point).
+pub(crate) fn root<S: Real>(x: S) -> S {
+    if x.value() > 0.0 {
+        x.sqrt()
+    } else {
+        S::cst(0.0)
+    }
 }
 
 /// What to trace for a spot analysis.
@@ -260,5 +371,85 @@ mod tests {
         let s = spot_stats(&pts, 4, Some([1.0, 1.0])).unwrap();
         assert!((s.rms_chief_um.unwrap() - 2000f64.sqrt() * 1e3f64.sqrt()).abs() < 1e-6);
         assert!(spot_stats(&[], 4, None).is_err());
+    }
+
+    /// RMS radius about the centroid of rays propagated by `delta` along z, computed directly.
+    fn direct_rms(rays: &[[f64; 4]], delta: f64) -> f64 {
+        let pts: Vec<[f64; 2]> = rays
+            .iter()
+            .map(|q| [q[0] + q[2] * delta, q[1] + q[3] * delta])
+            .collect();
+        let n = pts.len() as f64;
+        let cx = pts.iter().map(|p| p[0]).sum::<f64>() / n;
+        let cy = pts.iter().map(|p| p[1]).sum::<f64>() / n;
+        (pts.iter()
+            .map(|p| (p[0] - cx).powi(2) + (p[1] - cy).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    }
+
+    #[test]
+    fn moments_match_propagated_rays_and_find_the_best_focus() {
+        // A deterministic, astigmatic and decentred fan.
+        let rays: Vec<[f64; 4]> = (0..97)
+            .map(|i| {
+                let t = i as f64 * 0.37;
+                let (u, v) = (t.cos() * (1.0 + 0.1 * t.sin()), t.sin() * 0.8);
+                [
+                    0.3 + 0.05 * u,
+                    -0.2 + 0.04 * v,
+                    -0.021 * u,
+                    -0.017 * v + 0.001,
+                ]
+            })
+            .collect();
+        let m = SpotMoments::of_rays(&rays).unwrap();
+        for d in [-3.0, -0.5, 0.0, 1.0, 2.5] {
+            let (a, b) = (m.rms_at(d), direct_rms(&rays, d));
+            assert!((a - b).abs() < 1e-13, "delta {d}: {a} vs {b}");
+        }
+        let best = SpotMoments::best_focus(&[m]);
+        let at = direct_rms(&rays, best);
+        for e in [-1e-3, 1e-3] {
+            assert!(direct_rms(&rays, best + e) > at, "not a minimum at {best}");
+        }
+        // Two bundles: the best focus minimizes the sum of their mean squares.
+        let other: Vec<[f64; 4]> = rays
+            .iter()
+            .map(|q| [q[0], q[1], q[2] * 0.5, q[3]])
+            .collect();
+        let m2 = SpotMoments::of_rays(&other).unwrap();
+        let both = SpotMoments::best_focus(&[m, m2]);
+        let sum = |d: f64| direct_rms(&rays, d).powi(2) + direct_rms(&other, d).powi(2);
+        assert!(sum(both + 1e-3) > sum(both) && sum(both - 1e-3) > sum(both));
+        // No rays: no moments; parallel rays: no focus to find.
+        assert!(SpotMoments::<f64>::of_rays(&[]).is_none());
+        let flat = SpotMoments::of_rays(&[[0.1, 0.0, 0.0, 0.0], [0.2, 0.0, 0.0, 0.0]]).unwrap();
+        assert_eq!(SpotMoments::best_focus(&[flat]), 0.0);
+    }
+
+    #[test]
+    fn points_moments_are_the_rays_moments_without_slopes() {
+        let rays = [
+            [0.3, -0.1, 0.01, 0.02],
+            [0.1, 0.2, -0.03, 0.0],
+            [-0.2, 0.05, 0.0, 0.01],
+        ];
+        let pts: Vec<[f64; 2]> = rays.iter().map(|q| [q[0], q[1]]).collect();
+        let (r, p) = (
+            SpotMoments::of_rays(&rays).unwrap(),
+            SpotMoments::of_points(&pts).unwrap(),
+        );
+        assert_eq!((r.centroid, r.a), (p.centroid, p.a));
+        assert_eq!((p.b, p.c), (0.0, 0.0));
+        // About another point: the parallel-axis theorem against the direct mean.
+        let c = [0.05, 0.07];
+        let direct = pts
+            .iter()
+            .map(|q| (q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2))
+            .sum::<f64>()
+            / 3.0;
+        assert!((p.ms_about(c) - direct).abs() < 1e-16);
     }
 }

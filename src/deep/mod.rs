@@ -17,6 +17,7 @@ pub mod eval;
 pub mod html;
 pub mod study;
 
+use crate::analysis::SpotMoments;
 use crate::decoder::{Crop, Decoder, DecoderKind, ImageLossWeights};
 use crate::error::{Error, Result};
 use crate::image::render::{add_gaussian_noise, blur_patch, blur_patch_psf_adjoint};
@@ -26,8 +27,7 @@ use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
 use crate::optim::GRAD_WIDTH;
 use crate::optim::{
-    gradient, gradient_with_unit, param_value, set_param, spot_sum, FocusMoments, Objective,
-    SpotMeasure,
+    gradient, gradient_with_unit, param_value, set_param, spot_sum, Objective, SpotMeasure,
 };
 use crate::psf::{
     grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
@@ -702,9 +702,11 @@ impl Objective for FocusObjective {
                     .launched_sensor_rays(sys, optics.as_ref(), k, self.trace),
             );
         }
-        let moments: Vec<FocusMoments<S>> =
-            rays.iter().filter_map(|r| FocusMoments::of(r)).collect();
-        FocusMoments::best_focus(&moments)
+        let moments: Vec<SpotMoments<S>> = rays
+            .iter()
+            .filter_map(|r| SpotMoments::of_rays(r))
+            .collect();
+        SpotMoments::best_focus(&moments)
     }
 }
 

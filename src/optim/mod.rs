@@ -5,6 +5,8 @@ pub mod adam;
 mod run;
 pub mod train;
 
+use crate::analysis::spot::root;
+use crate::analysis::SpotMoments;
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, System};
 use crate::real::{Dual, Real};
@@ -187,117 +189,22 @@ pub enum SpotMeasure {
     Rms,
 }
 
-/// Spot size of a point set (see [`SpotMeasure`]), mm; zero for an empty set.
+/// Spot size of a point set (see [`SpotMeasure`]), mm; zero for an empty set. Both measures are
+/// about the centroid of [`SpotMoments`], the RMS its [`SpotMoments::rms`].
 pub fn spot_size<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
-    if pts.is_empty() {
+    let Some(m) = SpotMoments::of_points(pts) else {
         return S::cst(0.0);
-    }
-    let inv = S::cst(1.0 / pts.len() as f64);
-    let (mut cx, mut cy) = (S::cst(0.0), S::cst(0.0));
-    for p in pts {
-        cx += p[0];
-        cy += p[1];
-    }
-    cx *= inv;
-    cy *= inv;
-    // A distance of exactly 0 (a ray on the centroid, or a perfect point image) is the tip of
-    // the cone |x|: its derivative is not defined and sqrt's chain rule would give 0 · ∞ = NaN.
-    // It contributes 0 with derivative 0 there, a subgradient of the loss (the one that makes
-    // a perfect focus a stationary point).
-    let root = |x: S| {
-        if x.value() == 0.0 {
-            S::cst(0.0)
-        } else {
-            x.sqrt()
-        }
     };
-    let mut acc = S::cst(0.0);
-    for p in pts {
-        let d2 = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
-        acc += match measure {
-            SpotMeasure::Mean => root(d2),
-            SpotMeasure::Rms => d2,
-        };
-    }
     match measure {
-        SpotMeasure::Mean => acc * inv,
-        SpotMeasure::Rms => root(acc * inv),
-    }
-}
-
-/// Focus moments of a set of rays at the sensor: with the rays' positions `p` and slopes
-/// `s = (dx/dz, dy/dz)` in the sensor frame, each taken about its mean,
-/// `a = mean |p|²`, `b = mean p·s` and `c = mean |s|²`, so that the mean-square spot radius about
-/// the centroid after moving the sensor by `δ` along its normal is `a + 2 b δ + c δ²`.
-///
-/// One accumulator for every refocus: the Monte Carlo's focus compensator (in `f64`) and the
-/// differentiated refocus of deep-optics training (in dual numbers) both use it, so they refocus
-/// identically.
-///
-/// # Examples
-/// ```
-/// use tolray::optim::FocusMoments;
-/// // Two rays crossing the axis 1 mm behind the sensor: [x, y, dx/dz, dy/dz].
-/// let rays: [[f64; 4]; 2] = [[0.1, 0.0, -0.1, 0.0], [-0.1, 0.0, 0.1, 0.0]];
-/// let m = FocusMoments::of(&rays).unwrap();
-/// let d = FocusMoments::best_focus(&[m]);
-/// assert!((d - 1.0).abs() < 1e-12 && m.rms_at(d).abs() < 1e-12);
-/// ```
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FocusMoments<S> {
-    /// Mean square radius about the centroid at the sensor, mm².
-    pub a: S,
-    /// Mean product of the centred positions and slopes, mm.
-    pub b: S,
-    /// Mean square of the centred slopes.
-    pub c: S,
-}
-
-impl<S: Real> FocusMoments<S> {
-    /// The moments of `rays` (`[x, y, dx/dz, dy/dz]` in the sensor frame); `None` for no ray.
-    pub fn of(rays: &[[S; 4]]) -> Option<FocusMoments<S>> {
-        if rays.is_empty() {
-            return None;
-        }
-        let inv = S::cst(1.0 / rays.len() as f64);
-        let mut m = [S::cst(0.0); 4];
-        for q in rays {
-            for k in 0..4 {
-                m[k] += q[k] * inv;
+        SpotMeasure::Rms => m.rms(),
+        SpotMeasure::Mean => {
+            // A ray exactly on the centroid contributes 0 with derivative 0 (see `root`).
+            let [cx, cy] = m.centroid;
+            let mut acc = S::cst(0.0);
+            for p in pts {
+                acc += root((p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy));
             }
-        }
-        let (mut a, mut b, mut c) = (S::cst(0.0), S::cst(0.0), S::cst(0.0));
-        for q in rays {
-            let (px, py, sx, sy) = (q[0] - m[0], q[1] - m[1], q[2] - m[2], q[3] - m[3]);
-            a += (px * px + py * py) * inv;
-            b += (px * sx + py * sy) * inv;
-            c += (sx * sx + sy * sy) * inv;
-        }
-        Some(FocusMoments { a, b, c })
-    }
-
-    /// RMS spot radius about the centroid with the sensor moved by `delta` mm, mm.
-    pub fn rms_at(&self, delta: S) -> S {
-        let ms = self.a + S::cst(2.0) * self.b * delta + self.c * delta * delta;
-        if ms.value() > 0.0 {
-            ms.sqrt()
-        } else {
-            S::cst(0.0)
-        }
-    }
-
-    /// The sensor shift (mm, along its normal) that minimizes the sum of the mean-square radii of
-    /// all `moments`: `−Σb / Σc`, and 0 when `Σc` is 0 (parallel rays: no focus to find).
-    pub fn best_focus(moments: &[FocusMoments<S>]) -> S {
-        let (mut sb, mut sc) = (S::cst(0.0), S::cst(0.0));
-        for m in moments {
-            sb += m.b;
-            sc += m.c;
-        }
-        if sc.value() > 0.0 {
-            -(sb / sc)
-        } else {
-            S::cst(0.0)
+            acc * S::cst(1.0 / pts.len() as f64)
         }
     }
 }
@@ -424,54 +331,5 @@ mod tests {
                 g.eps[0]
             );
         }
-    }
-
-    /// RMS radius about the centroid of rays propagated by `delta` along z.
-    fn direct_rms(rays: &[[f64; 4]], delta: f64) -> f64 {
-        let pts: Vec<[f64; 2]> = rays
-            .iter()
-            .map(|q| [q[0] + q[2] * delta, q[1] + q[3] * delta])
-            .collect();
-        spot_size(&pts, SpotMeasure::Rms)
-    }
-
-    #[test]
-    fn focus_moments_match_propagated_rays_and_find_the_minimum() {
-        // A deterministic, astigmatic and decentred fan.
-        let rays: Vec<[f64; 4]> = (0..97)
-            .map(|i| {
-                let t = i as f64 * 0.37;
-                let (u, v) = (t.cos() * (1.0 + 0.1 * t.sin()), t.sin() * 0.8);
-                [
-                    0.3 + 0.05 * u,
-                    -0.2 + 0.04 * v,
-                    -0.021 * u,
-                    -0.017 * v + 0.001,
-                ]
-            })
-            .collect();
-        let m = FocusMoments::of(&rays).unwrap();
-        for d in [-3.0, -0.5, 0.0, 1.0, 2.5] {
-            let (a, b) = (m.rms_at(d), direct_rms(&rays, d));
-            assert!((a - b).abs() < 1e-13, "delta {d}: {a} vs {b}");
-        }
-        let best = FocusMoments::best_focus(&[m]);
-        let at = direct_rms(&rays, best);
-        for e in [-1e-3, 1e-3] {
-            assert!(direct_rms(&rays, best + e) > at, "not a minimum at {best}");
-        }
-        // Two bundles: the best focus minimizes the sum of their mean squares.
-        let other: Vec<[f64; 4]> = rays
-            .iter()
-            .map(|q| [q[0], q[1], q[2] * 0.5, q[3]])
-            .collect();
-        let m2 = FocusMoments::of(&other).unwrap();
-        let both = FocusMoments::best_focus(&[m, m2]);
-        let sum = |d: f64| direct_rms(&rays, d).powi(2) + direct_rms(&other, d).powi(2);
-        assert!(sum(both + 1e-3) > sum(both) && sum(both - 1e-3) > sum(both));
-        // No rays: no moments; parallel rays: no focus to find.
-        assert!(FocusMoments::<f64>::of(&[]).is_none());
-        let flat = FocusMoments::of(&[[0.1, 0.0, 0.0, 0.0], [0.2, 0.0, 0.0, 0.0]]).unwrap();
-        assert_eq!(FocusMoments::best_focus(&[flat]), 0.0);
     }
 }

@@ -3,9 +3,9 @@
 
 use super::spec::{OperandKind, Slot, ToleranceSpec};
 use super::Perturbation;
+use crate::analysis::SpotMoments;
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
-use crate::optim::FocusMoments;
 use crate::trace::{Bundles, Field, Pupil, TraceOptions};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -147,7 +147,7 @@ fn bundles(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
 }
 
 /// RMS per field (µm) of a compiled system, refocused when `opts.compensate_focus` (one sensor
-/// shift for all fields, [`FocusMoments::best_focus`]).
+/// shift for all fields, [`SpotMoments::best_focus`]).
 fn system_rms(
     bundles: &Bundles,
     sys: &System<f64>,
@@ -164,7 +164,7 @@ fn system_rms(
         .iter()
         .enumerate()
         .map(|(f, r)| {
-            FocusMoments::of(r).ok_or_else(|| {
+            SpotMoments::of_rays(r).ok_or_else(|| {
                 Error::numerical(format!(
                     "no ray of field {} reached the image",
                     opts.fields[f].label()
@@ -174,7 +174,7 @@ fn system_rms(
         .collect::<Result<Vec<_>>>()?;
     let delta = opts
         .compensate_focus
-        .then(|| FocusMoments::best_focus(&moments));
+        .then(|| SpotMoments::best_focus(&moments));
     let d = delta.unwrap_or(0.0);
     let rms = moments.iter().map(|m| m.rms_at(d) * 1e3).collect();
     Ok((rms, delta))
