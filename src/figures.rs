@@ -1565,8 +1565,8 @@ mod tests {
         assert_eq!(png.width(), fig.size_pt().0 * PNG_SCALE);
         let bad = dir.join("missing-dir/a.png");
         let e = save(&fig, &bad).unwrap_err();
-        assert_eq!(e.kind, ErrorKind::Io);
-        assert!(e.message.contains("missing-dir"), "{}", e.message);
+        assert_eq!(e.kind(), ErrorKind::Io);
+        assert!(e.message().contains("missing-dir"), "{}", e.message());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

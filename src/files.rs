@@ -125,8 +125,8 @@ mod tests {
         assert_eq!(std::fs::read(&ok).unwrap(), b"hello");
         let bad = dir.join("missing").join("b.txt");
         let e = write_atomic(&bad, b"x").unwrap_err();
-        assert_eq!(e.kind, ErrorKind::Io);
-        assert!(e.message.contains("b.txt"));
+        assert_eq!(e.kind(), ErrorKind::Io);
+        assert!(e.message().contains("b.txt"));
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
         // An interrupted write: its registered temporary file is what the handler removes.
         let tmp = temp_beside(&dir.join("c.bin")).unwrap();

@@ -8,10 +8,12 @@
 //! Modules:
 //! - [`lens`]: prescriptions ([`lens::Lens`]), DeepLens JSON and Zemax .zmx, materials, paraxial
 //!   analysis, and the compiled flat table ([`lens::System`]) the tracer runs on.
-//! - [`trace`]: ray batches, the generic kernel (f32, f64, dual numbers), ray generation, and a
-//!   scalar reference tracer.
+//! - [`trace`]: ray batches, the generic kernel (f32, f64, dual numbers), ray generation, the
+//!   bundles of rays every analysis and loss traces ([`trace::Bundles`]), and a scalar reference
+//!   tracer.
 //! - [`real`]: the number types the kernel is generic over (dual numbers for exact gradients).
-//! - [`analysis`]: spot diagrams and statistics.
+//! - [`analysis`]: spot diagrams and statistics, and the spot moments every spot size and
+//!   refocus is computed from ([`analysis::SpotMoments`]).
 //! - [`tolerance`]: tolerance specs, sampled patterns (fabricated units), Monte Carlo,
 //!   sensitivity.
 //! - [`psf`]: point spread functions and PSF maps, the PSF-similarity loss.
@@ -22,7 +24,7 @@
 //! - [`deep`]: deep-optics training (lens and decoder), the study and its yield evaluation.
 //! - [`figures`]: the pictures the CLI writes (plotters, PNG or SVG).
 //! - [`ffi`]: the C ABI (`include/tolray.h`).
-//! - [`error`], [`files`], [`math`]: errors with their kind and cause; JSON reading and atomic
+//! - [`error`], [`files`], [`math`]: errors with their kind and I/O source; JSON reading and atomic
 //!   writes that an interrupted program cleans up; small vector algebra.
 //! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
 //!

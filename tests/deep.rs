@@ -459,7 +459,7 @@ fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
     let mut none = cfg.clone();
     (none.decoder_only, none.evaluate_stage1) = (false, false);
     let e = run(&lens, &none, &images, &base.join("c"), &mut |_| {}).unwrap_err();
-    assert!(e.message.contains("nothing to report"), "{}", e.message);
+    assert!(e.message().contains("nothing to report"), "{}", e.message());
     let mut unet = cfg.clone();
     unet.deep.decoder = DecoderKind::Unet;
     let mut ctl = tolray::deep::study::Control {
@@ -470,7 +470,7 @@ fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
     let e = tolray::deep::study::run_resumable(Start::Design(&start), &unet, &images, &b, &mut ctl)
         .err()
         .unwrap();
-    assert!(e.message.contains("decoder (wiener"), "{}", e.message);
+    assert!(e.message().contains("decoder (wiener"), "{}", e.message());
     let _ = std::fs::remove_dir_all(&base);
 }
 

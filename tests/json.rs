@@ -15,7 +15,7 @@ fn lens1_value() -> Value {
 }
 
 fn err(v: Value) -> String {
-    from_value(&v).unwrap_err().message
+    from_value(&v).unwrap_err().message().to_string()
 }
 
 #[test]
@@ -109,8 +109,8 @@ fn asphere_coefficients_with_and_without_use_ai2() {
 #[test]
 fn errors_say_what_and_where() {
     let e = from_str("{\n  \"surfaces\": [\n    {\"type\": \"Spheric\",, }\n  ]\n}").unwrap_err();
-    assert_eq!(e.kind, ErrorKind::Parse);
-    assert!(e.message.starts_with("line 3, column"), "{}", e.message);
+    assert_eq!(e.kind(), ErrorKind::Parse);
+    assert!(e.message().starts_with("line 3, column"), "{}", e.message());
 
     let mut v = lens1_value();
     v["surfaces"][2].as_object_mut().unwrap().remove("mat2");
@@ -154,12 +154,12 @@ fn errors_say_what_and_where() {
     std::fs::write(&p, "{ \"surfaces\": [ }").unwrap();
     let e = tolray::lens::json::read_file(&p).unwrap_err();
     assert!(
-        e.message.contains("broken.json") && e.message.contains("line 1"),
+        e.message().contains("broken.json") && e.message().contains("line 1"),
         "{}",
-        e.message
+        e.message()
     );
     let e = Lens::load("no-such-lens").unwrap_err();
-    assert!(e.message.contains("not a built-in lens"));
+    assert!(e.message().contains("not a built-in lens"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -175,8 +175,8 @@ fn sensor_aspect_and_object_depth_are_prescription_errors() {
     v["sensor_size"] = json!([6.4, 4.8]);
     v["sensor_res"] = json!([2000, 2000]);
     let e = from_value(&v).unwrap_err();
-    assert_eq!(e.kind, ErrorKind::Invalid);
-    assert!(e.message.contains("non-square pixels"), "{}", e.message);
+    assert_eq!(e.kind(), ErrorKind::Invalid);
+    assert!(e.message().contains("non-square pixels"), "{}", e.message());
     v["sensor_res"] = json!([4000, 3000]);
     let l = from_value(&v).unwrap();
     let [w, h] = l.sensor.size_mm();
@@ -196,8 +196,8 @@ fn sensor_aspect_and_object_depth_are_prescription_errors() {
     let mut v = lens1_value();
     v["obj_depth"] = json!(0.0);
     let e = from_value(&v).unwrap_err();
-    assert_eq!(e.kind, ErrorKind::Invalid, "{}", e.message);
-    assert!(e.message.contains("\"obj_depth\" 0"), "{}", e.message);
+    assert_eq!(e.kind(), ErrorKind::Invalid, "{}", e.message());
+    assert!(e.message().contains("\"obj_depth\" 0"), "{}", e.message());
 }
 
 /// Structural and textual mutations of a real lens file: the reader must never panic, and any

@@ -191,7 +191,7 @@ fn bad_specs_and_patterns_are_clear_errors() {
     assert!(spec
         .validate(&l)
         .unwrap_err()
-        .message
+        .message()
         .contains("element 5 is out of range"));
     // A negative range is refused where the spec is read (it used to pass until sampling).
     let e =
@@ -207,14 +207,14 @@ fn bad_specs_and_patterns_are_clear_errors() {
     assert!(spec
         .validate(&l)
         .unwrap_err()
-        .message
+        .message()
         .contains("non-negative"));
     let p: Perturbation =
         serde_json::from_str(r#"{"surfaces": [{"surface": 9, "curvature_pct": 1}]}"#).unwrap();
     assert!(p
         .apply(&l)
         .unwrap_err()
-        .message
+        .message()
         .contains("surface 9 is out of range"));
     assert!(serde_json::from_str::<Perturbation>(
         r#"{"elements": [{"element": 0, "decentre": [0, 1]}]}"#
@@ -260,7 +260,7 @@ fn shards_merge_into_exactly_the_single_run() {
     );
     assert!(merge_reports(&parts[..2])
         .unwrap_err()
-        .message
+        .message()
         .contains("missing"));
     assert!(merge_reports(&[
         parts[0].clone(),
@@ -269,7 +269,7 @@ fn shards_merge_into_exactly_the_single_run() {
         parts[2].clone()
     ])
     .unwrap_err()
-    .message
+    .message()
     .contains("twice"));
 }
 

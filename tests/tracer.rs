@@ -524,8 +524,8 @@ fn field_angles_of_90_degrees_or_more_are_refused() {
         (0.0, f64::INFINITY),
     ] {
         let e = gen(x, y).unwrap_err();
-        assert_eq!(e.kind, tolray::ErrorKind::Argument, "({x}, {y})");
-        assert!(e.message.contains("below 90°"), "{}", e.message);
+        assert_eq!(e.kind(), tolray::ErrorKind::Argument, "({x}, {y})");
+        assert!(e.message().contains("below 90°"), "{}", e.message());
     }
 }
 

@@ -38,7 +38,7 @@ fn parse(text: &str) -> tolray::Result<ZmxLens> {
 fn err(text: &str) -> String {
     match parse(text) {
         Ok(_) => panic!("accepted:\n{text}"),
-        Err(e) => e.message,
+        Err(e) => e.message().to_string(),
     }
 }
 
@@ -715,7 +715,7 @@ fn malformed_lines_are_errors_that_name_the_line() {
     assert!(err("SURF 0\n DISZ INFINITY\nSURF 1\n").contains("a lens needs the object"));
     let e =
         zemax::read_file(Path::new("/no/such/file.zmx"), &GlassCatalogs::builtin()).unwrap_err();
-    assert_eq!(e.kind, ErrorKind::Io);
+    assert_eq!(e.kind(), ErrorKind::Io);
     let dir = std::env::temp_dir().join(format!("tolray-zmx-err-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join("broken.zmx");
@@ -723,10 +723,10 @@ fn malformed_lines_are_errors_that_name_the_line() {
     let e = Lens::load(p.to_str().unwrap()).unwrap_err();
     let n = line_of(&base, "CURV 0.05");
     assert!(
-        e.message
+        e.message()
             .starts_with(&format!("{}: line {n}: CURV", p.display())),
         "{}",
-        e.message
+        e.message()
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -892,9 +892,9 @@ fn user_catalogs_are_searched_before_the_builtin_glasses() {
     let t = text("asphere.zmx").replace("GLAS N-BK7 0 0 1.5168 64.17", "GLAS NBK7-S5");
     let e = parse(&t).unwrap_err();
     assert!(
-        e.message.contains("unknown glass \"NBK7-S5\""),
+        e.message().contains("unknown glass \"NBK7-S5\""),
         "{}",
-        e.message
+        e.message()
     );
     let z = zemax::from_str(&t, &catalogs).unwrap();
     assert!(z.warnings.is_empty(), "{:?}", z.warnings);
@@ -942,12 +942,12 @@ fn user_catalogs_are_searched_before_the_builtin_glasses() {
     .unwrap();
     let e = GlassCatalogs::from_files(&[&p]).unwrap_err();
     assert!(
-        e.message.starts_with(&format!(
+        e.message().starts_with(&format!(
             "{}: line 13: glass F2: unknown dispersion formula 21",
             p.display()
         )),
         "{}",
-        e.message
+        e.message()
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -1109,7 +1109,7 @@ fn fuzz_the_zmx_reader() {
             )
         };
         match parsed {
-            Err(e) => assert!(!e.message.is_empty(), "mutation {it}: empty message"),
+            Err(e) => assert!(!e.message().is_empty(), "mutation {it}: empty message"),
             Ok(z) => {
                 accepted += 1;
                 let checked = std::panic::catch_unwind(|| {
@@ -1166,7 +1166,7 @@ fn fuzz_the_agf_reader() {
                 "AGF reader panicked on mutation {it}:\n{}",
                 String::from_utf8_lossy(&b)
             ),
-            Ok(Err(e)) => assert!(!e.message.is_empty()),
+            Ok(Err(e)) => assert!(!e.message().is_empty()),
             Ok(Ok((c, _))) => {
                 accepted += 1;
                 for g in &c.glasses {
@@ -1348,7 +1348,10 @@ fn glasses_resolve_by_gcat_and_never_silently_fall_back() {
     );
     // The placeholder is refused even then.
     let t = replace_line(&base, "GLAS N-BK7", "  GLAS NOT-A-GLASS 0 0 1.5 40 0 0 0");
-    let e = zemax::from_str(&t, &fallback).unwrap_err().message;
+    let e = zemax::from_str(&t, &fallback)
+        .unwrap_err()
+        .message()
+        .to_string();
     assert!(
         e.contains("placeholder") && e.contains(&format!("line {n}")),
         "{e}"
@@ -1404,7 +1407,7 @@ fn corpus_mismatches(e: &serde_json::Value, z: &ZmxLens) -> Vec<String> {
     let p = match lens.paraxial(wl) {
         Ok(p) => p,
         Err(err) => {
-            bad.push(format!("paraxial: {}", err.message));
+            bad.push(format!("paraxial: {}", err.message()));
             return bad;
         }
     };
@@ -1635,15 +1638,16 @@ fn corpus_agrees_with_optiland_or_is_refused_by_line() {
             want,
         ) {
             (Err(err), Some((_, line, what))) => {
-                if !(err.message.contains(&format!("line {line}: ")) && err.message.contains(what))
+                if !(err.message().contains(&format!("line {line}: "))
+                    && err.message().contains(what))
                 {
                     failures.push(format!(
                         "{path}: refused, but not as expected: {}",
-                        err.message
+                        err.message()
                     ));
                 }
             }
-            (Err(err), None) => failures.push(format!("{path}: refused: {}", err.message)),
+            (Err(err), None) => failures.push(format!("{path}: refused: {}", err.message())),
             (Ok(_), Some(w)) => failures.push(format!("{path}: opened, expected a refusal {w:?}")),
             (Ok(z), None) => {
                 // The one substitution: legacy Schott BK7 is in no shipped catalog, and the

@@ -282,11 +282,11 @@ pub fn spot_diagram_rows(
             let fail = |e: Error| SpotFailure {
                 field,
                 wavelength_nm: Some(wl),
-                reason: e.context(&what).message,
+                reason: e.context(&what).full_message(),
             };
             let set = match RaySet::generate(lens, &para, field, &opts.pupil, wl) {
                 Ok(set) => set,
-                Err(e) if e.kind == crate::ErrorKind::Numerical => {
+                Err(e) if e.kind() == crate::ErrorKind::Numerical => {
                     failures.push(fail(e));
                     complete = false;
                     continue;

@@ -521,8 +521,8 @@ mod tests {
         ] {
             let e = decoder_from_bytes(&bytes(kind, grid, ks, width, n as u64, &ok), "d.bin")
                 .unwrap_err();
-            assert!(e.message.starts_with("d.bin: "), "{}", e.message);
-            assert!(e.message.contains("parameters, but"), "{}", e.message);
+            assert!(e.message().starts_with("d.bin: "), "{}", e.message());
+            assert!(e.message().contains("parameters, but"), "{}", e.message());
         }
         // Finite parameters whose filter is not finite: an error, not NaN pixels.
         let mut big = vec![0.0; n];
@@ -537,12 +537,12 @@ mod tests {
             h: 16,
         };
         let e = d.decode_batch(&[crop]).unwrap_err();
-        assert_eq!(e.kind, crate::ErrorKind::Numerical, "{}", e.message);
+        assert_eq!(e.kind(), crate::ErrorKind::Numerical, "{}", e.message());
         // U-Net weights past f32's range are refused when read.
         let nu = Decoder::param_count(DecoderKind::Unet, 1, 3, 1).unwrap();
         let mut w = vec![0.0; nu];
         w[0] = 1e39;
         let e = decoder_from_bytes(&bytes("unet", 1, 3, 1, nu as u64, &w), "d").unwrap_err();
-        assert!(e.message.contains("f32"), "{}", e.message);
+        assert!(e.message().contains("f32"), "{}", e.message());
     }
 }

@@ -779,11 +779,11 @@ mod tests {
         let mut other = study(40, |_| 0.2);
         other.config.seed += 1;
         let e = pool(&[study(40, |_| 0.2), other]).unwrap_err();
-        assert!(e.message.contains("report 1"), "{}", e.message);
+        assert!(e.message().contains("report 1"), "{}", e.message());
         let mut shuffled = study(40, |_| 0.2);
         shuffled.scores[0].trials[0].index = 99;
         let e = pool(&[study(40, |_| 0.2), shuffled]).unwrap_err();
-        assert!(e.message.contains("same units"), "{}", e.message);
+        assert!(e.message().contains("same units"), "{}", e.message());
         assert!(pool(&[]).is_err());
     }
 }

@@ -228,7 +228,7 @@ pub fn load_decoder(path: &Path) -> Result<Decoder> {
 /// ```
 /// use tolray::deep::study::decoder_from_bytes;
 /// let e = decoder_from_bytes(b"TOLRDEC1\x02\0\0\0{}", "d.bin").unwrap_err();
-/// assert!(e.message.starts_with("d.bin: kind"), "{}", e.message);
+/// assert!(e.message().starts_with("d.bin: kind"), "{}", e.message());
 /// ```
 pub fn decoder_from_bytes(bytes: &[u8], name: &str) -> Result<Decoder> {
     let bad = |m: &str| Error::new(ErrorKind::Parse, format!("{name}: {m}"));

@@ -549,7 +549,8 @@ pub fn check_feasible(sys: &System<f64>, rays: &Bundles, opts: &CheckOptions) ->
         Mesh::plan(row, i, mesh_disk(used[i], row), opts.chord_mm).map_err(|e| {
             Error::argument(format!(
                 "--chord {:e} mm cannot be checked: {}",
-                opts.chord_mm, e.message
+                opts.chord_mm,
+                e.message()
             ))
         })?;
     }

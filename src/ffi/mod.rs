@@ -121,7 +121,7 @@ impl FfiError {
 
 impl From<Error> for FfiError {
     fn from(e: Error) -> Self {
-        FfiError::new(tolray_status::from_kind(e.kind), e.message)
+        FfiError::new(tolray_status::from_kind(e.kind()), e.full_message())
     }
 }
 

@@ -433,30 +433,34 @@ mod tests {
     fn errors_name_the_line() {
         let e = AgfCatalog::from_str("CC x\nNM A 14 0 1.5 60\nCD 1\n", "T").unwrap_err();
         assert!(
-            e.message.starts_with("line 2:") && e.message.contains("formula 14"),
+            e.message().starts_with("line 2:") && e.message().contains("formula 14"),
             "{}",
-            e.message
+            e.message()
         );
         let e = AgfCatalog::from_str("CC x\nCD 1 2\n", "T").unwrap_err();
         assert!(
-            e.message.starts_with("line 2: CD before any NM"),
+            e.message().starts_with("line 2: CD before any NM"),
             "{}",
-            e.message
+            e.message()
         );
         let e = AgfCatalog::from_str("NM A 2 0 1.5 60\nCD 1 x 3\n", "T").unwrap_err();
         assert!(
-            e.message.starts_with("line 2: CD coefficient 2"),
+            e.message().starts_with("line 2: CD coefficient 2"),
             "{}",
-            e.message
+            e.message()
         );
         let e = AgfCatalog::from_str("NM A 2 0 1.5 60\nLD 0.3\n", "T").unwrap_err();
-        assert!(e.message.starts_with("line 2: LD needs"), "{}", e.message);
+        assert!(
+            e.message().starts_with("line 2: LD needs"),
+            "{}",
+            e.message()
+        );
         let e =
             AgfCatalog::from_str("NM A 2 0 1.5 60\nNM B 2 0 1.5 60\nCD 1 0.01\n", "T").unwrap_err();
         assert!(
-            e.message.contains("line 1: glass A has no CD"),
+            e.message().contains("line 1: glass A has no CD"),
             "{}",
-            e.message
+            e.message()
         );
         assert!(AgfCatalog::from_str("CC nothing\n", "T").is_err());
     }

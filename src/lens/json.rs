@@ -173,7 +173,7 @@ fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
         obscuration,
     };
     ap.validate()
-        .map_err(|e| Error::invalid(format!("{at}{}", e.message)))?;
+        .map_err(|e| Error::invalid(format!("{at}{}", e.full_message())))?;
     Ok(Some(ap))
 }
 
@@ -266,7 +266,7 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
     ) {
         (Some(s), _) => Object::parse(s)?,
         (None, Some(d)) => Object::parse(&d.to_string())
-            .map_err(|e| Error::invalid(format!("\"obj_depth\" {d}: {}", e.message)))?,
+            .map_err(|e| Error::invalid(format!("\"obj_depth\" {d}: {}", e.full_message())))?,
         (None, None) => Object::Infinite,
     };
     let size = num_array::<2>(top, "sensor_size", "")?;
@@ -652,7 +652,7 @@ pub mod as_text {
     /// The deserializer's, and the lens reader's message for invalid text.
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Lens, D::Error> {
         let text = String::deserialize(d)?;
-        from_str(&text).map_err(|e| serde::de::Error::custom(e.message))
+        from_str(&text).map_err(|e| serde::de::Error::custom(e.full_message()))
     }
 
     /// [`as_text`](self) for an optional lens (`null` when absent).
@@ -682,7 +682,7 @@ pub mod as_text {
             d: D,
         ) -> std::result::Result<Option<Lens>, D::Error> {
             Option::<String>::deserialize(d)?
-                .map(|t| from_str(&t).map_err(|e| serde::de::Error::custom(e.message)))
+                .map(|t| from_str(&t).map_err(|e| serde::de::Error::custom(e.full_message())))
                 .transpose()
         }
     }

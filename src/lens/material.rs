@@ -653,7 +653,7 @@ mod tests {
             Material::Catalog(_)
         ));
         let e = Material::parse("N-BK8").unwrap_err();
-        assert!(e.message.contains("N-BK7"), "{}", e.message);
+        assert!(e.message().contains("N-BK7"), "{}", e.message());
         assert!(Material::parse("0.8/50").is_err());
         assert_eq!(
             Material::parse("0.9997/0").unwrap(),

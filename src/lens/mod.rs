@@ -718,7 +718,7 @@ impl Lens {
                 )));
             }
             if let Some(a) = &s.aperture {
-                a.validate().map_err(|e| at(e.message))?;
+                a.validate().map_err(|e| at(e.full_message()))?;
             }
             let n = s.vec_local;
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();

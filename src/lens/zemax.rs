@@ -329,7 +329,7 @@ impl RawSurf {
             obscuration: cmd.starts_with("OB"),
         };
         ap.validate()
-            .map_err(|e| invalid(*line, format!("{cmd}: {}", e.message)))?;
+            .map_err(|e| invalid(*line, format!("{cmd}: {}", e.full_message())))?;
         Ok(Some(ap))
     }
     fn type_name(&self) -> String {
@@ -1385,7 +1385,7 @@ fn build(
         check_rim(&lens.surfaces[stop], a.line, built[stop].index).map_err(|e| {
             Error::invalid(format!(
                 "{} (the stop semi-diameter that the aperture needs)",
-                e.message
+                e.full_message()
             ))
         })?;
     }

@@ -196,12 +196,12 @@ mod tests {
         let e = parse_csv("ox,oy,oz,dx,dy,dz,wavelength_nm\n0,0,0,0,0,1,587\n0,0,x,0,0,1,587\n")
             .unwrap_err();
         assert!(
-            e.message.starts_with("line 3, column 3 (oz)"),
+            e.message().starts_with("line 3, column 3 (oz)"),
             "{}",
-            e.message
+            e.message()
         );
         let e = parse_csv("0,0,0,0,0,1\n").unwrap_err();
-        assert!(e.message.contains("line 1: expected 7 columns"));
+        assert!(e.message().contains("line 1: expected 7 columns"));
         assert_eq!(parse_csv("# c\n0,0,-1,0,0,1,587.5618\n").unwrap().len(), 1);
     }
 }

@@ -710,7 +710,7 @@ mod tests {
             "hex:1182",
         ] {
             let e = Pupil::parse(s, 0).unwrap_err();
-            assert!(e.message.contains("at most"), "{s}: {}", e.message);
+            assert!(e.message().contains("at most"), "{s}: {}", e.message());
         }
         assert!(Pupil::parse("hex:1181", 0).is_ok());
     }

@@ -31,7 +31,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     let usage = e.chain().any(|c| {
         c.is::<Usage>()
             || c.downcast_ref::<tolray::Error>()
-                .is_some_and(|t| t.kind == tolray::ErrorKind::Argument)
+                .is_some_and(|t| t.kind() == tolray::ErrorKind::Argument)
     });
     if usage {
         2
