@@ -8,7 +8,7 @@ use tolray::lens::json::{from_str, from_value, to_string};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::{ErrorKind, Lens, Object};
 
-const LENS1: &str = include_str!("../src/lens/builtin/lens1.json");
+const LENS1: &str = include_str!("../../src/lens/builtin/lens1.json");
 
 fn lens1_value() -> Value {
     serde_json::from_str(LENS1).unwrap()

@@ -11,7 +11,7 @@ use tolray::trace::{Field, Pupil, PupilPattern, TraceOptions};
 use tolray::{Lens, Object};
 
 fn values() -> Value {
-    serde_json::from_str(include_str!("data/reference_values.json")).unwrap()
+    serde_json::from_str(include_str!("../data/reference_values.json")).unwrap()
 }
 
 /// The reference perturbations, written as tolerance patterns (files users could write).

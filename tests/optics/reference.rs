@@ -8,7 +8,7 @@ use tolray::trace::{Field, Pupil, PupilPattern, TraceOptions};
 use tolray::{Lens, Object};
 
 fn values() -> Value {
-    serde_json::from_str(include_str!("data/reference_values.json")).unwrap()
+    serde_json::from_str(include_str!("../data/reference_values.json")).unwrap()
 }
 
 fn lens(name: &str) -> Lens {

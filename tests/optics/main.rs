@@ -1,0 +1,13 @@
+//! The optics half's integration tests, one module per subject, in one test crate (one build and
+//! link of the library's test dependencies instead of nine): `cargo test --release --test optics`,
+//! or one subject with a filter, e.g. `cargo test --release --test optics zemax::`.
+
+mod constraints;
+mod gradient;
+mod json;
+mod psf;
+mod reference;
+mod tolerance;
+mod tracer;
+mod training;
+mod zemax;
