@@ -32,7 +32,7 @@
 
 use crate::analysis::SpotResult;
 use crate::error::{Error, ErrorKind, Result};
-use crate::lens::{Lens, Paraxial, SurfaceRole, System};
+use crate::lens::{Lens, Paraxial, Shape, SurfaceRole, System};
 use crate::math::Vec3;
 use crate::trace::reference::trace_ray;
 use crate::trace::{Field, Pupil, PupilPattern, RaySet};
@@ -830,6 +830,17 @@ pub fn layout_figure(
         if s.role != SurfaceRole::Aperture {
             outlines.push(profile(i));
         }
+        // An ideal thin lens is a line with arrowheads at its ends, pointing out for a
+        // converging lens and in for a diverging one (the textbook and OpticStudio symbol).
+        if let Shape::Paraxial { focal_mm } = s.shape {
+            let (r, a) = (drawn[i], 0.05 * ymax);
+            let tip = if focal_mm > 0.0 { -a } else { a };
+            for sign in [1.0, -1.0] {
+                let y = sign * r;
+                let back = sign * (r + tip);
+                outlines.push(vec![(z[i] - a, back), (z[i], y), (z[i] + a, back)]);
+            }
+        }
         // Element edges: join this surface to the next through the glass.
         if !s.material.is_air() && i + 1 < lens.surfaces.len() {
             let (a, b) = (profile(i), profile(i + 1));
@@ -1458,6 +1469,47 @@ mod tests {
             .flat_map(|y| (x0..x0 + w).map(move |x| (x, y)))
             .filter(|&(x, y)| img.get_pixel(x, y).0 != [255, 255, 255])
             .count()
+    }
+
+    /// An ideal thin lens is drawn with arrowheads at both ends: out for f > 0, in for f < 0.
+    #[test]
+    fn thin_lenses_carry_arrowheads_that_tell_their_sign() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/thinlens.zmx");
+        let mut lens = Lens::load(path).unwrap();
+        let i = (lens.surfaces.iter())
+            .position(|s| matches!(s.shape, Shape::Paraxial { .. }))
+            .unwrap();
+        let zi = lens.vertex_z_mm()[i];
+        for sign in [1.0, -1.0] {
+            lens.surfaces[i].shape = Shape::Paraxial {
+                focal_mm: 80.0 * sign,
+            };
+            let para = lens.paraxial(587.5618).unwrap();
+            let fig = layout_figure(
+                &lens,
+                &lens.compile(),
+                &para,
+                &[Field::angle(0.0)],
+                587.6,
+                3,
+            );
+            let Kind::Layout { outlines, .. } = fig.unwrap().kind else {
+                panic!("not a layout")
+            };
+            // Three-point outlines centred on the thin lens' plane: its two arrowheads.
+            let heads: Vec<&Vec<(f64, f64)>> = outlines
+                .iter()
+                .filter(|o| o.len() == 3 && (o[1].0 - zi).abs() < 1e-12 && o[0].0 < zi)
+                .collect();
+            assert_eq!(heads.len(), 2, "f = {}", 80.0 * sign);
+            for h in heads {
+                // The tip is at the end of the lens line; the barbs lie toward the axis for a
+                // converging lens and away from it for a diverging one.
+                let inward = h[0].1.abs() < h[1].1.abs();
+                assert_eq!(inward, sign > 0.0, "f = {}: {h:?}", 80.0 * sign);
+                assert_eq!(h[0].1, h[2].1);
+            }
+        }
     }
 
     #[test]
