@@ -244,6 +244,10 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
                 assert!(f.compared > 100);
                 assert!(f.rms_diff_um < 0.1, "{name} {k:?}: {f:?}");
             }
+            // The work unit of the timings: every launched ray at every surface.
+            let launched: usize = r.fields.iter().map(|f| f.rays).sum();
+            assert_eq!(launched, rays.ray_count());
+            assert_eq!(r.timing.ray_surfaces, (launched * sys.rows.len()) as u64);
             let worst = r
                 .surfaces
                 .iter()

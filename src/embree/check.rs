@@ -639,7 +639,7 @@ pub fn check_system(
         .map(|_| rays.sets.iter().map(start).collect())
         .collect();
     let mut timing = Timing {
-        ray_surfaces: (rays.len() * sys.rows.len()) as u64,
+        ray_surfaces: (rays.ray_count() * sys.rows.len()) as u64,
         ..Timing::default()
     };
     let mut surfaces = Vec::with_capacity(sys.rows.len());
