@@ -248,7 +248,9 @@ fn penalties<S: Real>(
     let mut p = S::cst(0.0);
     let n = lens.surfaces.len();
     let hinge = |x: S| if x.value() > 0.0 { x * x } else { S::cst(0.0) };
-    // Edge thickness / edge air gap at the smaller clear aperture of each neighbouring pair.
+    let dirs = lens.travel_directions();
+    // Edge thickness / edge air gap at the smaller clear aperture of each neighbouring pair,
+    // along the light's path (toward −z after an odd number of mirrors).
     for i in 0..n - 1 {
         let (a, b) = (&sys.rows[i], &sys.rows[i + 1]);
         let r2 = S::cst(
@@ -259,6 +261,7 @@ fn penalties<S: Real>(
         );
         let sag = |row: &crate::lens::SurfaceRow<S>| crate::trace::kernel_sag(row, r2);
         let edge = b.pos.z - a.pos.z + sag(b) - sag(a);
+        let edge = if dirs[i + 1] < 0.0 { -edge } else { edge };
         let min = if lens.surfaces[i].material.is_air() {
             c.min_air_gap_mm
         } else {
@@ -398,11 +401,14 @@ fn learning_rates(lens: &Lens, vars: &[Param], cfg: &TrainConfig) -> Vec<f64> {
         .collect()
 }
 
-/// Projects the variables back into their bounds: gaps above their minimum, curvatures inside
+/// Projects the variables back into their bounds: gaps at least their minimum along the light's
+/// path (toward −z after an odd number of mirrors, where gaps are negative), curvatures inside
 /// the rim of their clear aperture.
 pub(crate) fn project(lens: &mut Lens, c: &Constraints) {
     let n = lens.surfaces.len();
+    let dirs = lens.travel_directions();
     for i in 0..n {
+        let dir = dirs[i + 1];
         let s = &mut lens.surfaces[i];
         let min = if i == n - 1 {
             1.0
@@ -411,7 +417,7 @@ pub(crate) fn project(lens: &mut Lens, c: &Constraints) {
         } else {
             c.min_center_thickness_mm
         };
-        s.d_next_mm = s.d_next_mm.max(min);
+        s.d_next_mm = dir * (s.d_next_mm * dir).max(min);
         let cmax = 0.95 / s.semi_aperture_mm;
         s.c = s.c.clamp(-cmax, cmax);
     }

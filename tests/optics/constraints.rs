@@ -107,3 +107,36 @@ fn target_efl_is_reached() {
     println!("efl {:.4} mm", efl(&out));
     assert!((efl(&out) - 50.0).abs() < 0.05, "EFL {}", efl(&out));
 }
+
+/// A mirror system trains: the gap after the primary mirror (negative, light travelling toward
+/// −z) keeps its sign through the projection, with at least the minimum air gap along the path,
+/// and a gap squeezed below the minimum is pushed back to it on the light's side. (The projection
+/// used to clamp every gap to +0.1 mm, which flipped the Cassegrain's −150 mm gap and failed the
+/// first iteration.)
+#[test]
+fn mirror_systems_keep_their_negative_gaps() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/cassegrain.json");
+    let lens = Lens::load(path).unwrap();
+    assert!(lens.surfaces[0].d_next_mm < -100.0);
+    let out = pretrain(&lens, 12, Constraints::default());
+    let dirs = out.travel_directions();
+    for (i, s) in out.surfaces.iter().enumerate() {
+        assert!(
+            s.d_next_mm * dirs[i + 1] >= 0.1,
+            "gap {i}: {} mm against travel {}",
+            s.d_next_mm,
+            dirs[i + 1]
+        );
+    }
+    assert!((out.surfaces[0].d_next_mm + 150.0).abs() < 1.0);
+    // A squeezed gap on the reversed path is pushed to −min, not to +min.
+    let mut squeezed = lens.clone();
+    squeezed.surfaces[0].d_next_mm = -0.01;
+    let mut cfg = TrainConfig::for_lens(&squeezed);
+    cfg.pretrain_iters = 1;
+    cfg.tolerance_iters = 0;
+    let mut state = TrainState::new(&squeezed, cfg);
+    step(&mut state).unwrap();
+    let d = state.lens.surfaces[0].d_next_mm;
+    assert!((-0.2..=-0.1).contains(&d), "{d}");
+}
