@@ -97,11 +97,14 @@ impl<S: Real> SpotMoments<S> {
         Self::of(rays)
     }
 
-    /// Positions in columns 0 and 1, slopes (when `K` is 4) in 2 and 3.
-    fn of<const K: usize>(rows: &[[S; K]]) -> Option<SpotMoments<S>> {
-        if rows.is_empty() {
-            return None;
-        }
+    /// The centroid of sensor points `[x, y]` (mm), as [`SpotMoments::of_points`] computes it,
+    /// without the second moments; `None` for no point.
+    pub fn centroid_of(points: &[[S; 2]]) -> Option<[S; 2]> {
+        (!points.is_empty()).then(|| Self::means(points))
+    }
+
+    /// Column means of `rows` (not empty): sums scaled once by 1/n.
+    fn means<const K: usize>(rows: &[[S; K]]) -> [S; K] {
         let inv = S::cst(1.0 / rows.len() as f64);
         let mut m = [S::cst(0.0); K];
         for q in rows {
@@ -112,6 +115,16 @@ impl<S: Real> SpotMoments<S> {
         for v in m.iter_mut() {
             *v *= inv;
         }
+        m
+    }
+
+    /// Positions in columns 0 and 1, slopes (when `K` is 4) in 2 and 3.
+    fn of<const K: usize>(rows: &[[S; K]]) -> Option<SpotMoments<S>> {
+        if rows.is_empty() {
+            return None;
+        }
+        let inv = S::cst(1.0 / rows.len() as f64);
+        let m = Self::means(rows);
         let (mut a, mut b, mut c) = (S::cst(0.0), S::cst(0.0), S::cst(0.0));
         for q in rows {
             let (px, py) = (q[0] - m[0], q[1] - m[1]);

@@ -190,16 +190,17 @@ pub enum SpotMeasure {
 }
 
 /// Spot size of a point set (see [`SpotMeasure`]), mm; zero for an empty set. Both measures are
-/// about the centroid of [`SpotMoments`], the RMS its [`SpotMoments::rms`].
+/// about the centroid of [`SpotMoments`] (the mean distance computes the centroid alone), the RMS
+/// is its [`SpotMoments::rms`].
 pub fn spot_size<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
-    let Some(m) = SpotMoments::of_points(pts) else {
+    if pts.is_empty() {
         return S::cst(0.0);
-    };
+    }
     match measure {
-        SpotMeasure::Rms => m.rms(),
+        SpotMeasure::Rms => SpotMoments::of_points(pts).map_or(S::cst(0.0), |m| m.rms()),
         SpotMeasure::Mean => {
             // A ray exactly on the centroid contributes 0 with derivative 0 (see `root`).
-            let [cx, cy] = m.centroid;
+            let [cx, cy] = SpotMoments::centroid_of(pts).unwrap_or([S::cst(0.0); 2]);
             let mut acc = S::cst(0.0);
             for p in pts {
                 acc += root((p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy));
