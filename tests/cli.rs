@@ -399,7 +399,9 @@ fn training_resumes_exactly_and_reports() {
 fn convert_between_zmx_and_json() {
     let fixture = |n: &str| format!("{}/tests/data/zemax/{n}", env!("CARGO_MANIFEST_DIR"));
     // A .zmx file's field points are the default fields of `spot` and `layout` (issue 14): the
-    // triplet file's YFLN 0, 10, 14, 20 (degrees), not fractions 0, 0.5, 0.7, 1.
+    // triplet file's YFLN 0, 10, 14, 20 (degrees), not fractions 0, 0.5, 0.7, 1, in tolray's
+    // sign (OpticStudio's +10° rises toward +y: the object is below the axis, tolray's -10°),
+    // so the image lies above the axis as in OpticStudio.
     let triplet = fixture("cooke-triplet.zmx");
     let (code, out, err) = tolray(&["spot", &triplet, "--pupil", "grid:8"]);
     assert_eq!(code, 0, "{err}");
@@ -410,9 +412,27 @@ fn convert_between_zmx_and_json() {
         .collect();
     assert_eq!(
         fields,
-        ["0.000deg", "10.000deg", "14.000deg", "20.000deg"],
+        ["0.000deg", "-10.000deg", "-14.000deg", "-20.000deg"],
         "{out}"
     );
+    let centroid_y: Vec<f64> = out
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().last()?.parse().ok())
+        .collect();
+    assert!(centroid_y[1..].iter().all(|&y| y > 8.0), "{out}");
+    // `info` lists a file's fields with their vignetting factors.
+    let vignetted = format!(
+        "{}/tests/data/zemax/real/rayoptics/US00583336-2-scaled.zmx",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let (code, out, err) = tolray(&["info", &vignetted]);
+    assert_eq!(code, 0, "{err}");
+    let row = out
+        .lines()
+        .find(|l| l.contains("-24.000deg"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(row.ends_with("0.0000   0.0547   0.0020   0.3648"), "{row}");
     let (code, out, _) = tolray(&["spot", &triplet, "--pupil", "grid:8", "--fields", "0.5"]);
     assert_eq!(code, 0);
     assert_eq!(

@@ -18,12 +18,18 @@
 //! β1..β8 on ρ¹..ρ⁸, OpticStudio ODDASPHE) or `"toroidal"` with `"c_rot"` (1/mm; `roc`, `k`
 //! and `ai` describe the y-z profile, OpticStudio TOROIDAL). DeepLens' `ThinLens` (`"f"`, the
 //! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
+//!
+//! A top-level `"fields"` array keeps the field points of the lens' file (a .zmx file's, read
+//! and converted): `{"angle_deg": [x, y]}` or `{"height_mm": [x, y]}`, an optional `"weight"`,
+//! and optional vignetting factors `"vignetting": {"vdx": 0, "vdy": 0.06, "vcx": 0, "vcy": 0.16}`
+//! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::{
     Aperture, ApertureShape, GlassCatalogs, Lens, Material, Object, Sensor, Shape, Surface,
     SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
+use crate::trace::{Field, FieldPoint, Vignetting};
 use serde_json::{json, Map, Value};
 use std::path::Path;
 
@@ -175,6 +181,110 @@ fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
     ap.validate()
         .map_err(|e| Error::invalid(format!("{at}{}", e.full_message())))?;
     Ok(Some(ap))
+}
+
+/// tolray's top-level `"fields"` key: the lens file's field points (see the module
+/// documentation); absent: none.
+fn fields(top: &Map<String, Value>) -> Result<Vec<FieldPoint>> {
+    let Some(v) = top.get("fields") else {
+        return Ok(Vec::new());
+    };
+    let Value::Array(list) = v else {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("\"fields\" must be an array, found {v}"),
+        ));
+    };
+    let mut out = Vec::with_capacity(list.len());
+    for (k, f) in list.iter().enumerate() {
+        let at = format!("\"fields\" {}: ", k + 1);
+        let parse = |m: String| Error::new(ErrorKind::Parse, format!("{at}{m}"));
+        let Value::Object(m) = f else {
+            return Err(parse(format!("must be an object, found {f}")));
+        };
+        if let Some(key) = m
+            .keys()
+            .find(|k| !["angle_deg", "height_mm", "weight", "vignetting"].contains(&k.as_str()))
+        {
+            return Err(parse(format!(
+                "unknown key \"{key}\" (angle_deg, height_mm, weight, vignetting)"
+            )));
+        }
+        let field = match (
+            num_array::<2>(m, "angle_deg", &at)?,
+            num_array::<2>(m, "height_mm", &at)?,
+        ) {
+            (Some([x, y]), None) => Field::AngleDeg { x, y },
+            (None, Some([x, y])) => Field::HeightMm { x, y },
+            _ => {
+                return Err(parse(
+                    "needs one of \"angle_deg\" [x, y] or \"height_mm\" [x, y]".into(),
+                ))
+            }
+        };
+        let mut vignetting = Vignetting::default();
+        match m.get("vignetting") {
+            None => {}
+            Some(Value::Object(v)) => {
+                let at = format!("{at}\"vignetting\": ");
+                if let Some(key) = v
+                    .keys()
+                    .find(|k| !["vdx", "vdy", "vcx", "vcy"].contains(&k.as_str()))
+                {
+                    return Err(parse(format!(
+                        "\"vignetting\": unknown key \"{key}\" (vdx, vdy, vcx, vcy)"
+                    )));
+                }
+                let get = |key: &str| num(v, key, &at).map(|x| x.unwrap_or(0.0));
+                vignetting = Vignetting {
+                    decenter_x: get("vdx")?,
+                    decenter_y: get("vdy")?,
+                    compress_x: get("vcx")?,
+                    compress_y: get("vcy")?,
+                };
+            }
+            Some(other) => {
+                return Err(parse(format!(
+                    "\"vignetting\" must be an object, found {other}"
+                )))
+            }
+        }
+        out.push(FieldPoint {
+            field,
+            weight: num(m, "weight", &at)?.unwrap_or(1.0),
+            vignetting,
+        });
+    }
+    Ok(out)
+}
+
+/// The `"fields"` value of a lens' field points (`None` when it has none).
+fn fields_value(points: &[FieldPoint]) -> Option<Value> {
+    if points.is_empty() {
+        return None;
+    }
+    let list = points
+        .iter()
+        .map(|p| {
+            let mut m = Map::new();
+            match p.field {
+                Field::AngleDeg { x, y } => m.insert("angle_deg".into(), json!([x, y])),
+                Field::HeightMm { x, y } => m.insert("height_mm".into(), json!([x, y])),
+                // Validation keeps fractions out of a lens.
+                Field::Fraction { x, y } => m.insert("fraction".into(), json!([x, y])),
+            };
+            m.insert("weight".into(), json!(p.weight));
+            let v = p.vignetting;
+            if !v.is_none() {
+                m.insert(
+                    "vignetting".into(),
+                    json!({"vdx": v.decenter_x, "vdy": v.decenter_y, "vcx": v.compress_x, "vcy": v.compress_y}),
+                );
+            }
+            Value::Object(m)
+        })
+        .collect();
+    Some(Value::Array(list))
 }
 
 /// tolray's `"aperture"` value for `a`, or `None` where DeepLens' `r` says it all.
@@ -342,6 +452,7 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         sensor,
         primary_wavelength_nm: primary_um * 1e3,
         rgb_wavelengths_nm: rgb_um.map(|w| w * 1e3),
+        fields: fields(top)?,
         ray_aiming: match top.get("ray_aiming") {
             None => false,
             Some(Value::Bool(b)) => *b,
@@ -546,6 +657,9 @@ pub fn to_value(lens: &Lens) -> Value {
     top.insert("sensor_res".into(), json!(lens.sensor.resolution));
     if lens.ray_aiming {
         top.insert("ray_aiming".into(), json!(true));
+    }
+    if let Some(f) = fields_value(&lens.fields) {
+        top.insert("fields".into(), f);
     }
     let surfaces: Vec<Value> = lens
         .surfaces

@@ -446,6 +446,11 @@ pub struct Lens {
     /// `"ray_aiming": true`) instead of at the paraxial entrance pupil. The CLI's `--aim` and
     /// `--no-aim` override it.
     pub ray_aiming: bool,
+    /// The field points the lens file defines, with their vignetting factors (a .zmx file's
+    /// fields; JSON `"fields"`): the CLI's default fields when `--fields` is not given. Rays of
+    /// a field equal to one of them fill its vignetted pupil ([`Lens::vignetting_of`]). Empty
+    /// for the built-in lenses.
+    pub fields: Vec<crate::trace::FieldPoint>,
 }
 
 /// A lens read by [`Lens::load_file`], with what its file says besides the prescription.
@@ -455,8 +460,6 @@ pub struct Loaded {
     pub lens: Lens,
     /// The reader's warnings, each naming the file and the line.
     pub warnings: Vec<String>,
-    /// The fields a .zmx file defines (`None` for other sources).
-    pub fields: Option<Vec<crate::trace::Field>>,
 }
 
 impl Lens {
@@ -483,16 +486,16 @@ impl Lens {
         Lens::load_file(name_or_path, catalogs).map(|l| (l.lens, l.warnings))
     }
 
-    /// As [`Lens::load_with_catalogs`], also returning the fields a .zmx file defines (what the
-    /// CLI's commands use when no `--fields` is given).
+    /// As [`Lens::load_with_catalogs`], as a [`Loaded`]. A .zmx file's field points are in
+    /// [`Lens::fields`] (what the CLI's commands use when no `--fields` is given).
     ///
     /// ```
     /// use tolray::lens::GlassCatalogs;
     /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/cooke-triplet.zmx");
     /// let l = tolray::Lens::load_file(path, &GlassCatalogs::builtin())?;
-    /// assert!(l.fields.is_some_and(|f| !f.is_empty()));
+    /// assert!(!l.lens.fields.is_empty());
     /// let b = tolray::Lens::load_file("lens2", &GlassCatalogs::builtin())?;
-    /// assert!(b.fields.is_none() && b.warnings.is_empty());
+    /// assert!(b.lens.fields.is_empty() && b.warnings.is_empty());
     /// # Ok::<(), tolray::Error>(())
     /// ```
     ///
@@ -503,7 +506,6 @@ impl Lens {
             return Ok(Loaded {
                 lens,
                 warnings: Vec::new(),
-                fields: None,
             });
         }
         let path = Path::new(name_or_path);
@@ -518,18 +520,36 @@ impl Lens {
         }
         if zemax::is_zmx_path(path) {
             let z = zemax::read_file(path, catalogs)?;
-            let fields = z.extras.tolray_fields(&z.lens);
             return Ok(Loaded {
                 lens: z.lens,
                 warnings: z.warnings,
-                fields,
             });
         }
         Ok(Loaded {
             lens: json::read_file_with(path, catalogs)?,
             warnings: Vec::new(),
-            fields: None,
         })
+    }
+
+    /// The vignetting factors of `field`: those of the first of [`Lens::fields`] equal to it,
+    /// else none (the whole pupil). OpticStudio likewise applies a field's factors to its own
+    /// field point.
+    ///
+    /// ```
+    /// use tolray::trace::{Field, FieldPoint, Vignetting};
+    /// let mut lens = tolray::lens::Lens::load("lens1").unwrap();
+    /// let v = Vignetting { compress_y: 0.2, ..Vignetting::default() };
+    /// let field = Field::angle(10.0);
+    /// lens.fields.push(FieldPoint { field, weight: 1.0, vignetting: v });
+    /// assert_eq!(lens.vignetting_of(field), v);
+    /// assert!(lens.vignetting_of(Field::angle(5.0)).is_none());
+    /// ```
+    pub fn vignetting_of(&self, field: crate::trace::Field) -> crate::trace::Vignetting {
+        self.fields
+            .iter()
+            .find(|p| p.field == field)
+            .map(|p| p.vignetting)
+            .unwrap_or_default()
     }
 
     /// Index of the aperture stop surface, if one is marked.
@@ -747,6 +767,34 @@ impl Lens {
         if let Object::Finite { distance_mm } = self.object {
             if !(distance_mm > 0.0) || !distance_mm.is_finite() {
                 return Err(Error::invalid("object distance must be positive"));
+            }
+        }
+        for (k, p) in self.fields.iter().enumerate() {
+            let at = |m: String| Error::invalid(format!("field {}: {m}", k + 1));
+            let (x, y) = match p.field {
+                crate::trace::Field::AngleDeg { x, y } => (x, y),
+                crate::trace::Field::HeightMm { x, y } => (x, y),
+                crate::trace::Field::Fraction { .. } => {
+                    return Err(at(
+                        "a lens' field points are angles or object heights, not fractions".into(),
+                    ))
+                }
+            };
+            if !(x.is_finite() && y.is_finite() && p.weight.is_finite() && p.weight >= 0.0) {
+                return Err(at(format!(
+                    "({x}, {y}) with weight {} must be finite (the weight not negative)",
+                    p.weight
+                )));
+            }
+            p.vignetting
+                .check()
+                .map_err(|e| at(e.message().to_string()))?;
+            let angle = |f: crate::trace::Field| matches!(f, crate::trace::Field::AngleDeg { .. });
+            if angle(p.field) != angle(self.fields[0].field) {
+                return Err(at(
+                    "a lens' field points are all angles or all object heights (as in a .zmx file)"
+                        .into(),
+                ));
             }
         }
         Ok(())

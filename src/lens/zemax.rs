@@ -17,8 +17,10 @@
 //!   `STOP`, `GLAS` (a catalog name, `___BLANK` model glasses with n_d and V_d, where V_d = 0
 //!   means a constant index);
 //! - the aperture `ENPD`, `FNUM`, `OBNA` or `FLOA`; fields `FTYP`, `XFLN`/`YFLN`/`FWGN` (or the
-//!   older `XFLD`/`YFLD`/`FWGT`); wavelengths `WAVM` (or `WAVL`) and `PWAV`; `NAME`; `GCAT`;
-//!   ray aiming `RAIM` (paraxial or real: [`Lens::ray_aiming`]).
+//!   older `XFLD`/`YFLD`/`FWGT`) with their vignetting factors `VDXN`/`VDYN`/`VCXN`/`VCYN`
+//!   (a non-zero angle `VANN` is refused); wavelengths `WAVM` (or `WAVL`) and `PWAV`; `NAME`;
+//!   `GCAT`; ray aiming `RAIM` (paraxial or real: [`Lens::ray_aiming`]). Angle and object-height
+//!   fields become [`Lens::fields`] (see [`ZmxExtras::field_points`] for the angles' sign).
 //!
 //! SURF 0 is the object; the last SURF is the image plane, whose semi-diameter is the sensor's
 //! half-diagonal (without one, the paraxial image height of the largest field). The stop clips
@@ -57,6 +59,7 @@ use super::text::decode;
 use super::{Aperture, ApertureShape, Lens, Object, Sensor, Shape, Surface, SurfaceRole, N_ASPH};
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
+use crate::trace::{Field, FieldPoint, Vignetting};
 use std::path::Path;
 
 /// How a .zmx file defines the system aperture.
@@ -97,6 +100,15 @@ impl ZmxFieldType {
             ZmxFieldType::Other(c) => c,
         }
     }
+    fn describe(self) -> String {
+        match self {
+            ZmxFieldType::AngleDeg => "angles".into(),
+            ZmxFieldType::ObjectHeightMm => "object heights at an infinite object".into(),
+            ZmxFieldType::ParaxialImageHeightMm => "paraxial image heights".into(),
+            ZmxFieldType::RealImageHeightMm => "real image heights".into(),
+            ZmxFieldType::Other(c) => format!("FTYP {c}"),
+        }
+    }
     fn is_length(self) -> bool {
         matches!(
             self,
@@ -116,6 +128,8 @@ pub struct ZmxField {
     pub y: f64,
     /// Weight.
     pub weight: f64,
+    /// Vignetting factors (`VDXN`, `VDYN`, `VCXN`, `VCYN`).
+    pub vignetting: Vignetting,
 }
 
 /// One wavelength of a .zmx file.
@@ -145,19 +159,52 @@ impl ZmxExtras {
     /// assert_eq!(fields.len(), z.extras.fields.len());
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
-    pub fn tolray_fields(&self, lens: &Lens) -> Option<Vec<crate::trace::Field>> {
-        use crate::trace::Field;
-        if self.fields.is_empty() {
+    pub fn tolray_fields(&self, lens: &Lens) -> Option<Vec<Field>> {
+        self.field_points(lens)
+            .map(|p| p.into_iter().map(|p| p.field).collect())
+    }
+
+    /// The file's field points as tolray field points (as [`ZmxExtras::tolray_fields`], with
+    /// their weights and vignetting factors): what [`Lens::fields`] holds after reading.
+    ///
+    /// OpticStudio's positive field angle is a positive ray slope (the object below the axis);
+    /// tolray's names the object's side ([`Field::AngleDeg`]), so an angle field is read with
+    /// its signs changed: the file's +17° is tolray's -17°, the same rays. Object heights have
+    /// the same sign in both.
+    pub fn field_points(&self, lens: &Lens) -> Option<Vec<FieldPoint>> {
+        field_points(self.field_type, &self.fields, lens)
+    }
+}
+
+/// See [`ZmxExtras::field_points`].
+fn field_points(
+    field_type: ZmxFieldType,
+    fields: &[ZmxField],
+    lens: &Lens,
+) -> Option<Vec<FieldPoint>> {
+    {
+        if fields.is_empty() {
             return None;
         }
-        let to = |f: &ZmxField| match self.field_type {
-            ZmxFieldType::AngleDeg => Some(Field::AngleDeg { x: f.x, y: f.y }),
-            ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
-                Some(Field::HeightMm { x: f.x, y: f.y })
-            }
-            _ => None,
+        let to = |f: &ZmxField| {
+            let field = match field_type {
+                // 0 - v, not -v: a zero stays +0 (labels print no "-0").
+                ZmxFieldType::AngleDeg => Field::AngleDeg {
+                    x: 0.0 - f.x,
+                    y: 0.0 - f.y,
+                },
+                ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
+                    Field::HeightMm { x: f.x, y: f.y }
+                }
+                _ => return None,
+            };
+            Some(FieldPoint {
+                field,
+                weight: f.weight,
+                vignetting: f.vignetting,
+            })
         };
-        self.fields.iter().map(to).collect()
+        fields.iter().map(to).collect()
     }
 }
 
@@ -370,7 +417,8 @@ struct Header {
     xfln: Option<Vec<f64>>,
     yfln: Option<At<Vec<f64>>>,
     fwgn: Option<Vec<f64>>,
-    vign: Vec<At<Vec<f64>>>,
+    /// `VDXN`, `VDYN`, `VCXN`, `VCYN`, `VANN`: each field's vignetting factors.
+    vign: [Option<At<Vec<f64>>>; 5],
     wavm: Vec<(usize, f64, f64, usize)>,
     wavl: Option<At<Vec<f64>>>,
     wwgt: Option<Vec<f64>>,
@@ -389,6 +437,9 @@ const SILENT: &[&str] = &[
     "OMMA", "HIDE", "MIRR", "SLAB", "POPS", "COMM", "MAZH", "PZUP", "PPAR", "VPAR", "VCON", "VDSZ",
     "COAT", "TCE", "PKUP", "SCTH", "CLAT", "BLAT",
 ];
+
+/// The vignetting-factor commands, in the order of `Header::vign`.
+const VIGNETTING: [&str; 5] = ["VDXN", "VDYN", "VCXN", "VCYN", "VANN"];
 
 /// Hard-aperture commands of a surface: clear and obscuring circles, rectangles and ellipses,
 /// and the floating aperture (a circle of the semi-diameter).
@@ -525,10 +576,8 @@ pub fn from_str(text: &str, catalogs: &GlassCatalogs) -> Result<ZmxLens> {
             "YFLN" | "YFLD" => h.yfln = at(numbers(args, line, &cmd)?, line),
             "FWGN" | "FWGT" => h.fwgn = Some(numbers(args, line, &cmd)?),
             "VDXN" | "VDYN" | "VCXN" | "VCYN" | "VANN" => {
-                h.vign.push(At {
-                    v: numbers(args, line, &cmd)?,
-                    line,
-                });
+                let k = VIGNETTING.iter().position(|c| *c == cmd).unwrap_or(0);
+                h.vign[k] = at(numbers(args, line, &cmd)?, line);
             }
             "WAVM" => {
                 let k = args
@@ -1164,8 +1213,8 @@ fn object_distance(
     }
 }
 
-/// Field type and points (lengths in mm).
-fn fields(h: &Header, scale: f64, warnings: &mut Vec<String>) -> (ZmxFieldType, Vec<ZmxField>) {
+/// Field type and points (lengths in mm), with their vignetting factors.
+fn fields(h: &Header, scale: f64) -> Result<(ZmxFieldType, Vec<ZmxField>)> {
     let field_type = match h.ftyp.as_ref().and_then(|f| f.v.first()).copied() {
         None | Some(0.0) => ZmxFieldType::AngleDeg,
         Some(1.0) => ZmxFieldType::ObjectHeightMm,
@@ -1186,27 +1235,50 @@ fn fields(h: &Header, scale: f64, warnings: &mut Vec<String>) -> (ZmxFieldType, 
             .and_then(|v| v.get(i).copied())
             .unwrap_or(default)
     };
-    let list: Vec<ZmxField> = (0..n)
-        .map_while(|i| {
-            let y = h.yfln.as_ref().and_then(|y| y.v.get(i).copied())?;
-            Some(ZmxField {
-                x: at(&h.xfln, i, 0.0) * s,
-                y: y * s,
-                weight: at(&h.fwgn, i, 1.0),
-            })
-        })
-        .collect();
-    if let Some(v) = h
-        .vign
-        .iter()
-        .find(|v| v.v.iter().take(n.max(1)).any(|&x| x != 0.0))
-    {
-        warnings.push(format!(
-            "line {}: vignetting factors ignored: tolray vignettes by tracing the clear apertures",
-            v.line
-        ));
+    let vig = |k: usize, i: usize| {
+        h.vign[k]
+            .as_ref()
+            .and_then(|v| v.v.get(i).copied())
+            .unwrap_or(0.0)
+    };
+    let mut list = Vec::with_capacity(n.min(1000));
+    for i in 0..n {
+        let Some(y) = h.yfln.as_ref().and_then(|y| y.v.get(i).copied()) else {
+            break;
+        };
+        let vignetting = Vignetting {
+            decenter_x: vig(0, i),
+            decenter_y: vig(1, i),
+            compress_x: vig(2, i),
+            compress_y: vig(3, i),
+        };
+        let line = |k: usize| h.vign[k].as_ref().map_or(0, |v| v.line);
+        if vig(4, i) != 0.0 {
+            return Err(invalid(
+                line(4),
+                format!(
+                    "field {}: vignetting angle (VANN) {}°: tolray applies the decenter and \
+                     compression factors only, not a rotated vignetted pupil",
+                    i + 1,
+                    vig(4, i)
+                ),
+            ));
+        }
+        if let Err(e) = vignetting.check() {
+            let k = if vignetting.compress_x >= 1.0 { 2 } else { 3 };
+            return Err(invalid(
+                line(k),
+                format!("field {}: {}", i + 1, e.message()),
+            ));
+        }
+        list.push(ZmxField {
+            x: at(&h.xfln, i, 0.0) * s,
+            y: y * s,
+            weight: at(&h.fwgn, i, 1.0),
+            vignetting,
+        });
     }
-    (field_type, list)
+    Ok((field_type, list))
 }
 
 /// The file's wavelengths, the primary index, and tolray's primary, RGB and sensor resolution.
@@ -1320,7 +1392,7 @@ fn build(
         built[0].surface.is_stop = true;
     }
     let spec = spectrum(&h, &mut warnings)?;
-    let (field_type, fields) = fields(&h, scale, &mut warnings);
+    let (field_type, fields) = fields(&h, scale)?;
 
     let mut lens = Lens {
         info: h.name.clone(),
@@ -1333,6 +1405,7 @@ fn build(
         primary_wavelength_nm: spec.primary_nm,
         rgb_wavelengths_nm: spec.rgb_nm,
         ray_aiming: h.raim.as_ref().is_some_and(|r| r.v != 0),
+        fields: Vec::new(),
     };
     if let Object::Finite { distance_mm } = lens.object {
         if !(distance_mm > 0.0) {
@@ -1399,6 +1472,22 @@ fn build(
             &fields,
             &mut warnings,
         )?;
+    }
+    match field_points(field_type, &fields, &lens) {
+        Some(points) => lens.fields = points,
+        None => {
+            if let Some(v) = h.vign[..4]
+                .iter()
+                .flatten()
+                .find(|v| v.v.iter().take(fields.len()).any(|&x| x != 0.0))
+            {
+                warnings.push(format!(
+                    "line {}: vignetting factors not applied: tolray has no field of this file's type ({}), so its commands trace fractions of the sensor over the whole pupil",
+                    v.line,
+                    field_type.describe()
+                ));
+            }
+        }
     }
     lens.validate()?;
 
@@ -1862,8 +1951,30 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         w(format!("GCAT {}", gcat.join(" ")));
     }
     // Fields.
-    let (ftype, fields) = match extras {
-        Some(e) if !e.fields.is_empty() => (e.field_type, e.fields.clone()),
+    // The lens' own field points first (angles back in OpticStudio's sign; validation keeps
+    // them of one kind), then the file's (image heights, which a lens cannot hold), else the
+    // sensor's 0, 0.5, 0.7 and 1.
+    let from_lens = |p: &FieldPoint| {
+        let (x, y) = match p.field {
+            Field::AngleDeg { x, y } => (0.0 - x, 0.0 - y),
+            Field::HeightMm { x, y } | Field::Fraction { x, y } => (x, y),
+        };
+        ZmxField {
+            x,
+            y,
+            weight: p.weight,
+            vignetting: p.vignetting,
+        }
+    };
+    let (ftype, fields) = match (lens.fields.first(), extras) {
+        (Some(p), _) => (
+            match p.field {
+                Field::HeightMm { .. } => ZmxFieldType::ObjectHeightMm,
+                _ => ZmxFieldType::AngleDeg,
+            },
+            lens.fields.iter().map(from_lens).collect::<Vec<_>>(),
+        ),
+        (None, Some(e)) if !e.fields.is_empty() => (e.field_type, e.fields.clone()),
         _ => {
             let rs = lens.sensor.half_diagonal_mm();
             (
@@ -1874,6 +1985,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                         x: 0.0,
                         y: f * rs,
                         weight: 1.0,
+                        vignetting: Vignetting::default(),
                     })
                     .collect(),
             )
@@ -1913,6 +2025,13 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
     w(format!("XFLN {}", join(&|f| f.x)));
     w(format!("YFLN {}", join(&|f| f.y)));
     w(format!("FWGN {}", join(&|f| f.weight)));
+    if fields.iter().any(|f| !f.vignetting.is_none()) {
+        w(format!("VDXN {}", join(&|f| f.vignetting.decenter_x)));
+        w(format!("VDYN {}", join(&|f| f.vignetting.decenter_y)));
+        w(format!("VCXN {}", join(&|f| f.vignetting.compress_x)));
+        w(format!("VCYN {}", join(&|f| f.vignetting.compress_y)));
+        w(format!("VANN {}", join(&|_| 0.0)));
+    }
     for (i, (um, _, wt)) in waves.iter().enumerate() {
         w(format!("WAVM {} {um} {}", i + 1, fmt(*wt)));
     }

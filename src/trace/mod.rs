@@ -14,7 +14,7 @@ pub mod reference;
 
 pub use bundles::{Bundle, Bundles};
 pub use kernel::Traceable;
-pub use rays::{Field, LaunchSource, Pupil, PupilPattern, RaySet};
+pub use rays::{Field, FieldPoint, LaunchSource, Pupil, PupilPattern, RaySet, Vignetting};
 
 use crate::lens::System;
 use crate::math::Vec3;

@@ -154,6 +154,90 @@ pub enum PupilPattern {
     },
 }
 
+/// OpticStudio's vignetting factors of a field point: the pupil its rays fill is the unit disk
+/// compressed by `compress` and moved by `decenter`, in normalized pupil coordinates:
+/// `p' = decenter + p (1 - compress)` per axis (`VDX`, `VDY`, `VCX`, `VCY` of a .zmx file). The
+/// chief ray goes through the moved centre, `p' = decenter`, as in OpticStudio. Zero factors
+/// (the default) leave the pupil as it is.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::Vignetting;
+/// let v = Vignetting { decenter_y: 0.25, compress_y: 0.5, ..Vignetting::default() };
+/// assert_eq!(v.apply([0.0, 1.0]), [0.0, 0.75]);   // the upper edge: 0.25 + 0.5
+/// assert_eq!(v.apply([0.0, -1.0]), [0.0, -0.25]); // the lower edge: 0.25 - 0.5
+/// assert_eq!(v.apply([0.0, 0.0]), [0.0, 0.25]);   // the chief ray's pupil point
+/// assert!(Vignetting::default().is_none());
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Vignetting {
+    /// Pupil decenter along x, a fraction of the pupil radius (`VDX`).
+    pub decenter_x: f64,
+    /// Pupil decenter along y, a fraction of the pupil radius (`VDY`).
+    pub decenter_y: f64,
+    /// Pupil compression along x (`VCX`): 0 keeps the width, 0.2 makes it 80 %.
+    pub compress_x: f64,
+    /// Pupil compression along y (`VCY`).
+    pub compress_y: f64,
+}
+
+impl Vignetting {
+    /// True for zero factors (the pupil unchanged).
+    pub fn is_none(&self) -> bool {
+        *self == Vignetting::default()
+    }
+
+    /// The normalized pupil point `q` moved into the vignetted pupil.
+    pub fn apply(&self, q: [f64; 2]) -> [f64; 2] {
+        [
+            self.decenter_x + q[0] * (1.0 - self.compress_x),
+            self.decenter_y + q[1] * (1.0 - self.compress_y),
+        ]
+    }
+
+    /// Checks that every factor is finite and each compression below 1 (a pupil of positive
+    /// size).
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Invalid`] naming the factor.
+    pub fn check(&self) -> Result<()> {
+        let all = [
+            ("decenter x", self.decenter_x),
+            ("decenter y", self.decenter_y),
+            ("compression x", self.compress_x),
+            ("compression y", self.compress_y),
+        ];
+        for (name, v) in all {
+            if !v.is_finite() {
+                return Err(Error::invalid(format!(
+                    "vignetting {name} {v} is not finite"
+                )));
+            }
+        }
+        for (name, v) in [("x", self.compress_x), ("y", self.compress_y)] {
+            if v >= 1.0 {
+                return Err(Error::invalid(format!(
+                    "vignetting compression {name} {v}: it must be below 1 (1 leaves no pupil)"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A field point a lens file defines (a row of OpticStudio's field data editor): the field,
+/// its weight and its vignetting factors. A lens keeps its file's points in [`Lens::fields`];
+/// rays generated for a field equal to one of them fill its vignetted pupil.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FieldPoint {
+    /// The field (an angle or an object height).
+    pub field: Field,
+    /// Weight (OpticStudio's `FWGN`; tolray's analyses weight fields equally).
+    pub weight: f64,
+    /// Vignetting factors.
+    pub vignetting: Vignetting,
+}
+
 /// Pupil sampling: a pattern over a disk of `scale` times the paraxial entrance-pupil radius,
 /// optionally with real ray aiming at the stop.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -338,11 +422,19 @@ impl RaySet {
         let beam = Beam::new(lens, para, field)?;
         let make = |px: f64, py: f64| beam.ray(px, py);
         let r_ep = beam.r_ep;
+        // The field point's vignetted pupil (the whole pupil for fields the lens does not list).
+        let vig = lens.vignetting_of(field);
+        let pts: Vec<[f64; 2]> = if vig.is_none() {
+            pts.to_vec()
+        } else {
+            pts.iter().map(|&q| vig.apply(q)).collect()
+        };
+        let centre = vig.apply([0.0, 0.0]);
         let mut set = RaySet {
             origins: Vec::with_capacity(pts.len()),
             directions: Vec::with_capacity(pts.len()),
-            pupil: pts.to_vec(),
-            chief: make(0.0, 0.0),
+            pupil: pts.clone(),
+            chief: beam.at_pupil(centre),
             field,
             unreachable: None,
         };
@@ -353,8 +445,10 @@ impl RaySet {
             let r_stop = lens.surfaces[stop].semi_aperture_mm;
             let aim =
                 |target: [f64; 2], guess: [f64; 2]| aim_ray(&sys, &n, stop, &make, target, guess);
-            let c = aim([0.0, 0.0], [0.0, 0.0])?;
+            let c0 = [centre[0] * r_ep, centre[1] * r_ep];
+            let c = aim([centre[0] * r_stop, centre[1] * r_stop], c0)?;
             set.chief = make(c[0], c[1]);
+            let c = [c[0] - c0[0], c[1] - c0[1]];
             let mut lost = Vec::new();
             for (i, q) in pts.iter().enumerate() {
                 let guess = [c[0] + q[0] * r_ep, c[1] + q[1] * r_ep];
@@ -373,7 +467,7 @@ impl RaySet {
             }
             set.unreachable = Some((stop, lost));
         } else {
-            for q in pts {
+            for q in &pts {
                 let (o, d) = beam.at_pupil(*q);
                 set.origins.push(o);
                 set.directions.push(d);
@@ -419,7 +513,7 @@ impl RaySet {
         };
         let mut b = RayBatch::collect_unit(self.pupil.iter().map(|q| beam.at_pupil(*q)));
         if chief {
-            let (o, d) = beam.at_pupil([0.0, 0.0]);
+            let (o, d) = beam.at_pupil(lens.vignetting_of(self.field).apply([0.0, 0.0]));
             b.push_in(o, d);
         }
         b

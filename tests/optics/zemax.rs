@@ -593,6 +593,22 @@ fn malformed_lines_are_errors_that_name_the_line() {
     );
     let t = replace_line(&base, "GLAS N-BK7", "  GLAS ___BLANK 1 0 1.5168");
     check(&t, "GLAS ___BLANK", &["a model glass needs n_d and V_d"]);
+    // Vignetting factors tolray cannot apply: a rotated pupil, a pupil of no size.
+    let t = base.replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVANN 0 0 12\n");
+    check(
+        &t,
+        "VANN",
+        &[
+            "field 3: vignetting angle (VANN) 12°",
+            "not a rotated vignetted pupil",
+        ],
+    );
+    let t = base.replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVCYN 0 1 0\n");
+    check(
+        &t,
+        "VCYN",
+        &["field 2: vignetting compression y 1", "below 1"],
+    );
     let t = replace_line(&base, "GLAS N-BK7", "  GLAS");
     check(&t, "GLAS", &["GLAS needs a glass name"]);
     let t = replace_line(&base, "GLAS N-BK7", "  GLAS N-BK77");
@@ -816,8 +832,12 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
     let t = replace_line(&base, "STOP", "  COMM no stop line");
     let z = warn(&t, "SURF 1", "no STOP line");
     assert_eq!(z.lens.stop_index(), Some(0));
-    let t = base.replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVDYN 0 0.1 0.2\n");
-    warn(&t, "VDYN", "vignetting factors ignored");
+    // Vignetting factors of fields tolray has no type for: not applied, said once.
+    let t = base
+        .replace("FTYP 0 0 3", "FTYP 2 0 3")
+        .replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVDYN 0 0.1 0.2\n");
+    let z = warn(&t, "VDYN", "vignetting factors not applied: tolray has no field of this file's type (paraxial image heights)");
+    assert!(z.lens.fields.is_empty());
     let t = base.replace("WAVM 1 0.4861327 1", "WAVM 1 0.25 1");
     warn(
         &t,
@@ -1954,4 +1974,152 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
         assert_eq!(j.surfaces[1].shape, front.shape, "{file}");
         assert_eq!(j.surfaces[1].asph, front.asph, "{file}");
     }
+}
+
+/// A .zmx file's own field points, as every command uses them by default: each ray of tolray's
+/// `grid:16` pupil, moved into the field's vignetted pupil (VDX/VDY/VCX/VCY), lands where
+/// optiland 0.6.3's own ray generator puts the same ray for that field (OpticStudio's field
+/// sign: a positive angle is a positive ray slope, so the file's +17° is tolray's -17°), to
+/// 1e-9 mm; the rays optiland loses, tolray loses. Files: vignetting factors on two fields, a
+/// decentred and tilted system with fields off both axes (where the mirrored field that tolray
+/// traced before lands 280 mm away), and object-height fields (`field_reference.json`,
+/// scripts/zmxref/field_reference.py).
+#[test]
+fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
+    let corpus = fixture("real");
+    let text = std::fs::read_to_string(corpus.join("field_reference.json")).unwrap();
+    let reference: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let mut vignetted = 0;
+    for file in reference["files"].as_array().unwrap() {
+        let rel = file["path"].as_str().unwrap();
+        let z = zemax::read_file(&corpus.join(rel), &GlassCatalogs::builtin()).unwrap();
+        let lens = &z.lens;
+        let fields = file["fields"].as_array().unwrap();
+        assert_eq!(lens.fields.len(), fields.len(), "{rel}");
+        let wl = file["wavelength_um"].as_f64().unwrap() * 1e3;
+        let para = lens.paraxial(wl).unwrap();
+        let sys = lens.compile();
+        for (k, (p, want)) in lens.fields.iter().zip(fields).enumerate() {
+            let at = format!("{rel} field {}", k + 1);
+            let (fx, fy) = (want["x"].as_f64().unwrap(), want["y"].as_f64().unwrap());
+            let expect = if file["field_type"] == "angle" {
+                Field::AngleDeg { x: -fx, y: -fy }
+            } else {
+                Field::HeightMm { x: fx, y: fy }
+            };
+            assert_eq!(p.field, expect, "{at}");
+            let v = &want["vignetting"];
+            let vig = [p.vignetting.decenter_x, p.vignetting.decenter_y];
+            let vig = [
+                vig[0],
+                vig[1],
+                p.vignetting.compress_x,
+                p.vignetting.compress_y,
+            ];
+            let vf = ["vdx", "vdy", "vcx", "vcy"].map(|key| v[key].as_f64().unwrap());
+            assert_eq!(vig, vf, "{at}");
+            vignetted += usize::from(!p.vignetting.is_none());
+            let set = tolray::trace::RaySet::generate(lens, &para, p.field, &Pupil::grid(16), wl)
+                .unwrap();
+            let pupil = want["pupil"].as_array().unwrap();
+            assert_eq!(set.pupil.len(), pupil.len(), "{at}");
+            for (q, w) in set.pupil.iter().zip(pupil) {
+                let w = [w[0].as_f64().unwrap(), w[1].as_f64().unwrap()];
+                assert!(
+                    (q[0] - w[0]).abs() < 1e-15 && (q[1] - w[1]).abs() < 1e-15,
+                    "{at}: pupil point {q:?} vs {w:?}"
+                );
+            }
+            let mut b = set.batch::<f64>();
+            trace(&sys, wl, &mut b, TraceOptions { apertures: false });
+            let [ix, iy] = z.extras.image_decenter_mm;
+            let hits = want["image_xy_mm"].as_array().unwrap();
+            let mut alive = 0;
+            for (i, (r, h)) in b.iter().zip(hits).enumerate() {
+                match (r.status.is_alive(), h.as_array()) {
+                    (true, Some(h)) => {
+                        let (x, y) = (r.o.x - ix, r.o.y - iy);
+                        let (hx, hy) = (h[0].as_f64().unwrap(), h[1].as_f64().unwrap());
+                        let tol = 1e-9 * (1.0 + hx.abs().max(hy.abs()));
+                        assert!(
+                            (x - hx).abs() < tol && (y - hy).abs() < tol,
+                            "{at} ray {i}: ({x}, {y}) vs optiland ({hx}, {hy})"
+                        );
+                        alive += 1;
+                    }
+                    (false, None) => {}
+                    (a, _) => panic!(
+                        "{at} ray {i}: tolray alive {a} ({:?}), optiland {h}",
+                        r.status
+                    ),
+                }
+            }
+            assert!(alive > 100, "{at}: {alive} rays");
+        }
+    }
+    assert_eq!(vignetted, 2);
+}
+
+/// Fields and vignetting factors survive .zmx -> JSON -> .zmx and .zmx -> .zmx: the same field
+/// points (OpticStudio's signs in both .zmx files), weights and factors, and the same rays.
+#[test]
+fn fields_and_vignetting_round_trip() {
+    let path = fixture("real").join("rayoptics/US00583336-2-scaled.zmx");
+    let z = zemax::read_file(&path, &GlassCatalogs::builtin()).unwrap();
+    let dir = std::env::temp_dir().join(format!("tolray-zmx-fields-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json_path = dir.join("lens.json");
+    json::write_file(&z.lens, &json_path).unwrap();
+    let from_json = json::read_file(&json_path).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(from_json.fields, z.lens.fields);
+    let again = zemax::from_str(
+        &zemax::to_string(&from_json, None),
+        &GlassCatalogs::builtin(),
+    )
+    .unwrap();
+    assert_eq!(again.lens.fields, z.lens.fields);
+    let same = zemax::from_str(
+        &zemax::to_string(&z.lens, Some(&z.extras)),
+        &GlassCatalogs::builtin(),
+    )
+    .unwrap();
+    assert_eq!(same.lens.fields, z.lens.fields);
+    assert_eq!(same.extras.fields, z.extras.fields);
+    let text = zemax::to_string(&from_json, None);
+    assert!(text.contains("YFLN 0 17 24"), "{text}");
+    assert!(
+        text.contains("VCYN 0 0.1556542586327 0.364762539196"),
+        "{text}"
+    );
+    // The rays of the vignetted field, from the file and from the round trip.
+    let p = &z.lens.fields[2];
+    assert!(!p.vignetting.is_none());
+    let rays = |l: &Lens| {
+        let para = l.paraxial(l.primary_wavelength_nm).unwrap();
+        tolray::trace::RaySet::generate(l, &para, p.field, &Pupil::grid(8), l.primary_wavelength_nm)
+            .unwrap()
+    };
+    let (a, b) = (rays(&z.lens), rays(&again.lens));
+    assert_eq!(a.pupil, b.pupil);
+    assert_eq!(a.directions, b.directions);
+    // Invalid field points in JSON are errors that say what is wrong.
+    let mut v = json::to_value(&z.lens);
+    v["fields"][1]["vignetting"]["vcy"] = serde_json::json!(1.5);
+    let e = json::from_value(&v).unwrap_err();
+    assert!(
+        e.message()
+            .contains("field 2: vignetting compression y 1.5"),
+        "{e}"
+    );
+    v["fields"][1]["vignetting"] = serde_json::json!({"vdq": 0.1});
+    let e = json::from_value(&v).unwrap_err();
+    assert!(e.message().contains("unknown key \"vdq\""), "{e}");
+    let mut v = json::to_value(&z.lens);
+    v["fields"][0] = serde_json::json!({"height_mm": [0, 1]});
+    let e = json::from_value(&v).unwrap_err();
+    assert!(
+        e.message().contains("all angles or all object heights"),
+        "{e}"
+    );
 }

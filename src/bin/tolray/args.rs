@@ -31,6 +31,10 @@ pub struct LensArgs {
     /// nothing, as in OpticStudio; hard apertures such as CLAP and the stop always clip).
     #[arg(long)]
     pub clip_at_semi_diameter: bool,
+    /// Trace the file's fields over the whole pupil, without their vignetting factors
+    /// (OpticStudio's VDX, VDY, VCX, VCY, which are applied by default).
+    #[arg(long)]
+    pub ignore_vignetting: bool,
 }
 
 impl LensArgs {
@@ -38,15 +42,11 @@ impl LensArgs {
         Ok(self.load_with_fields()?.0)
     }
 
-    /// The lens and, for a .zmx file, its field points (the default fields of the commands
-    /// that trace fields when `--fields` is not given).
+    /// The lens and the field points its file defines (a .zmx file's, or JSON `"fields"`):
+    /// the default fields of the commands that trace fields when `--fields` is not given.
     pub fn load_with_fields(&self) -> anyhow::Result<(Lens, Option<Vec<Field>>)> {
         let catalogs = load_catalogs(&self.glass_catalog, &self.glass_fallback)?;
-        let tolray::lens::Loaded {
-            mut lens,
-            warnings,
-            fields: file_fields,
-        } = Lens::load_file(&self.lens, &catalogs)?;
+        let tolray::lens::Loaded { mut lens, warnings } = Lens::load_file(&self.lens, &catalogs)?;
         for w in warnings {
             eprintln!("warning: {w}");
         }
@@ -56,9 +56,15 @@ impl LensArgs {
         if self.clip_at_semi_diameter {
             lens.clip_at_semi_diameters();
         }
+        if self.ignore_vignetting {
+            for p in &mut lens.fields {
+                p.vignetting = tolray::trace::Vignetting::default();
+            }
+        }
         // A field given as an object height needs the file's finite object.
-        let file_fields =
-            file_fields.filter(|_| self.object.is_none() || lens.object != Object::Infinite);
+        let file_fields = (!lens.fields.is_empty()
+            && (self.object.is_none() || lens.object != Object::Infinite))
+            .then(|| lens.fields.iter().map(|p| p.field).collect());
         Ok((lens, file_fields))
     }
 }
@@ -99,8 +105,9 @@ pub fn load_catalogs(paths: &[PathBuf], fallback: &str) -> anyhow::Result<GlassC
 
 #[derive(Args)]
 pub struct RayArgs {
-    /// Fields: fraction of the full field (0.7), angle (5deg) or object height (2.5mm); x:y pairs
-    /// allowed [default: a .zmx file's fields, else 0,0.5,0.7,1].
+    /// Fields: fraction of the full field (0.7), angle (5deg: the object 5° above the axis,
+    /// OpticStudio's -5°) or object height (2.5mm); x:y pairs allowed [default: the lens file's
+    /// fields, else 0,0.5,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
     /// Wavelengths in nm, or d, F, C, rgb (the lens' RGB wavelengths).
@@ -208,7 +215,7 @@ pub fn perturbed_system(
 /// The rays of the Monte Carlo commands (`tolerance`, `sensitivity`, `validate`).
 #[derive(Args)]
 pub struct RaySampleArgs {
-    /// Fields (fractions, 5deg angles or 2.5mm heights) [default: a .zmx file's fields, else
+    /// Fields (fractions, 5deg angles or 2.5mm heights) [default: the lens file's fields, else
     /// 0,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,

@@ -14,7 +14,7 @@ pub struct LayoutArgs {
     /// Output picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: PathBuf,
-    /// Fields (see `spot --fields`) [default: a .zmx file's fields, else 0,0.7,1].
+    /// Fields (see `spot --fields`) [default: the lens file's fields, else 0,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
     /// Rays per field fan.

@@ -112,6 +112,26 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
             ));
         }
     }
+    if !lens.fields.is_empty() {
+        s.push_str(&format!(
+            "\nFields of the lens file (the commands' default fields; tolray's sign: {})\n  {:>5} {:>22} {:>7} {:>8} {:>8} {:>8} {:>8}\n",
+            "a positive angle puts the object above the axis",
+            "field", "value", "weight", "VDX", "VDY", "VCX", "VCY"
+        ));
+        for (k, f) in lens.fields.iter().enumerate() {
+            let v = f.vignetting;
+            s.push_str(&format!(
+                "  {:>5} {:>22} {:>7.3} {:>8.4} {:>8.4} {:>8.4} {:>8.4}\n",
+                k + 1,
+                f.field.label(),
+                f.weight,
+                v.decenter_x,
+                v.decenter_y,
+                v.compress_x,
+                v.compress_y
+            ));
+        }
+    }
     for w in lens.warnings() {
         s.push_str(&format!("warning: {w}\n"));
     }
