@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Per-ray reference for tolray's toroidal and odd-asphere surfaces, traced by optiland.
+"""Per-ray reference for tolray's toroidal and odd-asphere surfaces and a virtual image plane,
+traced by optiland.
 
 Versions: optiland 0.6.3 (numpy backend, float64), Python 3.11. Generated once for the tolray
 project; tests read tests/data/zemax/shapes_reference.json and never run Python.
@@ -8,7 +9,8 @@ Usage (outside the repository root, so that nothing here is imported by tolray's
     python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
     /tmp/optvenv/bin/python scripts/zmxref/shapes_reference.py > tests/data/zemax/shapes_reference.json
 
-The two lenses are tests/data/zemax/toroid.zmx and oddasphere.zmx, built here in optiland from
+The lenses are tests/data/zemax/toroid.zmx, oddasphere.zmx and virtual-image.zmx (added
+2026-11-26; the first two entries unchanged), built here in optiland from
 the same numbers (not read from the .zmx: optiland 0.6.3's TOROIDAL reader takes PARM 2 as the
 radius of rotation, which OpticStudio and ray-optics put in PARM 1). The glass is a constant
 index 1.5168 on both sides (the files' `___BLANK 1 0 1.5168 0` model glass with V_d = 0), so
@@ -62,6 +64,19 @@ def oddasphere():
     return op
 
 
+def virtual_image():
+    """A biconcave lens whose image plane lies 39.0265 mm in front of its last surface: the
+    rays are extended backwards to it (optiland, like OpticStudio, propagates by the negative
+    thickness)."""
+    op = Optic()
+    op.add_surface(index=0, thickness=np.inf)
+    op.add_surface(index=1, thickness=2.0, is_stop=True)
+    op.add_surface(index=2, radius=-40.0, thickness=2.0, material=IdealMaterial(n=N_GLASS))
+    op.add_surface(index=3, radius=40.0, thickness=-39.0265)
+    op.add_surface(index=4)
+    return op
+
+
 def rays():
     g = np.arange(-4, 5) * 0.975
     pts = [(x, y) for x in g for y in g if x * x + y * y <= 3.9 ** 2]
@@ -101,6 +116,7 @@ if __name__ == "__main__":
         "generator": "scripts/zmxref/shapes_reference.py",
         "engine": "optiland 0.6.3 (numpy, float64)",
         "index": N_GLASS,
-        "lenses": {"toroid.zmx": trace(toroid(), rs), "oddasphere.zmx": trace(oddasphere(), rs)},
+        "lenses": {"toroid.zmx": trace(toroid(), rs), "oddasphere.zmx": trace(oddasphere(), rs),
+                   "virtual-image.zmx": trace(virtual_image(), rs)},
     }
     print(json.dumps(doc))

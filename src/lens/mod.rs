@@ -436,7 +436,8 @@ pub struct Lens {
     pub surfaces: Vec<Surface>,
     /// Object position.
     pub object: Object,
-    /// Image sensor (placed `surfaces.last().d_next_mm` behind the last vertex).
+    /// Image sensor (placed `surfaces.last().d_next_mm` behind the last vertex; a gap against
+    /// the travel puts it in front: a virtual image, to which rays are extended backwards).
     pub sensor: Sensor,
     /// Primary (design) wavelength, nm.
     pub primary_wavelength_nm: f64,
@@ -707,7 +708,9 @@ impl Lens {
                     s.semi_aperture_mm
                 )));
             }
-            if s.d_next_mm * dirs[i + 1] < 0.0 {
+            // The last gap may run against the travel: a virtual image plane (the rays are
+            // extended backwards to it, as OpticStudio does with a negative image thickness).
+            if s.d_next_mm * dirs[i + 1] < 0.0 && i + 1 < self.surfaces.len() {
                 return Err(at(if dirs[i + 1] > 0.0 {
                     format!("gap to the next surface {} mm is negative", s.d_next_mm)
                 } else {

@@ -1147,15 +1147,8 @@ impl Walker {
                 img.line, self.origin.x, self.origin.y
             ));
         }
-        if self.pending * self.dir < 0.0 {
-            return Err(invalid(
-                img.line,
-                format!(
-                    "the image surface lies {} mm before the last lens surface along the light's path",
-                    self.pending.abs()
-                ),
-            ));
-        }
+        // An image surface before the last lens surface along the light's path is a virtual
+        // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
         let Some(last) = self.built.last_mut() else {
             return Err(Error::invalid(
                 "the file has no lens surface between the object and the image",

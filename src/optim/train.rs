@@ -402,14 +402,19 @@ fn learning_rates(lens: &Lens, vars: &[Param], cfg: &TrainConfig) -> Vec<f64> {
 }
 
 /// Projects the variables back into their bounds: gaps at least their minimum along the light's
-/// path (toward −z after an odd number of mirrors, where gaps are negative), curvatures inside
-/// the rim of their clear aperture.
+/// path (toward −z after an odd number of mirrors, where gaps are negative; a virtual image's
+/// gap at least 1 mm on its own side), curvatures inside the rim of their clear aperture.
 pub(crate) fn project(lens: &mut Lens, c: &Constraints) {
     let n = lens.surfaces.len();
     let dirs = lens.travel_directions();
     for i in 0..n {
-        let dir = dirs[i + 1];
         let s = &mut lens.surfaces[i];
+        // A virtual image plane (the last gap against the travel) stays on its side.
+        let dir = if i == n - 1 && s.d_next_mm * dirs[i + 1] < 0.0 {
+            -dirs[i + 1]
+        } else {
+            dirs[i + 1]
+        };
         let min = if i == n - 1 {
             1.0
         } else if s.material.is_air() {

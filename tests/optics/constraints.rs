@@ -140,3 +140,30 @@ fn mirror_systems_keep_their_negative_gaps() {
     let d = state.lens.surfaces[0].d_next_mm;
     assert!((-0.2..=-0.1).contains(&d), "{d}");
 }
+
+/// A lens with a virtual image (its image plane in front of the last surface) trains with the
+/// image plane kept on that side: the projection bounds the image gap by 1 mm on its own side
+/// instead of flipping it to +1 mm (which would turn the virtual image into a real plane 1 mm
+/// behind the lens).
+#[test]
+fn a_virtual_image_stays_virtual() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/zemax/virtual-image.zmx"
+    );
+    let lens = tolray::lens::zemax::read_file(
+        std::path::Path::new(path),
+        &tolray::lens::GlassCatalogs::builtin(),
+    )
+    .unwrap()
+    .lens;
+    let out = pretrain(&lens, 10, Constraints::default());
+    let gap = out.surfaces.last().unwrap().d_next_mm;
+    assert!((-45.0..-30.0).contains(&gap), "{gap}");
+    // Squeezed toward the lens, it stops at -1 mm.
+    let mut near = lens.clone();
+    near.surfaces.last_mut().unwrap().d_next_mm = -0.2;
+    let out = pretrain(&near, 1, Constraints::default());
+    let gap = out.surfaces.last().unwrap().d_next_mm;
+    assert!((-1.1..=-1.0).contains(&gap), "{gap}");
+}

@@ -1,6 +1,7 @@
 //! Exact dual-number gradients against central finite differences, for every variable kind, on
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
-//! odd-asphere and an ideal-thin-lens system, nominal and perturbed.
+//! odd-asphere and an ideal-thin-lens system and a lens with a virtual image, nominal and
+//! perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -99,6 +100,15 @@ fn step(lens: &Lens, p: Param) -> f64 {
         }
         // Gaps: the launch (entrance pupil, field angle) moves with them too, and re-launching
         // at each step adds rounding a smaller step would magnify.
+        // A virtual image's gap (against the travel): behind a fast negative lens the loss
+        // curves fast in it (at 3.9e-3 mm the difference quotient is 1.4e-6 off; it converges
+        // to the dual value, 1e-9 at 1e-3 mm and 1e-11 at 1e-4 mm).
+        Param::Gap(i)
+            if i + 1 == lens.surfaces.len()
+                && lens.surfaces[i].d_next_mm * lens.travel_directions()[i + 1] < 0.0 =>
+        {
+            1e-5 * v
+        }
         Param::Gap(_) => 1e-4 * v.max(1.0),
         Param::GlassNd(_) => 1e-7,
         Param::GlassVd(_) => 1e-4,
@@ -148,6 +158,7 @@ fn gradients_match_finite_differences_nominal() {
     check("toroid", &zmx("toroid.zmx"), false);
     check("odd asphere", &zmx("oddasphere.zmx"), false);
     check("ideal thin lens", &zmx("thinlens.zmx"), false);
+    check("virtual image", &zmx("virtual-image.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -184,6 +195,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("toroid", &zmx("toroid.zmx"), true);
     check("odd asphere", &zmx("oddasphere.zmx"), true);
     check("ideal thin lens", &zmx("thinlens.zmx"), true);
+    check("virtual image", &zmx("virtual-image.zmx"), true);
 }
 
 #[test]

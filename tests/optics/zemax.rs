@@ -1907,7 +1907,9 @@ fn mirror_systems_round_trip_through_zmx() {
 /// every ray as optiland 0.6.3 does with the same surfaces (tests/data/zemax/
 /// shapes_reference.json, scripts/zmxref/shapes_reference.py: 147 rays in three directions
 /// through each lens): image positions to 1e-9 mm, directions to 1e-11; and they survive
-/// .zmx -> JSON -> .zmx.
+/// .zmx -> JSON -> .zmx. Also a virtual image (a negative lens whose image plane lies 39 mm in
+/// front of its last surface, OpticStudio's negative image thickness): the rays are extended
+/// backwards to it, as optiland does.
 #[test]
 fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
     use tolray::lens::Shape;
@@ -1933,6 +1935,14 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
                 assert_eq!(front.shape, Shape::Toroidal { c_rot: 1.0 / 40.0 });
                 assert_eq!(front.asph[..3], [0.0, -2e-6, 3e-9]);
                 assert_eq!(lens.surfaces[2].shape, Shape::Toroidal { c_rot: 0.0 });
+            }
+            "virtual-image.zmx" => {
+                // The image plane 39.0265 mm in front of the last surface, at the paraxial
+                // virtual focus: the rays are extended backwards to it.
+                assert_eq!(lens.surfaces[2].d_next_mm, -39.0265);
+                let p = lens.paraxial(LAMBDA_D_NM).unwrap();
+                assert!((p.bfd_mm + 39.0265).abs() < 1e-4, "{}", p.bfd_mm);
+                assert!(p.efl_mm < -38.0);
             }
             _ => {
                 assert_eq!(front.shape, Shape::Odd);
@@ -1960,6 +1970,10 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
             worst.1 = worst.1.max((k.d - v3(&r["image_dir"])).norm());
         }
         assert!(rays.len() == 147, "{file}");
+        if file == "virtual-image.zmx" {
+            // Every ray ends in front of the lens, where no real ray goes.
+            assert!((0..rays.len()).all(|i| (b.get(i).o.z + 35.0265).abs() < 1e-12));
+        }
         assert!(
             worst.0 < 1e-9 && worst.1 < 1e-11,
             "{file}: worst position {:e} mm, direction {:e}",
@@ -1973,6 +1987,8 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
         let j = json::from_str(&json::to_string(lens)).unwrap();
         assert_eq!(j.surfaces[1].shape, front.shape, "{file}");
         assert_eq!(j.surfaces[1].asph, front.asph, "{file}");
+        let gap = |l: &Lens| l.surfaces.last().unwrap().d_next_mm;
+        assert_eq!((gap(&back), gap(&j)), (gap(lens), gap(lens)), "{file}");
     }
 }
 
