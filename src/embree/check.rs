@@ -580,11 +580,10 @@ fn used_radii(sys: &System<f64>, rays: &Bundles, indices: &[Vec<f64>]) -> Vec<f6
                 let mut dn = dl;
                 if row.refract {
                     let nrm = unit_normal(grad);
-                    let n1 = if i == 0 { 1.0 } else { n[i - 1] };
                     let bent = if row.reflect {
                         Some(dl - nrm * (2.0 * dl.dot(nrm)))
                     } else {
-                        refract(dl, nrm, n1, n[i])
+                        refract(dl, nrm, n[i], n[i + 1])
                     };
                     match bent {
                         Some(v) => dn = v,
@@ -692,10 +691,9 @@ pub fn check_system(
             let t0 = Instant::now();
             for (b, rs) in states[m].iter_mut().enumerate() {
                 let n = &indices[b];
-                let n1 = if i == 0 { 1.0 } else { n[i - 1] };
                 for s in rs.iter_mut().filter(|s| s.status.is_alive()) {
                     let q = st.query(s.o, s.d);
-                    st.advance(s, &q, mode, n1, n[i]);
+                    st.advance(s, &q, mode, n[i], n[i + 1]);
                     queries.push(q);
                 }
             }

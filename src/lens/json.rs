@@ -19,6 +19,9 @@
 //! and `ai` describe the y-z profile, OpticStudio TOROIDAL). DeepLens' `ThinLens` (`"f"`, the
 //! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
 //!
+//! A top-level `"object_medium"` (a medium written as `mat2` is) names the object space's
+//! medium when it is not air (a .zmx `GLAS` on `SURF 0`, immersion optics).
+//!
 //! A top-level `"fields"` array keeps the field points of the lens' file (a .zmx file's, read
 //! and converted): `{"angle_deg": [x, y]}` or `{"height_mm": [x, y]}`, an optional `"weight"`,
 //! and optional vignetting factors `"vignetting": {"vdx": 0, "vdy": 0.06, "vcx": 0, "vcy": 0.16}`
@@ -452,6 +455,18 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         sensor,
         primary_wavelength_nm: primary_um * 1e3,
         rgb_wavelengths_nm: rgb_um.map(|w| w * 1e3),
+        object_medium: match top.get("object_medium") {
+            None => Material::Air,
+            Some(Value::String(m)) => {
+                Material::parse_with(m, catalogs).map_err(|e| e.context("\"object_medium\""))?
+            }
+            Some(other) => return Err(Error::new(
+                ErrorKind::Parse,
+                format!(
+                    "\"object_medium\" must be a string (a medium as in \"mat2\"), found {other}"
+                ),
+            )),
+        },
         fields: fields(top)?,
         ray_aiming: match top.get("ray_aiming") {
             None => false,
@@ -657,6 +672,12 @@ pub fn to_value(lens: &Lens) -> Value {
     top.insert("sensor_res".into(), json!(lens.sensor.resolution));
     if lens.ray_aiming {
         top.insert("ray_aiming".into(), json!(true));
+    }
+    if !lens.object_medium.is_air() {
+        top.insert(
+            "object_medium".into(),
+            json!(lens.object_medium.json_name()),
+        );
     }
     if let Some(f) = fields_value(&lens.fields) {
         top.insert("fields".into(), f);

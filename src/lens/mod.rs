@@ -447,6 +447,9 @@ pub struct Lens {
     /// `"ray_aiming": true`) instead of at the paraxial entrance pupil. The CLI's `--aim` and
     /// `--no-aim` override it.
     pub ray_aiming: bool,
+    /// The medium in front of the first surface (object space): air unless the lens file names
+    /// another (a .zmx `GLAS` on `SURF 0`; JSON `"object_medium"`), as for immersion optics.
+    pub object_medium: Material,
     /// The field points the lens file defines, with their vignetting factors (a .zmx file's
     /// fields; JSON `"fields"`): the CLI's default fields when `--fields` is not given. Rays of
     /// a field equal to one of them fill its vignetted pupil ([`Lens::vignetting_of`]). Empty
@@ -603,10 +606,14 @@ impl Lens {
     /// with a glass; it was once passed straight through, which changed the optics).
     pub fn refracts(&self, i: usize) -> bool {
         let s = &self.surfaces[i];
-        let before = i
-            .checked_sub(1)
-            .map_or(&Material::Air, |j| &self.surfaces[j].material);
-        s.role != SurfaceRole::Aperture || s.material != *before
+        s.role != SurfaceRole::Aperture || s.material != *self.medium_before(i)
+    }
+
+    /// The medium in front of surface `i`: the object medium for the first surface, else the
+    /// medium after surface `i - 1`.
+    pub fn medium_before(&self, i: usize) -> &Material {
+        i.checked_sub(1)
+            .map_or(&self.object_medium, |j| &self.surfaces[j].material)
     }
 
     /// Axial vertex positions of every surface and, last, of the image plane, mm (first vertex at 0).
@@ -674,9 +681,7 @@ impl Lens {
                             .into(),
                     ));
                 }
-                let before = i
-                    .checked_sub(1)
-                    .map_or(&Material::Air, |j| &self.surfaces[j].material);
+                let before = self.medium_before(i);
                 if s.role != SurfaceRole::Refractive || s.material != *before {
                     return Err(at(format!(
                         "an ideal thin lens sits in one medium; here {} before it and {} after",
@@ -721,9 +726,7 @@ impl Lens {
                 }));
             }
             if s.role == SurfaceRole::Mirror {
-                let before = i
-                    .checked_sub(1)
-                    .map_or(&Material::Air, |j| &self.surfaces[j].material);
+                let before = self.medium_before(i);
                 if s.material != *before {
                     return Err(at(
                         "a mirror's medium must be the one before it (the light travels back in it)"
@@ -811,6 +814,14 @@ impl Lens {
     /// # Errors
     /// [`crate::ErrorKind::Invalid`] naming the surface, the material, the wavelength and the index.
     pub fn check_indices(&self, wavelength_nm: f64) -> Result<()> {
+        let n = self.object_medium.index(wavelength_nm);
+        if !(material::MIN_INDEX..=5.0).contains(&n) {
+            return Err(Error::invalid(format!(
+                "the object medium ({}) has index {n} at {wavelength_nm} nm; a usable index is \
+                 finite and between 0.9 and 5",
+                self.object_medium.json_name()
+            )));
+        }
         for (i, s) in self.surfaces.iter().enumerate() {
             let n = s.material.index(wavelength_nm);
             if !(material::MIN_INDEX..=5.0).contains(&n) {

@@ -59,6 +59,8 @@ struct Prescription<S> {
     bends: Vec<bool>,
     n: Vec<S>,
     gap: Vec<S>,
+    /// Index of the object medium.
+    n_object: S,
 }
 
 impl Prescription<f64> {
@@ -78,6 +80,7 @@ impl<S: Real> Prescription<S> {
             bends: Vec::with_capacity(lens.surfaces.len()),
             n: Vec::with_capacity(lens.surfaces.len()),
             gap: Vec::with_capacity(lens.surfaces.len()),
+            n_object: S::cst(lens.object_medium.index(wavelength_nm)),
         };
         for (i, s) in lens.surfaces.iter().enumerate() {
             let c = lift(Param::Curvature(i), S::cst(s.c));
@@ -89,7 +92,7 @@ impl<S: Real> Prescription<S> {
             // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
             p.thin_power.push(match s.shape {
                 Shape::Paraxial { focal_mm } => {
-                    let n_before = p.n.last().copied().unwrap_or(S::cst(1.0));
+                    let n_before = p.n.last().copied().unwrap_or(p.n_object);
                     n_before / S::cst(focal_mm)
                 }
                 _ => S::cst(0.0),
@@ -118,7 +121,7 @@ impl<S: Real> Prescription<S> {
         let last = self.n.len() - 1;
         for i in start..self.n.len() {
             heights[i] = y;
-            let n0 = if i == 0 { S::cst(1.0) } else { self.n[i - 1] };
+            let n0 = if i == 0 { self.n_object } else { self.n[i - 1] };
             if self.bends[i] {
                 let power = self.curvature[i] * (self.n[i] - n0) + self.thin_power[i];
                 u = (n0 * u - y * power) / self.n[i];
@@ -292,7 +295,10 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         Object::Finite { distance_mm } => {
             let u0 = enp_r / (enp_z + distance_mm);
             let r = p.ynu(0, u0 * distance_mm, u0);
-            (1.0 / (2.0 * r.u_last.abs()), u0 / (n_last * r.u_last))
+            (
+                1.0 / (2.0 * r.u_last.abs()),
+                p.n_object * u0 / (n_last * r.u_last),
+            )
         }
     };
     for (what, v) in [

@@ -215,6 +215,8 @@ pub struct System<S> {
     /// True when the last gap runs against the travel (a virtual image plane; see
     /// [`SurfaceRow::virtual_ok`]).
     pub image_virtual: bool,
+    /// Medium in front of the first surface (object space).
+    pub object_medium: Material,
     /// Medium after each surface.
     pub materials: Vec<Material>,
     /// Lifted (n_d, V_d) of each model glass (None for other materials), so that indices carry
@@ -332,6 +334,7 @@ impl<S: Real> System<S> {
                 .surfaces
                 .last()
                 .is_some_and(|s| s.d_next_mm * dirs[dirs.len() - 1] < 0.0),
+            object_medium: lens.object_medium.clone(),
             materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
             model_glass: lens
                 .surfaces
@@ -349,16 +352,21 @@ impl<S: Real> System<S> {
         }
     }
 
-    /// Refractive index after each surface at `wavelength_nm` (the object space is air).
+    /// Refractive indices at `wavelength_nm`: `n[0]` of the object medium, then `n[i + 1]`
+    /// after surface `i` (so surface `i` goes from `n[i]` to `n[i + 1]`; `rows.len() + 1`
+    /// values).
     pub fn indices(&self, wavelength_nm: f64) -> Vec<S> {
-        self.materials
+        let after = self
+            .materials
             .iter()
             .zip(&self.model_glass)
             .map(|(m, g)| match g {
                 // The model glass' Cauchy law, evaluated in S.
                 Some((nd, vd)) => crate::lens::material::model_index(*nd, *vd, wavelength_nm),
                 None => S::cst(m.index(wavelength_nm)),
-            })
+            });
+        std::iter::once(S::cst(self.object_medium.index(wavelength_nm)))
+            .chain(after)
             .collect()
     }
 
@@ -396,6 +404,7 @@ impl<S: Real> System<S> {
             },
             image_rotated: self.image_rotated,
             image_virtual: self.image_virtual,
+            object_medium: self.object_medium.clone(),
             materials: self.materials.clone(),
             model_glass: self
                 .model_glass

@@ -1172,7 +1172,7 @@ fn object_distance(
     scale: f64,
     catalogs: &GlassCatalogs,
     warnings: &mut Vec<String>,
-) -> Result<Option<f64>> {
+) -> Result<(Option<f64>, Material)> {
     if let Some(t) = &obj.ty {
         if t.v != "STANDARD" {
             warnings.push(format!(
@@ -1184,26 +1184,28 @@ fn object_distance(
     if let Some(l) = obj.stop {
         return Err(invalid(l, "the object surface cannot be the stop"));
     }
-    if let Some(g) = &obj.glas {
-        if !glass(&g.v, g.line, catalogs, warnings)?.is_air() {
+    // A glass on the object surface is the object space's medium (immersion optics).
+    let medium = match &obj.glas {
+        Some(g) => glass(&g.v, g.line, catalogs, warnings)?,
+        None => Material::Air,
+    };
+    let distance = match &obj.disz {
+        None => {
             return Err(invalid(
-                g.line,
-                "tolray's object space is air; the object surface must have no glass",
-            ));
+                obj.line,
+                "SURF 0 has no DISZ (the object distance, or INFINITY)",
+            ))
         }
-    }
-    match &obj.disz {
-        None => Err(invalid(
-            obj.line,
-            "SURF 0 has no DISZ (the object distance, or INFINITY)",
-        )),
-        Some(At { v: None, .. }) => Ok(None),
-        Some(At { v: Some(d), line }) if !(*d > 0.0) => Err(invalid(
-            *line,
-            format!("object distance {d}: it must be positive (or INFINITY)"),
-        )),
-        Some(At { v: Some(d), .. }) => Ok(Some(d * scale)),
-    }
+        Some(At { v: None, .. }) => None,
+        Some(At { v: Some(d), line }) if !(*d > 0.0) => {
+            return Err(invalid(
+                *line,
+                format!("object distance {d}: it must be positive (or INFINITY)"),
+            ))
+        }
+        Some(At { v: Some(d), .. }) => Some(d * scale),
+    };
+    Ok((distance, medium))
 }
 
 /// Field type and points (lengths in mm), with their vignetting factors.
@@ -1339,7 +1341,7 @@ fn build(
     } else {
         catalogs
     };
-    let object = object_distance(&surfs[0], scale, catalogs, &mut warnings)?;
+    let (object, object_medium) = object_distance(&surfs[0], scale, catalogs, &mut warnings)?;
 
     let mut walk = Walker {
         origin: Vec3::cst(0.0, 0.0, 0.0),
@@ -1348,7 +1350,7 @@ fn build(
         object_gap: None,
         first_vertex: Vec3::cst(0.0, 0.0, 0.0),
         dir: 1.0,
-        medium: Material::Air,
+        medium: object_medium.clone(),
         last_cb_line: None,
         stop_line: None,
         built: Vec::new(),
@@ -1398,6 +1400,7 @@ fn build(
         primary_wavelength_nm: spec.primary_nm,
         rgb_wavelengths_nm: spec.rgb_nm,
         ray_aiming: h.raim.as_ref().is_some_and(|r| r.v != 0),
+        object_medium,
         fields: Vec::new(),
     };
     if let Object::Finite { distance_mm } = lens.object {
@@ -1668,12 +1671,14 @@ fn stop_semi_aperture(
                     "OBNA (object-space NA) needs an object at a finite distance",
                 ));
             };
-            if !(na > 0.0 && na < 1.0) {
+            // NA = n sin θ in the object medium.
+            let n0 = lens.object_medium.index(lens.primary_wavelength_nm);
+            if !(na > 0.0 && na < n0) {
                 return Err(Error::invalid(format!(
-                    "OBNA {na} must be between 0 and 1 (object space is air)"
+                    "OBNA {na} must be between 0 and the object medium's index {n0}"
                 )));
             }
-            2.0 * na.asin().tan() * (p.entrance_pupil_z_mm + distance_mm)
+            2.0 * (na / n0).asin().tan() * (p.entrance_pupil_z_mm + distance_mm)
         }
         ZmxAperture::FloatByStop => p.entrance_pupil_diameter_mm,
     };
@@ -1928,8 +1933,10 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         if lens.ray_aiming { 2 } else { 0 }
     ));
     let mut gcat: Vec<String> = extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default();
-    for s in &lens.surfaces {
-        let c = match &s.material {
+    let media =
+        std::iter::once(&lens.object_medium).chain(lens.surfaces.iter().map(|s| &s.material));
+    for m in media {
+        let c = match m {
             Material::Catalog(g) => Some(gcat_name(g.vendor)),
             Material::Agf(g) => Some(g.catalog.clone()),
             _ => None,
@@ -2039,17 +2046,16 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         }
         k += 1;
     };
-    surf(
-        &mut w,
-        vec![
-            "TYPE STANDARD".into(),
-            "CURV 0".into(),
-            match lens.object {
-                Object::Infinite => "DISZ INFINITY".into(),
-                Object::Finite { distance_mm } => format!("DISZ {}", fmt(distance_mm)),
-            },
-        ],
-    );
+    let mut object = vec![
+        "TYPE STANDARD".into(),
+        "CURV 0".into(),
+        match lens.object {
+            Object::Infinite => "DISZ INFINITY".into(),
+            Object::Finite { distance_mm } => format!("DISZ {}", fmt(distance_mm)),
+        },
+    ];
+    object.extend(glas_line(&lens.object_medium));
+    surf(&mut w, object);
     // With no marked stop, tolray's paraxial model takes the surface that limits the axial
     // beam; mark that one, or OpticStudio (and the reader) would take the first surface.
     let stop = lens.stop_index().or_else(|| {

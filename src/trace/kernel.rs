@@ -155,8 +155,8 @@ pub(crate) fn trace_blocks_generic<S: Real>(
         // when i is odd. Two call sites rather than swapped references: with the references
         // swapped, most f64 loops stayed scalar.
         for (i, row) in sys.rows.iter().enumerate() {
-            let n1 = if i == 0 { S::cst(1.0) } else { n[i - 1] };
-            let eta = n1 / n[i];
+            let n1 = n[i];
+            let eta = n1 / n[i + 1];
             let code = i as u32;
             if i % 2 == 0 {
                 surface(row, n1, eta, code, clip, group, scratch);

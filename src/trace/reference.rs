@@ -165,7 +165,8 @@ pub fn refract(dl: Vec3<f64>, nrm: Vec3<f64>, n1: f64, n2: f64) -> Option<Vec3<f
     Some(tang + nrm * ((1.0 - s2).sqrt() * cos1.signum()))
 }
 
-/// Traces one ray through `sys` with indices `n` (after each surface), up to and including
+/// Traces one ray through `sys` with indices `n` (as [`System::indices`] gives them: the object
+/// medium's, then the one after each surface), up to and including
 /// surface `upto` (or to the image plane when `upto` is `None`). Returns the state in the global
 /// frame after that surface.
 pub fn trace_ray(
@@ -204,15 +205,14 @@ pub fn trace_ray(
             let nrm = unit_normal(grad);
             dn = dl - nrm * (2.0 * dl.dot(nrm));
         } else if row.refract {
-            let n1 = if i == 0 { 1.0 } else { n[i - 1] };
             // Unit normal along +z-ish, then Snell on the tangential component.
             let nrm = unit_normal(grad);
-            match refract(dl, nrm, n1, n[i]) {
+            match refract(dl, nrm, n[i], n[i + 1]) {
                 Some(v) => dn = v,
                 None => return fail(RayStatus::Tir(i as u32)),
             }
         }
-        opl += (if i == 0 { 1.0 } else { n[i - 1] }) * t;
+        opl += n[i] * t;
         o = row.rot.apply(h) + row.pos;
         d = row.rot.apply(dn);
     }

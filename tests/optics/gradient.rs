@@ -1,7 +1,7 @@
 //! Exact dual-number gradients against central finite differences, for every variable kind, on
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
-//! odd-asphere and an ideal-thin-lens system and a lens with a virtual image, nominal and
-//! perturbed.
+//! odd-asphere and an ideal-thin-lens system, a lens with a virtual image and one with its
+//! object in water, nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -46,6 +46,14 @@ fn asphere_lens() -> Lens {
     s1.k = 1.5;
     l.surfaces = vec![s0, s1];
     l.object = Object::Infinite;
+    l
+}
+
+/// The aspheric lens of [`asphere_lens`] with its object 60 mm away in water (n = 1.333).
+fn immersed() -> Lens {
+    let mut l = asphere_lens();
+    l.object = Object::Finite { distance_mm: 60.0 };
+    l.object_medium = Material::Constant(1.333);
     l
 }
 
@@ -159,6 +167,7 @@ fn gradients_match_finite_differences_nominal() {
     check("odd asphere", &zmx("oddasphere.zmx"), false);
     check("ideal thin lens", &zmx("thinlens.zmx"), false);
     check("virtual image", &zmx("virtual-image.zmx"), false);
+    check("immersed", &immersed(), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -196,6 +205,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("odd asphere", &zmx("oddasphere.zmx"), true);
     check("ideal thin lens", &zmx("thinlens.zmx"), true);
     check("virtual image", &zmx("virtual-image.zmx"), true);
+    check("immersed", &immersed(), true);
 }
 
 #[test]

@@ -14,8 +14,17 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         Object::Infinite => "infinity".to_string(),
         Object::Finite { distance_mm } => format!("{distance_mm} mm"),
     };
+    let medium = if lens.object_medium.is_air() {
+        String::new()
+    } else {
+        format!(
+            ", in {} (n = {:.6})",
+            lens.object_medium.json_name(),
+            lens.object_medium.index(p.wavelength_nm)
+        )
+    };
     let mut s = format!(
-        "{}\n\nParaxial data at {:.4} nm (object at {obj})\n",
+        "{}\n\nParaxial data at {:.4} nm (object at {obj}{medium})\n",
         lens.info, p.wavelength_nm
     );
     let rows = [
