@@ -460,12 +460,14 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
             Some(Value::String(m)) => {
                 Material::parse_with(m, catalogs).map_err(|e| e.context("\"object_medium\""))?
             }
-            Some(other) => return Err(Error::new(
-                ErrorKind::Parse,
-                format!(
+            Some(other) => {
+                return Err(Error::new(
+                    ErrorKind::Parse,
+                    format!(
                     "\"object_medium\" must be a string (a medium as in \"mat2\"), found {other}"
                 ),
-            )),
+                ))
+            }
         },
         fields: fields(top)?,
         ray_aiming: match top.get("ray_aiming") {
