@@ -415,7 +415,9 @@ fn newton_xy<S: Real>(
     }
     let h = p + d * t;
     let (_, zx, zy, in_rim) = sag_xy(row, h.x, h.y);
-    ok &= converged && in_rim;
+    // A slope that overflows (an absurd high-order term far out) gives no normal: a miss, not
+    // a ray whose NaN direction would pass later surfaces as alive.
+    ok &= converged && in_rim && zx.value().is_finite() && zy.value().is_finite();
     (t, ok, Vec3::new(zx, zy, -S::cst(1.0)))
 }
 
@@ -500,7 +502,8 @@ fn intersect<S: Real, const KIND: u8>(
     }
     let h = p + d * t;
     let (_, dz, in_rim) = asphere_sag(row, h.x * h.x + h.y * h.y);
-    ok &= converged && in_rim;
+    // As in newton_xy: an overflowing slope is a miss.
+    ok &= converged && in_rim && dz.value().is_finite();
     let two = S::cst(2.0);
     (t, ok, Vec3::new(two * h.x * dz, two * h.y * dz, -one))
 }

@@ -129,7 +129,10 @@ fn newton(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t: f64) -> Option<
         t -= step;
         if step.abs() < 1e-13 * (1.0 + t.abs()) {
             let h = p + dl * t;
-            return surface_sag_xy(row, h.x, h.y).map(|(_, zx, zy)| (t, [zx, zy]));
+            // An overflowing slope gives no normal: a miss (as the kernel).
+            return surface_sag_xy(row, h.x, h.y)
+                .filter(|&(_, zx, zy)| zx.is_finite() && zy.is_finite())
+                .map(|(_, zx, zy)| (t, [zx, zy]));
         }
     }
     None
