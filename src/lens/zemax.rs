@@ -182,30 +182,28 @@ fn field_points(
     fields: &[ZmxField],
     lens: &Lens,
 ) -> Option<Vec<FieldPoint>> {
-    {
-        if fields.is_empty() {
-            return None;
-        }
-        let to = |f: &ZmxField| {
-            let field = match field_type {
-                // 0 - v, not -v: a zero stays +0 (labels print no "-0").
-                ZmxFieldType::AngleDeg => Field::AngleDeg {
-                    x: 0.0 - f.x,
-                    y: 0.0 - f.y,
-                },
-                ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
-                    Field::HeightMm { x: f.x, y: f.y }
-                }
-                _ => return None,
-            };
-            Some(FieldPoint {
-                field,
-                weight: f.weight,
-                vignetting: f.vignetting,
-            })
-        };
-        fields.iter().map(to).collect()
+    if fields.is_empty() {
+        return None;
     }
+    let to = |f: &ZmxField| {
+        let field = match field_type {
+            // 0 - v, not -v: a zero stays +0 (labels print no "-0").
+            ZmxFieldType::AngleDeg => Field::AngleDeg {
+                x: 0.0 - f.x,
+                y: 0.0 - f.y,
+            },
+            ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
+                Field::HeightMm { x: f.x, y: f.y }
+            }
+            _ => return None,
+        };
+        Some(FieldPoint {
+            field,
+            weight: f.weight,
+            vignetting: f.vignetting,
+        })
+    };
+    fields.iter().map(to).collect()
 }
 
 /// What a .zmx file holds beyond the [`Lens`]: kept so that a file read and written again keeps

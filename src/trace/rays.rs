@@ -433,7 +433,8 @@ impl RaySet {
         let mut set = RaySet {
             origins: Vec::with_capacity(pts.len()),
             directions: Vec::with_capacity(pts.len()),
-            pupil: pts.clone(),
+            // Filled with `pts` at the end (one copy of the pupil points, not two).
+            pupil: Vec::new(),
             chief: beam.at_pupil(centre),
             field,
             unreachable: None,
@@ -473,6 +474,7 @@ impl RaySet {
                 set.directions.push(d);
             }
         }
+        set.pupil = pts;
         Ok(set)
     }
 
