@@ -778,7 +778,7 @@ pub fn layout_figure(
             let mut pts = vec![(z0, o.y + d.y * ((z0 - o.z) / d.z))];
             for i in 0..=lens.surfaces.len() {
                 let upto = (i < lens.surfaces.len()).then_some(i);
-                let r = trace_ray(sys, &n, o, d, true, upto);
+                let r = trace_ray(sys, &n, wavelength_nm, o, d, true, upto);
                 if !r.status.is_alive() {
                     break;
                 }

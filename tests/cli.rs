@@ -105,6 +105,7 @@ fn raw_trace_round_trip() {
     let r = tolray::trace::reference::trace_ray(
         &sys,
         &n,
+        587.5618,
         tolray::math::Vec3::new(0.0, 1.0, -10.0),
         tolray::math::Vec3::new(0.0, 0.0, 1.0),
         true,

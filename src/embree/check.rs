@@ -518,11 +518,12 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 }
 
 /// Refuses surfaces the check cannot mesh or trace: it tessellates even aspheres (rings of equal
-/// sag) and refracts with Snell's law, so odd aspheres, toroids and ideal thin lenses are
-/// refused by name.
+/// sag) and refracts with Snell's law, so odd aspheres, toroids, ideal thin lenses and gratings
+/// are refused by name.
 fn supported(sys: &System<f64>) -> Result<()> {
     for (i, row) in sys.rows.iter().enumerate() {
         let what = match row.shape {
+            _ if row.grating.is_some() => "a diffraction grating",
             crate::lens::Shape::Even => continue,
             crate::lens::Shape::Odd => "an odd asphere",
             crate::lens::Shape::Toroidal { .. } => "a toroid",
@@ -809,7 +810,7 @@ pub fn check_system(
         let t0 = Instant::now();
         let mut alive_ref = 0usize;
         for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
-            let r = trace_ray(sys, &indices[b], *o, *d, true, None);
+            let r = trace_ray(sys, &indices[b], bundle.wavelength_nm, *o, *d, true, None);
             alive_ref += r.status.is_alive() as usize;
         }
         timing.reference_s += t0.elapsed().as_secs_f64();

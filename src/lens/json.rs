@@ -19,6 +19,11 @@
 //! and `ai` describe the y-z profile, OpticStudio TOROIDAL). DeepLens' `ThinLens` (`"f"`, the
 //! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
 //!
+//! Two more surface keys of tolray's: `"roll_deg"`, the surface's rotation about its own axis
+//! (degrees; [`Surface::roll_deg`]), and `"grating": {"lines_per_um": 0.6, "order": 1}`, a
+//! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
+//! DGRATING; [`super::Grating`]).
+//!
 //! A top-level `"object_medium"` (a medium written as `mat2` is) names the object space's
 //! medium when it is not air (a .zmx `GLAS` on `SURF 0`, immersion optics).
 //!
@@ -28,8 +33,8 @@
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::{
-    Aperture, ApertureShape, GlassCatalogs, Lens, Material, Object, Sensor, Shape, Surface,
-    SurfaceRole, N_ASPH,
+    Aperture, ApertureShape, GlassCatalogs, Grating, Lens, Material, Object, Sensor, Shape,
+    Surface, SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use crate::trace::{Field, FieldPoint, Vignetting};
@@ -641,8 +646,44 @@ fn surface_from(
         is_stop,
         pos_xy_mm: num_array::<2>(s, "pos_xy", at)?.unwrap_or([0.0; 2]),
         vec_local: num_array::<3>(s, "vec_local", at)?.unwrap_or([0.0, 0.0, 1.0]),
+        roll_deg: match num(s, "roll_deg", at)? {
+            Some(v) => finite(v, at, "roll_deg")?,
+            None => 0.0,
+        },
+        grating: grating(s, at)?,
     };
     Ok((surface, num(s, "d", at)?))
+}
+
+/// tolray's `"grating"` key of a surface: `{"lines_per_um": T, "order": m}`.
+fn grating(s: &Map<String, Value>, at: &str) -> Result<Option<Grating>> {
+    let Some(v) = s.get("grating") else {
+        return Ok(None);
+    };
+    let Some(obj) = v.as_object() else {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}\"grating\" must be an object like {{\"lines_per_um\": 0.6, \"order\": 1}}, found {v}"),
+        ));
+    };
+    if let Some(key) = obj
+        .keys()
+        .find(|k| !["lines_per_um", "order"].contains(&k.as_str()))
+    {
+        return Err(Error::invalid(format!(
+            "{at}\"grating\": unknown key \"{key}\" (lines_per_um, order)"
+        )));
+    }
+    let get = |key: &str| -> Result<f64> {
+        match num(obj, key, at)? {
+            Some(x) => finite(x, at, key),
+            None => Err(Error::invalid(format!("{at}\"grating\" needs \"{key}\""))),
+        }
+    };
+    Ok(Some(Grating {
+        lines_per_um: get("lines_per_um")?,
+        order: get("order")?,
+    }))
 }
 
 /// The lens as DeepLens 2.5-style JSON (plus tolray's ignored `"(object)"` key at infinity).
@@ -731,6 +772,15 @@ pub fn to_value(lens: &Lens) -> Value {
             m.insert("d_next".into(), json!(s.d_next_mm));
             m.insert("pos_xy".into(), json!(s.pos_xy_mm));
             m.insert("vec_local".into(), json!(s.vec_local));
+            if s.roll_deg != 0.0 {
+                m.insert("roll_deg".into(), json!(s.roll_deg));
+            }
+            if let Some(g) = s.grating {
+                m.insert(
+                    "grating".into(),
+                    json!({"lines_per_um": g.lines_per_um, "order": g.order}),
+                );
+            }
             m.insert("is_square".into(), json!(false));
             m.insert("mat2".into(), json!(s.material.json_name()));
             if let Some(a) = aperture_value(s.aperture.as_ref()) {

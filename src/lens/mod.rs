@@ -278,6 +278,42 @@ pub struct Surface {
     pub pos_xy_mm: [f64; 2],
     /// Unit surface normal at the vertex (DeepLens `vec_local`), nominally (0, 0, 1).
     pub vec_local: [f64; 3],
+    /// Rotation of the surface about its own axis, degrees (right-handed about the axis), applied
+    /// before the axis is turned to [`Surface::vec_local`] by the shortest arc. It matters only for
+    /// what is not rotationally symmetric: a toroid, a grating's grooves, a rectangular,
+    /// elliptical or decentred aperture. A .zmx coordinate break that rolls the frame sets it.
+    pub roll_deg: f64,
+    /// A diffraction grating ruled on the surface (OpticStudio `DGRATING`), or `None`.
+    pub grating: Option<Grating>,
+}
+
+/// A ruled diffraction grating on a surface: grooves parallel to the surface's local x axis,
+/// equally spaced in y as projected on the local x-y plane (OpticStudio's Diffraction Grating
+/// surface). A ray leaves in the given order by the grating equation on the tangential
+/// components, `n' t' = n t + m λ T ŷ_t`, where `ŷ_t` is the local y axis projected on the
+/// surface's tangent plane at the hit (so a flat grating obeys n' sin θ' = n sin θ + m λ T in the
+/// y-z plane); the optical path gains `m λ T y`. An order that cannot propagate stops the ray
+/// with [`crate::trace::RayStatus::Tir`].
+///
+/// ```
+/// use tolray::lens::Grating;
+/// // 600 lines/mm, first order: at 500 nm, m λ T = 0.3 (the sine of the angle at normal incidence).
+/// let g = Grating { lines_per_um: 0.6, order: 1.0 };
+/// assert!((g.deflection(500.0) - 0.3).abs() < 1e-15);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grating {
+    /// Groove density T, lines per µm (OpticStudio's PARM 1).
+    pub lines_per_um: f64,
+    /// Diffraction order m (OpticStudio's PARM 2); its sign follows OpticStudio's.
+    pub order: f64,
+}
+
+impl Grating {
+    /// `m λ T` at `wavelength_nm`: the change of n sin θ in the local y-z plane.
+    pub fn deflection(&self, wavelength_nm: f64) -> f64 {
+        self.order * self.lines_per_um * wavelength_nm * 1e-3
+    }
 }
 
 impl Surface {
@@ -296,6 +332,8 @@ impl Surface {
             is_stop: false,
             pos_xy_mm: [0.0; 2],
             vec_local: [0.0, 0.0, 1.0],
+            roll_deg: 0.0,
+            grating: None,
         }
     }
     /// A flat aperture stop in air.
@@ -311,6 +349,22 @@ impl Surface {
     pub fn clipping_aperture(&self) -> Option<Aperture> {
         self.aperture
             .or(self.is_stop.then_some(Aperture::SEMI_DIAMETER))
+    }
+    /// True if nothing about the surface changes when it turns about its own axis: a rotationally
+    /// symmetric shape without a grating, clipped (if at all) by a centred circle. Then
+    /// [`Surface::roll_deg`] does not matter.
+    pub fn is_axially_symmetric(&self) -> bool {
+        let round = match self.aperture {
+            None => true,
+            Some(a) => {
+                a.decenter_mm == [0.0; 2]
+                    && matches!(
+                        a.shape,
+                        ApertureShape::SemiDiameter | ApertureShape::Circular { .. }
+                    )
+            }
+        };
+        self.shape.is_rotational() && self.grating.is_none() && round
     }
     /// True if the surface is not a plain conic: an asphere coefficient is non-zero or the
     /// shape is not the even asphere.
@@ -707,6 +761,14 @@ impl Lens {
                     return Err(at(format!("{what} {v} is beyond ±{max}")));
                 }
             }
+            // The paraxial curvature adds twice the r² (a toroid: y²) term; past this bound the
+            // paraxial model overflows (an infinite power: EFL -0, a NaN exit pupil).
+            let c_par = s.c + 2.0 * s.asph[s.shape.r2_index()];
+            if !(c_par.abs() <= 1e3) {
+                return Err(at(format!(
+                    "paraxial curvature {c_par} (1/mm; the curvature plus twice the r² term) is beyond ±1e3"
+                )));
+            }
             if !(s.semi_aperture_mm > 0.0) {
                 return Err(at(format!(
                     "clear semi-aperture {} mm must be positive",
@@ -753,6 +815,33 @@ impl Lens {
             }
             if s.role == SurfaceRole::Aperture && (s.c != 0.0 || s.is_aspheric()) {
                 return Err(at("an aperture surface must be flat".into()));
+            }
+            if !(s.roll_deg.abs() <= 360.0) {
+                return Err(at(format!(
+                    "roll about the axis {} degrees is not finite or beyond ±360",
+                    s.roll_deg
+                )));
+            }
+            if let Some(g) = s.grating {
+                if !(g.lines_per_um >= 0.0 && g.lines_per_um <= 1e4) {
+                    return Err(at(format!(
+                        "grating density {} lines/µm: needs 0 to 1e4",
+                        g.lines_per_um
+                    )));
+                }
+                if !(g.order.abs() <= 1e4) {
+                    return Err(at(format!(
+                        "grating order {} is not finite or beyond ±1e4",
+                        g.order
+                    )));
+                }
+                // OpticStudio's DGRATING is a conic (sphere, plane) surface; other shapes could
+                // not be written back to a .zmx file.
+                if s.role == SurfaceRole::Aperture || s.is_aspheric() {
+                    return Err(at(
+                        "a grating is ruled on a refracting or reflecting conic surface (OpticStudio's DGRATING): not on a bare aperture, an asphere, a toroid or an ideal thin lens".into(),
+                    ));
+                }
             }
             // What the readers refuse, validation refuses (a lens edited through the library or
             // the C ABI must still be a lens its own JSON can hold).

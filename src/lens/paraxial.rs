@@ -301,6 +301,12 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             )
         }
     };
+    // An exit pupil at infinity (telecentric in image space) is an answer; NaN is not.
+    if xp_z.is_nan() || xp_r.is_nan() {
+        return Err(Error::numerical(format!(
+            "paraxial exit pupil is NaN at {wavelength_nm} nm: the lens has no finite first-order image"
+        )));
+    }
     for (what, v) in [
         ("effective focal length", efl),
         ("back focal distance", bfd),

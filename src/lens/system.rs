@@ -1,6 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
-use super::{Aperture, ApertureShape, Lens, Material, Shape, N_ASPH};
+use super::{Aperture, ApertureShape, Grating, Lens, Material, Shape, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
 use crate::real::Real;
 
@@ -201,6 +201,8 @@ pub struct SurfaceRow<S> {
     /// Otherwise a ray that would have to travel backwards to reach the surface stops with
     /// [`crate::trace::RayStatus::Backward`].
     pub virtual_ok: bool,
+    /// The grating ruled on the surface, if any (grooves along the surface frame's x axis).
+    pub grating: Option<Grating>,
 }
 
 /// A compiled lens: flat, immutable, in number type `S`.
@@ -227,7 +229,7 @@ pub struct System<S> {
 }
 
 /// Rotation taking +z to the unit vector `v` by the shortest arc.
-fn rotation_to(v: [f64; 3]) -> Mat3<f64> {
+pub(crate) fn rotation_to(v: [f64; 3]) -> Mat3<f64> {
     let n: Vec3<f64> = Vec3::cst(v[0], v[1], v[2]).normalized();
     let (x, y) = (n.x, n.y);
     let s2 = x * x + y * y;
@@ -257,7 +259,11 @@ impl<S: Real> System<S> {
         let dirs = lens.travel_directions();
         let mut rows = Vec::with_capacity(lens.surfaces.len());
         for (i, s) in lens.surfaces.iter().enumerate() {
-            let r0 = rotation_to(s.vec_local);
+            let r0 = if s.roll_deg == 0.0 {
+                rotation_to(s.vec_local)
+            } else {
+                rotation_to(s.vec_local) * Mat3::rot_z(s.roll_deg.to_radians())
+            };
             let motion = &adj.surface_motion[i];
             let rot = motion.rotation * r0;
             let lift_c = |m: Mat3<f64>| Mat3 {
@@ -312,6 +318,7 @@ impl<S: Real> System<S> {
                 rot: lift_c(rot),
                 pos,
                 virtual_ok: i > 0 && lens.surfaces[i - 1].d_next_mm * dirs[i] < 0.0,
+                grating: s.grating,
             });
             z += lift(Param::Gap(i), S::cst(s.d_next_mm));
         }
@@ -396,6 +403,7 @@ impl<S: Real> System<S> {
                     rot: m3(&r.rot),
                     pos: r.pos.map_value(),
                     virtual_ok: r.virtual_ok,
+                    grating: r.grating,
                 })
                 .collect(),
             image: Rigid {

@@ -5,10 +5,11 @@
 //! OpticStudio writes it), UTF-8 or ASCII. tolray reads:
 //!
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
-//! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` and
-//!   `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² .. r¹⁶, odd-asphere
-//!   terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal lens' focal
-//!   length, or the coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
+//! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
+//!   `DGRATING` and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
+//!   r¹⁶, odd-asphere terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal
+//!   lens' focal length, a grating's lines per µm and order ([`super::Grating`]), or the
+//!   coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
 //!   terms are refused),
 //!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter: the surface's
 //!   size, which clips nothing, as in OpticStudio; `MEMA` when there is no `DIAM`; without
@@ -32,7 +33,8 @@
 //! Coordinate breaks are followed exactly as OpticStudio does (decenter x, y then tilt about x,
 //! y, z with order flag 0; tilt z, y, x then decenter with order flag 1; right-handed, degrees;
 //! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
-//! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`]. A surface turned by 90° or more,
+//! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`], and the frame's turn about
+//! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A surface turned by 90° or more,
 //! surfaces out of order along z, and a tilted image plane cannot be represented and are errors.
 //! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
 //! semi-diameter, no hard aperture) are the construction ("dummy") surfaces of coordinate-break sequences; they do
@@ -46,9 +48,9 @@
 //!
 //! # Writing
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
-//! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL` or `PARAXIAL`),
-//! with a `COORDBRK` pair around every
-//! surface that carries a decenter or a tilt, so perturbed lenses survive the round trip. Model
+//! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` or
+//! `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
+//! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip. Model
 //! glasses are written as `___BLANK` model glasses (tolray's dispersion law between the lines
 //! differs slightly from OpticStudio's model glass; n_d and V_d are exact), catalog glasses by
 //! name. A `NOTE 0 tolray ...` line records what Zemax has no place for (the exact primary and
@@ -56,7 +58,9 @@
 
 use super::material::{GlassCatalogs, Material, LAMBDA_D_NM};
 use super::text::decode;
-use super::{Aperture, ApertureShape, Lens, Object, Sensor, Shape, Surface, SurfaceRole, N_ASPH};
+use super::{
+    Aperture, ApertureShape, Grating, Lens, Object, Sensor, Shape, Surface, SurfaceRole, N_ASPH,
+};
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
 use crate::trace::{Field, FieldPoint, Vignetting};
@@ -783,6 +787,13 @@ fn glass(
     ))
 }
 
+/// The rotation of the frame `rot` about its own axis beyond the shortest-arc turn of +z onto
+/// `axis` (from which tolray builds a surface frame), degrees.
+fn roll_deg(rot: &Mat3<f64>, axis: [f64; 3]) -> f64 {
+    let m = super::system::rotation_to(axis).transpose() * *rot;
+    m.rows[1].x.atan2(m.rows[0].x).to_degrees()
+}
+
 fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
     Mat3::rot_x(a.to_radians()) * Mat3::rot_y(b.to_radians()) * Mat3::rot_z(g.to_radians())
 }
@@ -903,6 +914,10 @@ impl Walker {
         let c = s.curv.as_ref().map_or(0.0, |c| c.v) / scale;
         let mut asph = [0.0; N_ASPH];
         let mut shape = Shape::Even;
+        let mut grating = Grating {
+            lines_per_um: 0.0,
+            order: 0.0,
+        };
         for &(p, v, line) in &s.parm {
             match ty.as_str() {
                 "EVENASPH" if (1..=N_ASPH).contains(&p) => {
@@ -936,6 +951,9 @@ impl Walker {
                 }
                 // The OPD mode changes how OpticStudio computes optical path, not rays.
                 "PARAXIAL" if p == 2 => {}
+                // Lines per µm (whatever the lens unit) and the diffraction order.
+                "DGRATING" if p == 1 => grating.lines_per_um = v,
+                "DGRATING" if p == 2 => grating.order = v,
                 "TOROIDAL" if (2..=N_ASPH).contains(&p) => {
                     // α_{p-1} y^{2(p-1)}.
                     let j = p - 1;
@@ -949,6 +967,7 @@ impl Walker {
                             "tolray reads the radius of rotation (PARM 1) and y^2 to y^14 (PARM 2 to 8)"
                         }
                         "PARAXIAL" => "a PARAXIAL surface has a focal length (PARM 1) and an OPD mode (PARM 2)",
+                        "DGRATING" => "a DGRATING surface has lines per µm (PARM 1) and an order (PARM 2)",
                         _ => "a STANDARD surface has no parameters",
                     };
                     warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
@@ -1083,21 +1102,31 @@ impl Walker {
             } else {
                 [axis.x, axis.y, axis.z]
             };
+            let mut surface = Surface {
+                role,
+                c,
+                k: s.coni.as_ref().map_or(0.0, |c| c.v),
+                asph,
+                shape,
+                semi_aperture_mm: semi.unwrap_or(0.0),
+                aperture,
+                d_next_mm: 0.0,
+                material: material.clone(),
+                is_stop,
+                pos_xy_mm: [self.origin.x, self.origin.y],
+                vec_local,
+                roll_deg: 0.0,
+                grating: (ty == "DGRATING").then_some(grating),
+            };
+            // A coordinate break that rolls the frame about the surface's axis matters where
+            // the surface is not symmetric about it (toroid, grating, a non-circular or
+            // decentred aperture); elsewhere it changes nothing and is dropped.
+            let roll = roll_deg(&self.rot, surface.vec_local);
+            if roll.abs() > 1e-10 && !surface.is_axially_symmetric() {
+                surface.roll_deg = roll;
+            }
             self.built.push(Built {
-                surface: Surface {
-                    role,
-                    c,
-                    k: s.coni.as_ref().map_or(0.0, |c| c.v),
-                    asph,
-                    shape,
-                    semi_aperture_mm: semi.unwrap_or(0.0),
-                    aperture,
-                    d_next_mm: 0.0,
-                    material: material.clone(),
-                    is_stop,
-                    pos_xy_mm: [self.origin.x, self.origin.y],
-                    vec_local,
-                },
+                surface,
                 raw: s.clone(),
                 index: k,
                 has_diam: semi.is_some(),
@@ -1357,14 +1386,14 @@ fn build(
     for (k, s) in surfs.iter().enumerate().take(last).skip(1) {
         match s.type_name().as_str() {
             "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
-            "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" => {
+            "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" | "DGRATING" => {
                 walk.surface(k, s, catalogs, &mut warnings)?
             }
             other => {
                 return Err(invalid(
                     s.type_line(),
                     format!(
-                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL and COORDBRK"
+                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING and COORDBRK"
                     ),
                 ))
             }
@@ -1836,13 +1865,17 @@ fn gcat_name(vendor: &str) -> String {
     }
 }
 
-/// The tilt about x and y (degrees, Zemax order x then y) that turns +z into the unit vector `n`.
-fn tilt_angles(n: [f64; 3]) -> (f64, f64) {
-    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    let (x, y, z) = (n[0] / len, n[1] / len, n[2] / len);
-    let b = x.clamp(-1.0, 1.0).asin();
-    let a = (-y).atan2(z);
-    (a.to_degrees(), b.to_degrees())
+/// The tilts about x, the new y and the new z (degrees, a coordinate break with order flag 0:
+/// `Rx(a) Ry(b) Rz(g)`) that give tolray's surface frame: +z turned onto `n` by the shortest arc,
+/// after a roll of `roll_deg` about the axis.
+fn tilt_angles(n: [f64; 3], roll_deg: f64) -> (f64, f64, f64) {
+    let r = super::system::rotation_to(n) * Mat3::rot_z(roll_deg.to_radians());
+    // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
+    // (cos b cos g, -cos b sin g, sin b).
+    let b = r.rows[0].z.clamp(-1.0, 1.0).asin();
+    let a = (-r.rows[1].z).atan2(r.rows[2].z);
+    let g = (-r.rows[0].y).atan2(r.rows[0].x);
+    (a.to_degrees(), b.to_degrees(), g.to_degrees())
 }
 
 fn glas_line(m: &Material) -> Option<String> {
@@ -2063,8 +2096,12 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
     });
     for (i, s) in lens.surfaces.iter().enumerate() {
         let v = s.vec_local;
-        let moved = s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0;
-        let (a, b) = if moved { tilt_angles(v) } else { (0.0, 0.0) };
+        let moved = s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0 || s.roll_deg != 0.0;
+        let (a, b, g) = if moved {
+            tilt_angles(v, s.roll_deg)
+        } else {
+            (0.0, 0.0, 0.0)
+        };
         let [dx, dy] = s.pos_xy_mm;
         let cb = |sign: f64, order: u8, t: f64| {
             vec![
@@ -2074,7 +2111,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 format!("PARM 2 {}", fmt(sign * dy)),
                 format!("PARM 3 {}", fmt(sign * a)),
                 format!("PARM 4 {}", fmt(sign * b)),
-                "PARM 5 0".into(),
+                format!("PARM 5 {}", fmt(sign * g)),
                 format!("PARM 6 {order}"),
             ]
         };
@@ -2088,6 +2125,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         let asph = s.is_aspheric();
         l.push(
             match s.shape {
+                _ if s.grating.is_some() => "TYPE DGRATING",
                 Shape::Paraxial { .. } => "TYPE PARAXIAL",
                 Shape::Odd => "TYPE ODDASPHE",
                 Shape::Toroidal { .. } => "TYPE TOROIDAL",
@@ -2120,6 +2158,11 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 }
             }
             _ => {}
+        }
+        if let Some(g) = s.grating {
+            // Validation keeps gratings on conics: no asphere PARMs above.
+            l.push(format!("PARM 1 {}", fmt(g.lines_per_um)));
+            l.push(format!("PARM 2 {}", fmt(g.order)));
         }
         l.push(format!(
             "DISZ {}",
@@ -2224,11 +2267,21 @@ mod tests {
     }
 
     #[test]
-    fn tilt_angles_reproduce_the_axis() {
+    fn tilt_angles_reproduce_the_frame() {
         let n = [0.01, -0.02, (1.0f64 - 0.0005).sqrt()];
-        let (a, b) = tilt_angles(n);
-        let z = rotation_xyz_deg(a, b, 0.0).apply(Vec3::cst(0.0, 0.0, 1.0));
-        assert!((z.x - n[0]).abs() < 1e-16 && (z.y - n[1]).abs() < 1e-16);
+        for roll in [0.0, 30.0, -90.0, 179.0] {
+            let (a, b, g) = tilt_angles(n, roll);
+            let r = rotation_xyz_deg(a, b, g);
+            let want = crate::lens::system::rotation_to(n) * Mat3::rot_z(f64::to_radians(roll));
+            for (x, y) in r.rows.iter().zip(want.rows.iter()) {
+                assert!(
+                    (*x - *y).norm() < 1e-15,
+                    "roll {roll}: {r:?} against {want:?}"
+                );
+            }
+            // The reader recovers the roll from the frame.
+            assert!((roll_deg(&r, n) - roll).abs() < 1e-12, "roll {roll}");
+        }
     }
 
     #[test]

@@ -2,9 +2,9 @@
 //!
 //! Per surface: move the ray into the surface frame (translation, then the inverse rotation when
 //! the surface is rotated), intersect (plane, cancellation-free quadric, or Newton for an even
-//! asphere started from the quadric root; odd aspheres, toroids and ideal thin lenses take a
-//! separate scalar loop, [`shaped`]), clip at the clear aperture, refract by the vector
-//! form of Snell's law, and move back. Conditions are evaluated on values and applied as
+//! asphere started from the quadric root; odd aspheres, toroids, ideal thin lenses and gratings
+//! take a separate scalar loop, [`shaped`]), clip at the clear aperture, refract by the vector
+//! form of Snell's law (a grating: the grating equation on the tangential part), and move back. Conditions are evaluated on values and applied as
 //! selects; a dead ray keeps its last state and its status.
 //!
 //! The lane loops are written for LLVM's loop vectorizer (8 `f32` or 4 `f64` lanes with AVX2).
@@ -40,31 +40,62 @@ const SHAPED: u8 = 3;
 /// A number type the tracer can run on. `f32` and `f64` override [`Traceable::trace_blocks`] with
 /// builds for several instruction sets chosen at run time; other types use the generic build.
 pub trait Traceable: Real {
-    /// Traces `blocks` through `sys` with refractive indices `n` (after each surface).
-    fn trace_blocks(sys: &System<Self>, n: &[Self], clip: bool, blocks: &mut [Block<Self>]) {
-        trace_blocks_generic(sys, n, clip, blocks);
+    /// Traces `blocks` through `sys` with refractive indices `n` (as [`System::indices`] gives
+    /// them) at `wavelength_nm` (which gratings need).
+    fn trace_blocks(
+        sys: &System<Self>,
+        n: &[Self],
+        wavelength_nm: f64,
+        clip: bool,
+        blocks: &mut [Block<Self>],
+    ) {
+        trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
     }
 }
 
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-fn trace_blocks_f32(sys: &System<f32>, n: &[f32], clip: bool, blocks: &mut [Block<f32>]) {
-    trace_blocks_generic(sys, n, clip, blocks);
+fn trace_blocks_f32(
+    sys: &System<f32>,
+    n: &[f32],
+    wavelength_nm: f64,
+    clip: bool,
+    blocks: &mut [Block<f32>],
+) {
+    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
 
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-fn trace_blocks_f64(sys: &System<f64>, n: &[f64], clip: bool, blocks: &mut [Block<f64>]) {
-    trace_blocks_generic(sys, n, clip, blocks);
+fn trace_blocks_f64(
+    sys: &System<f64>,
+    n: &[f64],
+    wavelength_nm: f64,
+    clip: bool,
+    blocks: &mut [Block<f64>],
+) {
+    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
 
 impl Traceable for f32 {
-    fn trace_blocks(sys: &System<f32>, n: &[f32], clip: bool, blocks: &mut [Block<f32>]) {
-        trace_blocks_f32(sys, n, clip, blocks);
+    fn trace_blocks(
+        sys: &System<f32>,
+        n: &[f32],
+        wavelength_nm: f64,
+        clip: bool,
+        blocks: &mut [Block<f32>],
+    ) {
+        trace_blocks_f32(sys, n, wavelength_nm, clip, blocks);
     }
 }
 
 impl Traceable for f64 {
-    fn trace_blocks(sys: &System<f64>, n: &[f64], clip: bool, blocks: &mut [Block<f64>]) {
-        trace_blocks_f64(sys, n, clip, blocks);
+    fn trace_blocks(
+        sys: &System<f64>,
+        n: &[f64],
+        wavelength_nm: f64,
+        clip: bool,
+        blocks: &mut [Block<f64>],
+    ) {
+        trace_blocks_f64(sys, n, wavelength_nm, clip, blocks);
     }
 }
 
@@ -73,17 +104,23 @@ impl Traceable for f64 {
 /// gradients (the tests, a user's program) links them instead of compiling the kernel again for
 /// its width (minutes of optimization each).
 impl<const N: usize> Traceable for Dual<f64, N> {
-    fn trace_blocks(sys: &System<Self>, n: &[Self], clip: bool, blocks: &mut [Block<Self>]) {
+    fn trace_blocks(
+        sys: &System<Self>,
+        n: &[Self],
+        wavelength_nm: f64,
+        clip: bool,
+        blocks: &mut [Block<Self>],
+    ) {
         const W: usize = crate::optim::GRAD_WIDTH;
         // `if const`: the other branches of each width are not compiled.
         if const { N == W } {
             let (sys, n, blocks) = same_width::<N, W>(sys, n, blocks);
-            trace_blocks_dual_grad(sys, n, clip, blocks);
+            trace_blocks_dual_grad(sys, n, wavelength_nm, clip, blocks);
         } else if const { N == 1 } {
             let (sys, n, blocks) = same_width::<N, 1>(sys, n, blocks);
-            trace_blocks_dual1(sys, n, clip, blocks);
+            trace_blocks_dual1(sys, n, wavelength_nm, clip, blocks);
         } else {
-            trace_blocks_generic(sys, n, clip, blocks);
+            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
         }
     }
 }
@@ -118,20 +155,22 @@ fn same_width<'a, const A: usize, const B: usize>(
 fn trace_blocks_dual_grad(
     sys: &System<Dual<f64, { crate::optim::GRAD_WIDTH }>>,
     n: &[Dual<f64, { crate::optim::GRAD_WIDTH }>],
+    wavelength_nm: f64,
     clip: bool,
     blocks: &mut [Block<Dual<f64, { crate::optim::GRAD_WIDTH }>>],
 ) {
-    trace_blocks_generic(sys, n, clip, blocks);
+    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
 
 #[inline(never)]
 fn trace_blocks_dual1(
     sys: &System<Dual<f64, 1>>,
     n: &[Dual<f64, 1>],
+    wavelength_nm: f64,
     clip: bool,
     blocks: &mut [Block<Dual<f64, 1>>],
 ) {
-    trace_blocks_generic(sys, n, clip, blocks);
+    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
 
 /// Blocks per group: a group and its scratch copy stay in the L1 cache.
@@ -143,6 +182,7 @@ const GROUP: usize = 8;
 pub(crate) fn trace_blocks_generic<S: Real>(
     sys: &System<S>,
     n: &[S],
+    wavelength_nm: f64,
     clip: bool,
     blocks: &mut [Block<S>],
 ) {
@@ -157,11 +197,15 @@ pub(crate) fn trace_blocks_generic<S: Real>(
         for (i, row) in sys.rows.iter().enumerate() {
             let n1 = n[i];
             let eta = n1 / n[i + 1];
+            // A grating's m λ T over the index in front of it (0 without one).
+            let ruling = row
+                .grating
+                .map_or(S::cst(0.0), |g| S::cst(g.deflection(wavelength_nm)) / n1);
             let code = i as u32;
             if i % 2 == 0 {
-                surface(row, n1, eta, code, clip, group, scratch);
+                surface(row, n1, eta, ruling, code, clip, group, scratch);
             } else {
-                surface(row, n1, eta, code, clip, scratch, group);
+                surface(row, n1, eta, ruling, code, clip, scratch, group);
             }
         }
         if n_rows % 2 == 0 {
@@ -174,22 +218,25 @@ pub(crate) fn trace_blocks_generic<S: Real>(
 }
 
 /// One surface pass: the lane loop compiled for the surface's kind, rotation and clipping.
+/// `ruling` is a grating's m λ T / n1 (0 without one).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn surface<S: Real>(
     row: &SurfaceRow<S>,
     n1: S,
     eta: S,
+    ruling: S,
     code: u32,
     clip: bool,
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
-    if row.shape != Shape::Even {
-        return shaped(row, n1, eta, code, clip, src, dst);
+    if row.shape != Shape::Even || row.grating.is_some() {
+        return shaped(row, n1, eta, ruling, code, clip, src, dst);
     }
     macro_rules! go {
         ($kind:expr, $rot:expr, $clip:expr) => {
-            lanes::<S, { $kind }, { $rot }, { $clip }>(row, n1, eta, code, src, dst)
+            lanes::<S, { $kind }, { $rot }, { $clip }>(row, n1, eta, ruling, code, src, dst)
         };
     }
     match (row.kind, row.rotated, clip) {
@@ -209,24 +256,27 @@ fn surface<S: Real>(
 }
 
 /// A surface pass for the shapes other than the even asphere (odd asphere, toroid, ideal thin
-/// lens). Out of line and not inlined: these loops stay scalar (a per-lane Newton with an early
+/// lens) and for gratings. Out of line and not inlined: these loops stay scalar (a per-lane Newton with an early
 /// exit), are rare, and inlined into every instantiation of the vectorized loops they made the
 /// cold build of every number type several times slower without making anything faster.
 #[inline(never)]
+#[allow(clippy::too_many_arguments)]
 fn shaped<S: Real>(
     row: &SurfaceRow<S>,
     n1: S,
     eta: S,
+    ruling: S,
     code: u32,
     clip: bool,
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
+    let r = ruling;
     match (row.rotated, clip) {
-        (false, false) => lanes::<S, SHAPED, false, false>(row, n1, eta, code, src, dst),
-        (false, true) => lanes::<S, SHAPED, false, true>(row, n1, eta, code, src, dst),
-        (true, false) => lanes::<S, SHAPED, true, false>(row, n1, eta, code, src, dst),
-        (true, true) => lanes::<S, SHAPED, true, true>(row, n1, eta, code, src, dst),
+        (false, false) => lanes::<S, SHAPED, false, false>(row, n1, eta, r, code, src, dst),
+        (false, true) => lanes::<S, SHAPED, false, true>(row, n1, eta, r, code, src, dst),
+        (true, false) => lanes::<S, SHAPED, true, false>(row, n1, eta, r, code, src, dst),
+        (true, true) => lanes::<S, SHAPED, true, true>(row, n1, eta, r, code, src, dst),
     }
 }
 
@@ -512,12 +562,14 @@ fn intersect<S: Real, const KIND: u8>(
 /// (rotated frame) and `CLIP` (apertures on) are compile-time so that the lane loop has no control
 /// flow left and vectorizes. A plane surface is a bare aperture: it clips but never refracts. A
 /// mirror is a runtime select (a compile-time flag doubled the kernel's instances and the build
-/// time of every dual-number width).
+/// time of every dual-number width). A grating (`ruling` = m λ T / n1) is traced in the
+/// `SHAPED` loop only.
 #[inline(always)]
 fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     row: &SurfaceRow<S>,
     n1: S,
     eta: S,
+    ruling: S,
     code: u32,
     src: &[Block<S>],
     dst: &mut [Block<S>],
@@ -527,6 +579,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     // A stack copy, which LLVM can see is not aliased by `dst` (see the module documentation).
     let row = &row.clone();
     let mirror = row.reflect;
+    let ruled = KIND == SHAPED && row.grating.is_some();
     for (s, b) in src.iter().zip(dst.iter_mut()) {
         for l in 0..LANES {
             let (o, d0) = load(s, l);
@@ -556,9 +609,28 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             let k = one - eta * eta * (one - a * a * inv_nn);
             // An ideal thin lens (a flat row of nonzero power, only in the shaped loop).
             let paraxial = KIND == SHAPED && !row.power.is_zero();
-            let tir = (KIND != PLANE) & !mirror & !paraxial & k.lt(zero);
+            let tir = (KIND != PLANE) & !mirror & !paraxial & !ruled & k.lt(zero);
             let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
-            let dr = if paraxial {
+            // A diffraction order that does not propagate (set by the grating below).
+            let mut evanescent = false;
+            let dr = if ruled {
+                // Grating equation on the tangential parts: with e = n1 / n_out (1 for a
+                // mirror) and q = m λ T / n_out, v = e d + q ŷ_t where ŷ_t = ŷ - (N_y / N.N) N
+                // is the groove normal in the tangent plane; v.N = -e a, and d' = v + β N is the
+                // unit root behind the surface (refraction) or in front of it (reflection).
+                let e = S::pick(mirror, one, eta);
+                let q = ruling * e;
+                let qy = q * nrm.y * inv_nn;
+                let v = Vec3::new(
+                    e * d.x - qy * nrm.x,
+                    e * d.y + q - qy * nrm.y,
+                    e * d.z - qy * nrm.z,
+                );
+                let disc = e * e * a * a - nn * (v.dot(v) - one);
+                evanescent = disc.lt(zero);
+                let s = S::pick(evanescent, zero, disc).sqrt();
+                v + nrm * ((e * a + S::pick(mirror, s, -s)) * inv_nn)
+            } else if paraxial {
                 // The slopes turn by -h P: the direction (d.x - h.x P d.z, d.y - h.y P d.z, d.z),
                 // normalized, keeps the sign of travel.
                 let v = Vec3::new(
@@ -583,11 +655,17 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
                 (h + row.pos, dr)
             };
             // The first failure in the order missed, backward, vignetted, TIR; 0 if the ray goes on.
-            let mut why = select_u32(tir, CODE_TIR | code, 0);
+            let mut why = select_u32(tir | evanescent, CODE_TIR | code, 0);
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
             why = select_u32(backward, CODE_BACKWARD | code, why);
             why = select_u32(!hit, CODE_MISSED | code, why);
-            commit(s, b, l, why, og, dg, n1 * t);
+            // A grating adds the phase m λ T y (in path length) where the ray crosses it.
+            let dopl = if ruled {
+                n1 * (t + ruling * h.y)
+            } else {
+                n1 * t
+            };
+            commit(s, b, l, why, og, dg, dopl);
         }
     }
 }

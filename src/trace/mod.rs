@@ -318,7 +318,7 @@ pub fn trace<S: Traceable>(
     batch
         .blocks
         .par_chunks_mut(CHUNK_BLOCKS)
-        .for_each(|c| S::trace_blocks(sys, &n, opts.apertures, c));
+        .for_each(|c| S::trace_blocks(sys, &n, wavelength_nm, opts.apertures, c));
 }
 
 /// As [`trace`], on the calling thread only.
@@ -329,7 +329,7 @@ pub fn trace_serial<S: Traceable>(
     opts: TraceOptions,
 ) {
     let n = sys.indices(wavelength_nm);
-    S::trace_blocks(sys, &n, opts.apertures, &mut batch.blocks);
+    S::trace_blocks(sys, &n, wavelength_nm, opts.apertures, &mut batch.blocks);
 }
 
 /// Sag (mm) of a compiled surface at squared radius `u` (mm²): conic plus even-asphere terms,

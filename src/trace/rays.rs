@@ -444,8 +444,9 @@ impl RaySet {
             let stop = para.stop_surface;
             let n = sys.indices(wavelength_nm);
             let r_stop = lens.surfaces[stop].semi_aperture_mm;
-            let aim =
-                |target: [f64; 2], guess: [f64; 2]| aim_ray(&sys, &n, stop, &make, target, guess);
+            let aim = |target: [f64; 2], guess: [f64; 2]| {
+                aim_ray(&sys, &n, wavelength_nm, stop, &make, target, guess)
+            };
             let c0 = [centre[0] * r_ep, centre[1] * r_ep];
             let c = aim([centre[0] * r_stop, centre[1] * r_stop], c0)?;
             set.chief = make(c[0], c[1]);
@@ -710,6 +711,7 @@ fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
 fn aim_ray(
     sys: &System<f64>,
     n: &[f64],
+    wavelength_nm: f64,
     stop: usize,
     make: &dyn Fn(f64, f64) -> (Vec3<f64>, Vec3<f64>),
     target: [f64; 2],
@@ -717,7 +719,7 @@ fn aim_ray(
 ) -> Result<[f64; 2]> {
     let at_stop = |e: [f64; 2]| -> Option<[f64; 2]> {
         let (o, d) = make(e[0], e[1]);
-        let r = trace_ray(sys, n, o, d, false, Some(stop));
+        let r = trace_ray(sys, n, wavelength_nm, o, d, false, Some(stop));
         if !r.status.is_alive() {
             return None;
         }

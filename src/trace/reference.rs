@@ -1,8 +1,9 @@
 //! A plain scalar `f64` reference tracer, one ray at a time, written independently of the fast
 //! kernel: every surface is intersected by Newton's method on its sag function (started at the
 //! vertex plane, or at the base conic's root when the plane's crossing lies beyond a steep
-//! surface's rim), refraction uses the tangential-component form of Snell's law, and reflection
-//! reverses the normal component. Tests prove
+//! surface's rim), refraction uses the tangential-component form of Snell's law, reflection
+//! reverses the normal component, and a grating adds m λ T times the groove normal to the
+//! tangential component. Tests prove
 //! that the kernel agrees with it.
 
 use super::RayStatus;
@@ -159,22 +160,47 @@ fn conic_start(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t0: f64) -> O
 /// Refracts the unit direction `dl` at a surface with unit normal `nrm` from index `n1` into
 /// `n2` (Snell's law on the tangential component). `None` on total internal reflection.
 pub fn refract(dl: Vec3<f64>, nrm: Vec3<f64>, n1: f64, n2: f64) -> Option<Vec3<f64>> {
+    diffract(dl, nrm, n1, n2, 0.0, false)
+}
+
+/// Leaves a surface with unit normal `nrm` from index `n1` into `n2` with the tangential
+/// component `n2 t' = n1 t + m_lambda_t ŷ_t` (the grating equation; `m_lambda_t` = 0 for plain
+/// refraction), where `ŷ_t` is the local y axis projected on the tangent plane; the normal
+/// component follows from `|d'| = 1`, on the far side (`reflect` false, `n2` the index behind) or
+/// back on the near side (`reflect` true, `n2 = n1`). `None` when no such direction exists
+/// (total internal reflection, an order that does not propagate).
+pub fn diffract(
+    dl: Vec3<f64>,
+    nrm: Vec3<f64>,
+    n1: f64,
+    n2: f64,
+    m_lambda_t: f64,
+    reflect: bool,
+) -> Option<Vec3<f64>> {
     let cos1 = dl.dot(nrm);
-    let tang = (dl - nrm * cos1) * (n1 / n2);
+    let y = Vec3::new(0.0, 1.0, 0.0);
+    let groove_normal = y - nrm * y.dot(nrm);
+    let tang = ((dl - nrm * cos1) * n1 + groove_normal * m_lambda_t) * (1.0 / n2);
     let s2 = tang.dot(tang);
     if s2 > 1.0 {
         return None;
     }
-    Some(tang + nrm * ((1.0 - s2).sqrt() * cos1.signum()))
+    let side = if reflect {
+        -cos1.signum()
+    } else {
+        cos1.signum()
+    };
+    Some(tang + nrm * ((1.0 - s2).sqrt() * side))
 }
 
-/// Traces one ray through `sys` with indices `n` (as [`System::indices`] gives them: the object
-/// medium's, then the one after each surface), up to and including
-/// surface `upto` (or to the image plane when `upto` is `None`). Returns the state in the global
-/// frame after that surface.
+/// Traces one ray of `wavelength_nm` through `sys` with indices `n` (as [`System::indices`]
+/// gives them at that wavelength: the object medium's, then the one after each surface), up to
+/// and including surface `upto` (or to the image plane when `upto` is `None`). Returns the state
+/// in the global frame after that surface.
 pub fn trace_ray(
     sys: &System<f64>,
     n: &[f64],
+    wavelength_nm: f64,
     o: Vec3<f64>,
     d: Vec3<f64>,
     clip: bool,
@@ -199,7 +225,17 @@ pub fn trace_ray(
             return fail(RayStatus::Vignetted(i as u32));
         }
         let mut dn = dl;
-        if let Shape::Paraxial { focal_mm } = row.shape {
+        if let Some(g) = row.grating {
+            let nrm = unit_normal(grad);
+            let n2 = if row.reflect { n[i] } else { n[i + 1] };
+            let m_lambda_t = g.deflection(wavelength_nm);
+            match diffract(dl, nrm, n[i], n2, m_lambda_t, row.reflect) {
+                Some(v) => dn = v,
+                None => return fail(RayStatus::Tir(i as u32)),
+            }
+            // The grating's phase, as path length: m λ T y at the crossing.
+            opl += m_lambda_t * h.y;
+        } else if let Shape::Paraxial { focal_mm } = row.shape {
             // The ideal thin lens: slopes change by minus the height over the focal length.
             let (mx, my) = (dl.x / dl.z - h.x / focal_mm, dl.y / dl.z - h.y / focal_mm);
             dn = Vec3::new(mx, my, 1.0).normalized() * dl.z.signum();

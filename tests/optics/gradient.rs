@@ -1,7 +1,7 @@
 //! Exact dual-number gradients against central finite differences, for every variable kind, on
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
-//! odd-asphere and an ideal-thin-lens system, a lens with a virtual image and one with its
-//! object in water, nominal and perturbed.
+//! odd-asphere and an ideal-thin-lens system, a lens with a virtual image, one with its object in
+//! water, a ruled (grating) surface and toroids rolled about the axis, nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -54,6 +54,29 @@ fn immersed() -> Lens {
     let mut l = asphere_lens();
     l.object = Object::Finite { distance_mm: 60.0 };
     l.object_medium = Material::Constant(1.333);
+    l
+}
+
+/// The aspheric lens of [`asphere_lens`] with a grating ruled on its conic back surface (300
+/// lines/mm, first order) and the grating and both faces rolled about the axis.
+fn ruled() -> Lens {
+    let mut l = asphere_lens();
+    l.surfaces[1].grating = Some(tolray::lens::Grating {
+        lines_per_um: 0.3,
+        order: 1.0,
+    });
+    l.surfaces[1].roll_deg = 25.0;
+    l
+}
+
+/// tests/data/zemax/toroid.zmx with its toroidal faces rolled 30 degrees about the axis.
+fn rolled_toroid() -> Lens {
+    let mut l = zmx("toroid.zmx");
+    for s in &mut l.surfaces {
+        if !s.shape.is_rotational() {
+            s.roll_deg = 30.0;
+        }
+    }
     l
 }
 
@@ -168,6 +191,8 @@ fn gradients_match_finite_differences_nominal() {
     check("ideal thin lens", &zmx("thinlens.zmx"), false);
     check("virtual image", &zmx("virtual-image.zmx"), false);
     check("immersed", &immersed(), false);
+    check("grating", &ruled(), false);
+    check("rolled toroid", &rolled_toroid(), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -206,6 +231,8 @@ fn gradients_match_finite_differences_perturbed() {
     check("ideal thin lens", &zmx("thinlens.zmx"), true);
     check("virtual image", &zmx("virtual-image.zmx"), true);
     check("immersed", &immersed(), true);
+    check("grating", &ruled(), true);
+    check("rolled toroid", &rolled_toroid(), true);
 }
 
 #[test]

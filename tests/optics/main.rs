@@ -4,6 +4,7 @@
 
 mod constraints;
 mod gradient;
+mod grating;
 mod json;
 mod psf;
 mod reference;

@@ -181,7 +181,7 @@ fn kernel_matches_reference_tracer_f64() {
             trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions { apertures: clip });
             let mut alive = 0;
             for (i, (o, d)) in rays.iter().enumerate() {
-                let r = trace_ray(&sys, &n, *o, *d, clip, None);
+                let r = trace_ray(&sys, &n, LAMBDA_D_NM, *o, *d, clip, None);
                 let k = b.get(i);
                 assert_eq!(
                     k.status, r.status,
@@ -352,14 +352,22 @@ fn aimed_rays_cross_the_real_stop_where_asked() {
         let sys = lens.compile();
         let n = sys.indices(LAMBDA_D_NM);
         for ((o, d), q) in set.origins.iter().zip(&set.directions).zip(&set.pupil) {
-            let r = trace_ray(&sys, &n, *o, *d, false, Some(stop));
+            let r = trace_ray(&sys, &n, LAMBDA_D_NM, *o, *d, false, Some(stop));
             let p = r.o - sys.rows[stop].pos;
             assert!(
                 (p.x - q[0] * r_stop).abs() < 1e-9 && (p.y - q[1] * r_stop).abs() < 1e-9,
                 "{name}: {p:?} vs {q:?}"
             );
         }
-        let r = trace_ray(&sys, &n, set.chief.0, set.chief.1, false, Some(stop));
+        let r = trace_ray(
+            &sys,
+            &n,
+            LAMBDA_D_NM,
+            set.chief.0,
+            set.chief.1,
+            false,
+            Some(stop),
+        );
         assert!(
             (r.o - sys.rows[stop].pos).norm() < 1e-9,
             "{name}: the aimed chief ray passes the stop centre"
@@ -391,7 +399,7 @@ fn rays_behind_a_surface_stop_unless_the_lens_asks_for_virtual_propagation() {
         b.push(o, d);
         trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
         assert_eq!(b.get(0).status, RayStatus::Backward(surf), "{o:?} {d:?}");
-        let r = trace_ray(&sys, &n, o, d, true, None);
+        let r = trace_ray(&sys, &n, LAMBDA_D_NM, o, d, true, None);
         assert_eq!(r.status, RayStatus::Backward(surf));
     }
     // A stop placed 2 mm inside the last element by a negative gap: the lens asks for virtual
@@ -409,7 +417,7 @@ fn rays_behind_a_surface_stop_unless_the_lens_asks_for_virtual_propagation() {
     let (o, d) = (Vec3::new(0.0, 1.0, -5.0), Vec3::new(0.0, 0.0, 1.0));
     b.push(o, d);
     trace(&vsys, LAMBDA_D_NM, &mut b, TraceOptions::default());
-    let r = trace_ray(&vsys, &vn, o, d, true, None);
+    let r = trace_ray(&vsys, &vn, LAMBDA_D_NM, o, d, true, None);
     assert_eq!(b.get(0).status, RayStatus::Alive);
     assert_eq!(r.status, RayStatus::Alive);
     // The virtual stop changes nothing where the ray lands (it is a bare aperture).
@@ -454,7 +462,7 @@ fn a_steep_surface_crossed_beyond_its_rim_at_the_vertex_plane_is_hit() {
         let sys = l.compile();
         let n = sys.indices(LAMBDA_D_NM);
         let o = p + sys.rows[0].pos;
-        let r = trace_ray(&sys, &n, o, d, false, Some(0));
+        let r = trace_ray(&sys, &n, LAMBDA_D_NM, o, d, false, Some(0));
         assert_eq!(r.status, RayStatus::Alive, "a4 {a4}");
         let local = r.o - sys.rows[0].pos;
         if a4 == 0.0 {
@@ -470,7 +478,7 @@ fn a_steep_surface_crossed_beyond_its_rim_at_the_vertex_plane_is_hit() {
             &mut batch,
             TraceOptions { apertures: false },
         );
-        let full = trace_ray(&sys, &n, o, d, false, None);
+        let full = trace_ray(&sys, &n, LAMBDA_D_NM, o, d, false, None);
         assert_eq!(batch.get(0).status, full.status, "a4 {a4}");
         assert_eq!(full.status, RayStatus::Alive, "a4 {a4}");
         assert!((batch.get(0).o - full.o).norm() < 1e-9, "a4 {a4}");
@@ -574,7 +582,7 @@ fn an_ideal_thin_lens_focuses_each_direction_to_one_point() {
         trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions { apertures: false });
         for (i, (o, d, want)) in rays.iter().enumerate() {
             let k = b.get(i);
-            let r = trace_ray(&sys, &n, *o, *d, false, None);
+            let r = trace_ray(&sys, &n, LAMBDA_D_NM, *o, *d, false, None);
             assert!(k.status.is_alive() && r.status.is_alive(), "f {f} ray {i}");
             for (x, y) in [(k.o.x, k.o.y), (r.o.x, r.o.y)] {
                 assert!(

@@ -109,6 +109,18 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 "", ""
             ));
         }
+        if let Some(g) = sf.grating {
+            s.push_str(&format!(
+                "  {:>4} {:>10} grating: {} lines/µm (grooves along local x), order {}\n",
+                "", "", g.lines_per_um, g.order
+            ));
+        }
+        if sf.roll_deg != 0.0 {
+            s.push_str(&format!(
+                "  {:>4} {:>10} rolled {:.6} degrees about its axis\n",
+                "", "", sf.roll_deg
+            ));
+        }
         if let Shape::Toroidal { c_rot } = sf.shape {
             let rr = if c_rot == 0.0 {
                 "inf".to_string()
