@@ -724,7 +724,6 @@ pub fn layout_figure(
     rays_per_field: usize,
 ) -> Result<Figure> {
     let z = lens.vertex_z_mm();
-    let track = *z.last().unwrap_or(&1.0);
     let mut ray_height = vec![0.0f64; lens.surfaces.len()];
     // The axial extent of every vertex and the image (a mirror system folds back: a
     // Cassegrain's secondary lies before its primary, at negative z).
@@ -857,6 +856,11 @@ pub fn layout_figure(
         }
     }
     let h = lens.sensor.half_diagonal_mm();
+    // The image plane's meridional section (decentred or tilted with the lens' image plane).
+    let end = |y: f64| {
+        let p = sys.image.point_to_global(Vec3::new(0.0, y, 0.0));
+        (p.z, p.y)
+    };
     Ok(Figure {
         width: 1100,
         height: 560,
@@ -872,7 +876,7 @@ pub fn layout_figure(
             rays,
             fields: legend,
             outlines,
-            sensor: [(track, -h), (track, h)],
+            sensor: [end(-h), end(h)],
         },
     })
 }

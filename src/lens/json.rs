@@ -24,6 +24,9 @@
 //! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
 //! DGRATING; [`super::Grating`]).
 //!
+//! A top-level `"image_plane"` (`{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`)
+//! places a decentred, tilted or rolled image plane ([`super::ImagePlane`]).
+//!
 //! A top-level `"object_medium"` (a medium written as `mat2` is) names the object space's
 //! medium when it is not air (a .zmx `GLAS` on `SURF 0`, immersion optics).
 //!
@@ -33,8 +36,8 @@
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::{
-    Aperture, ApertureShape, GlassCatalogs, Grating, Lens, Material, Object, Sensor, Shape,
-    Surface, SurfaceRole, N_ASPH,
+    Aperture, ApertureShape, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object, Sensor,
+    Shape, Surface, SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use crate::trace::{Field, FieldPoint, Vignetting};
@@ -193,6 +196,38 @@ fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
 
 /// tolray's top-level `"fields"` key: the lens file's field points (see the module
 /// documentation); absent: none.
+/// tolray's top-level `"image_plane"`: `{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`
+/// (each optional; absent: centred, perpendicular to the axis).
+fn image_plane(top: &Map<String, Value>) -> Result<ImagePlane> {
+    let Some(v) = top.get("image_plane") else {
+        return Ok(ImagePlane::default());
+    };
+    let at = "\"image_plane\": ";
+    let Some(obj) = v.as_object() else {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}must be an object like {{\"normal\": [0, -0.05, 1]}}, found {v}"),
+        ));
+    };
+    if let Some(key) = obj
+        .keys()
+        .find(|k| !["decenter", "normal", "roll_deg"].contains(&k.as_str()))
+    {
+        return Err(Error::invalid(format!(
+            "{at}unknown key \"{key}\" (decenter, normal, roll_deg)"
+        )));
+    }
+    let d = ImagePlane::default();
+    Ok(ImagePlane {
+        decenter_mm: num_array::<2>(obj, "decenter", at)?.unwrap_or(d.decenter_mm),
+        normal: num_array::<3>(obj, "normal", at)?.unwrap_or(d.normal),
+        roll_deg: match num(obj, "roll_deg", at)? {
+            Some(r) => finite(r, at, "roll_deg")?,
+            None => 0.0,
+        },
+    })
+}
+
 fn fields(top: &Map<String, Value>) -> Result<Vec<FieldPoint>> {
     let Some(v) = top.get("fields") else {
         return Ok(Vec::new());
@@ -485,6 +520,7 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
                 ))
             }
         },
+        image_plane: image_plane(top)?,
     };
     lens.validate()?;
     Ok(lens)
@@ -724,6 +760,13 @@ pub fn to_value(lens: &Lens) -> Value {
     }
     if let Some(f) = fields_value(&lens.fields) {
         top.insert("fields".into(), f);
+    }
+    if !lens.image_plane.is_default() {
+        let ip = &lens.image_plane;
+        top.insert(
+            "image_plane".into(),
+            json!({"decenter": ip.decenter_mm, "normal": ip.normal, "roll_deg": ip.roll_deg}),
+        );
     }
     let surfaces: Vec<Value> = lens
         .surfaces

@@ -509,6 +509,48 @@ pub struct Lens {
     /// a field equal to one of them fill its vignetted pupil ([`Lens::vignetting_of`]). Empty
     /// for the built-in lenses.
     pub fields: Vec<crate::trace::FieldPoint>,
+    /// Where the image plane sits and how it is turned (a .zmx coordinate break before the image
+    /// surface; JSON `"image_plane"`): centred on the axis and perpendicular to it by default.
+    pub image_plane: ImagePlane,
+}
+
+/// The image plane's pose: decentred from the axis, tilted, rolled. Ray positions and directions
+/// at the image are reported in the plane's own frame (x, y on the plane; its centre at the
+/// axial image position), as OpticStudio reports them on a tilted image surface; for the
+/// default pose that frame is the global one.
+///
+/// ```
+/// use tolray::lens::ImagePlane;
+/// // A sensor tilted 3 degrees about x (a Scheimpflug tilt).
+/// let t = 3f64.to_radians();
+/// let p = ImagePlane { normal: [0.0, -t.sin(), t.cos()], ..ImagePlane::default() };
+/// assert!(!p.is_default());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImagePlane {
+    /// Offset of the plane's centre from the axis, mm.
+    pub decenter_mm: [f64; 2],
+    /// The plane's normal (its local z axis), with a positive z component.
+    pub normal: [f64; 3],
+    /// Turn of the plane's x and y axes about its normal, degrees (as [`Surface::roll_deg`]).
+    pub roll_deg: f64,
+}
+
+impl Default for ImagePlane {
+    fn default() -> Self {
+        ImagePlane {
+            decenter_mm: [0.0; 2],
+            normal: [0.0, 0.0, 1.0],
+            roll_deg: 0.0,
+        }
+    }
+}
+
+impl ImagePlane {
+    /// True for the plane centred on the axis and perpendicular to it, unrolled.
+    pub fn is_default(&self) -> bool {
+        *self == ImagePlane::default()
+    }
 }
 
 /// A lens read by [`Lens::load_file`], with what its file says besides the prescription.
@@ -864,6 +906,19 @@ impl Lens {
                 return Err(Error::invalid("object distance must be positive"));
             }
         }
+        let ip = &self.image_plane;
+        let n = ip.normal;
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let ok = n[2] > 0.0
+            && len.is_finite()
+            && ip.decenter_mm.iter().all(|d| d.abs() <= 1e6)
+            && ip.roll_deg.abs() <= 360.0;
+        if !ok {
+            return Err(Error::invalid(format!(
+                "image plane: normal {n:?} must point along +z, decenter {:?} mm be finite, roll {} degrees within ±360",
+                ip.decenter_mm, ip.roll_deg
+            )));
+        }
         for (k, p) in self.fields.iter().enumerate() {
             let at = |m: String| Error::invalid(format!("field {}: {m}", k + 1));
             let (x, y) = match p.field {
@@ -974,17 +1029,18 @@ impl Lens {
     }
 
     /// The lens with `adj` folded into its prescription: each surface's moved vertex and axis
-    /// become its `pos_xy_mm`, `vec_local` and gaps, and curvature offsets are added to the
-    /// curvatures. Compiling the result without adjustments traces the same rays as compiling
-    /// `self` with `adj` (a rotation of a surface about its own axis is dropped: surfaces and
-    /// their clear apertures are round). Gaps that no surface moves are kept bit for bit. The first
+    /// become its `pos_xy_mm`, `vec_local`, `roll_deg` (where the surface is not symmetric about
+    /// its axis; elsewhere a turn about the axis changes nothing and is dropped) and gaps, the
+    /// image plane's motion becomes its [`Lens::image_plane`], and curvature offsets are added to
+    /// the curvatures. Compiling the result without adjustments traces the same rays as
+    /// compiling `self` with `adj`. Gaps that no surface moves are kept bit for bit. The first
     /// vertex stays at z = 0, so an axial move of the first surface becomes a change of the object
     /// distance (and the global frame moves with it). This is how a fabricated (perturbed) lens is
     /// exported, e.g. to Zemax.
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Invalid`] if the image plane is tilted or moved sideways, or a surface
-    /// ends up behind the previous one.
+    /// [`crate::ErrorKind::Invalid`] if a surface ends up behind the previous one or a surface or
+    /// the image plane is turned by 90 degrees or more.
     pub fn with_adjustments(&self, adj: &Adjustments) -> Result<Lens> {
         let n = self.surfaces.len();
         if adj.surface_motion.len() != n
@@ -997,11 +1053,6 @@ impl Lens {
             )));
         }
         let im = &adj.image_motion;
-        if im.rotation != Mat3::identity() || im.translation.x != 0.0 || im.translation.y != 0.0 {
-            return Err(Error::invalid(
-                "the adjustments tilt or decenter the image plane; a lens file cannot hold that",
-            ));
-        }
         let z = self.vertex_z_mm();
         let mut out = self.clone();
         // Displacement of every vertex (and last, of the image plane) from its nominal place.
@@ -1020,13 +1071,29 @@ impl Lens {
                 let a = m
                     .rotation
                     .apply(Vec3::new(v[0] / len, v[1] / len, v[2] / len));
+                let frame = m.rotation * system::frame_rotation(v, s.roll_deg);
                 s.vec_local = [a.x, a.y, a.z];
+                if !s.is_axially_symmetric() {
+                    s.roll_deg = system::roll_of(&frame, s.vec_local);
+                }
             }
             s.pos_xy_mm = [p.x + d.x, p.y + d.y];
             s.c = s.c * (1.0 + adj.curvature_error[i]) + adj.curvature_offset[i];
             disp.push(d.z);
         }
-        disp.push(im.translation.z);
+        // The image plane: its centre and frame moved as the System moves them.
+        let ip = self.image_plane;
+        let z_img = z[n];
+        let c = Vec3::new(ip.decenter_mm[0], ip.decenter_mm[1], z_img);
+        let c2 = im.rotation.apply(c) + im.translation;
+        if im.rotation != Mat3::identity() {
+            let frame = im.rotation * system::frame_rotation(ip.normal, ip.roll_deg);
+            let a = frame.apply(Vec3::new(0.0, 0.0, 1.0));
+            out.image_plane.normal = [a.x, a.y, a.z];
+            out.image_plane.roll_deg = system::roll_of(&frame, out.image_plane.normal);
+        }
+        out.image_plane.decenter_mm = [c2.x, c2.y];
+        disp.push(c2.z - z_img);
         for i in 0..n {
             let dz = disp[i + 1] - disp[i];
             if dz != 0.0 {

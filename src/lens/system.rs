@@ -247,6 +247,28 @@ pub(crate) fn rotation_to(v: [f64; 3]) -> Mat3<f64> {
     }
 }
 
+/// A surface's (or the image plane's) frame: +z turned onto `axis` by the shortest arc after a
+/// roll of `roll_deg` about z.
+pub(crate) fn frame_rotation(axis: [f64; 3], roll_deg: f64) -> Mat3<f64> {
+    if roll_deg == 0.0 {
+        rotation_to(axis)
+    } else {
+        rotation_to(axis) * Mat3::rot_z(roll_deg.to_radians())
+    }
+}
+
+/// The turn of `frame` about its own axis beyond the shortest-arc turn of +z onto `axis` (the
+/// `roll_deg` that [`frame_rotation`] takes), degrees.
+pub(crate) fn roll_of(frame: &Mat3<f64>, axis: [f64; 3]) -> f64 {
+    let m = rotation_to(axis).transpose() * *frame;
+    let r = m.rows[1].x.atan2(m.rows[0].x).to_degrees();
+    if r.abs() > 1e-10 {
+        r
+    } else {
+        0.0
+    }
+}
+
 fn is_identity(m: &Mat3<f64>) -> bool {
     *m == Mat3::identity()
 }
@@ -259,11 +281,7 @@ impl<S: Real> System<S> {
         let dirs = lens.travel_directions();
         let mut rows = Vec::with_capacity(lens.surfaces.len());
         for (i, s) in lens.surfaces.iter().enumerate() {
-            let r0 = if s.roll_deg == 0.0 {
-                rotation_to(s.vec_local)
-            } else {
-                rotation_to(s.vec_local) * Mat3::rot_z(s.roll_deg.to_radians())
-            };
+            let r0 = frame_rotation(s.vec_local, s.roll_deg);
             let motion = &adj.surface_motion[i];
             let rot = motion.rotation * r0;
             let lift_c = |m: Mat3<f64>| Mat3 {
@@ -322,21 +340,24 @@ impl<S: Real> System<S> {
             });
             z += lift(Param::Gap(i), S::cst(s.d_next_mm));
         }
+        // The image plane: its nominal pose (decenter, tilt, roll), then the perturbation's
+        // motion in the global frame.
         let m = &adj.image_motion;
+        let ip = &lens.image_plane;
+        let rotation = m.rotation * frame_rotation(ip.normal, ip.roll_deg);
+        let lift_m = |r: &Mat3<f64>| Mat3 {
+            rows: r.rows.map(|r| r.map_value::<S>()),
+        };
+        let [dx, dy] = ip.decenter_mm;
         let image = Rigid {
-            rotation: Mat3 {
-                rows: m.rotation.rows.map(|r| r.map_value::<S>()),
-            },
+            rotation: lift_m(&rotation),
             translation: m.translation.map_value::<S>()
-                + Mat3 {
-                    rows: m.rotation.rows.map(|r| r.map_value::<S>()),
-                }
-                .apply(Vec3::new(S::cst(0.0), S::cst(0.0), z)),
+                + lift_m(&m.rotation).apply(Vec3::new(S::cst(dx), S::cst(dy), z)),
         };
         System {
             rows,
             image,
-            image_rotated: !is_identity(&m.rotation),
+            image_rotated: !is_identity(&rotation),
             image_virtual: lens
                 .surfaces
                 .last()

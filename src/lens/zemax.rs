@@ -35,7 +35,8 @@
 //! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
 //! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`], and the frame's turn about
 //! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A surface turned by 90° or more,
-//! surfaces out of order along z, and a tilted image plane cannot be represented and are errors.
+//! surfaces out of order along z, and an image plane turned by 90° or more cannot be represented
+//! and are errors; a decentred, tilted or rolled image plane is kept ([`Lens::image_plane`]).
 //! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
 //! semi-diameter, no hard aperture) are the construction ("dummy") surfaces of coordinate-break sequences; they do
 //! not become tolray surfaces (OpticStudio does not clip there either).
@@ -59,7 +60,8 @@
 use super::material::{GlassCatalogs, Material, LAMBDA_D_NM};
 use super::text::decode;
 use super::{
-    Aperture, ApertureShape, Grating, Lens, Object, Sensor, Shape, Surface, SurfaceRole, N_ASPH,
+    Aperture, ApertureShape, Grating, ImagePlane, Lens, Object, Sensor, Shape, Surface,
+    SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
@@ -233,9 +235,6 @@ pub struct ZmxExtras {
     /// origin is the vertex of `SURF 1`, mm: non-zero when dummy surfaces or coordinate breaks
     /// come first.
     pub first_vertex_mm: [f64; 3],
-    /// The image surface's lateral decenter in tolray's frame, mm (tolray's image plane stays
-    /// on the axis: subtract this from spot positions for the file's image coordinates).
-    pub image_decenter_mm: [f64; 2],
 }
 
 /// A lens read from a .zmx file, with the file's extras and the reader's warnings.
@@ -787,13 +786,6 @@ fn glass(
     ))
 }
 
-/// The rotation of the frame `rot` about its own axis beyond the shortest-arc turn of +z onto
-/// `axis` (from which tolray builds a surface frame), degrees.
-fn roll_deg(rot: &Mat3<f64>, axis: [f64; 3]) -> f64 {
-    let m = super::system::rotation_to(axis).transpose() * *rot;
-    m.rows[1].x.atan2(m.rows[0].x).to_degrees()
-}
-
 fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
     Mat3::rot_x(a.to_radians()) * Mat3::rot_y(b.to_radians()) * Mat3::rot_z(g.to_radians())
 }
@@ -848,6 +840,8 @@ struct Walker {
     /// The medium the light is in.
     medium: Material,
     last_cb_line: Option<usize>,
+    /// The image plane's pose, set when the image surface is reached.
+    image_plane: ImagePlane,
     stop_line: Option<usize>,
     built: Vec<Built>,
     scale: f64,
@@ -1121,7 +1115,7 @@ impl Walker {
             // A coordinate break that rolls the frame about the surface's axis matters where
             // the surface is not symmetric about it (toroid, grating, a non-circular or
             // decentred aperture); elsewhere it changes nothing and is dropped.
-            let roll = roll_deg(&self.rot, surface.vec_local);
+            let roll = super::system::roll_of(&self.rot, surface.vec_local);
             if roll.abs() > 1e-10 && !surface.is_axially_symmetric() {
                 surface.roll_deg = roll;
             }
@@ -1142,7 +1136,7 @@ impl Walker {
 
     /// The image surface closes the last gap and gives the sensor's half-diagonal (`None`
     /// without a `DIAM`: the caller sizes it by the fields).
-    fn image(&mut self, img: &RawSurf, warnings: &mut Vec<String>) -> Result<Option<f64>> {
+    fn image(&mut self, img: &RawSurf) -> Result<Option<f64>> {
         let ty = img.type_name();
         if !matches!(ty.as_str(), "STANDARD" | "EVENASPH") {
             return Err(invalid(
@@ -1162,18 +1156,26 @@ impl Walker {
         if let Some(l) = img.stop {
             return Err(invalid(l, "the image surface cannot be the stop"));
         }
-        if !is_identity(&self.rot) {
+        // A tilted, rolled or decentred image plane keeps its pose; one turned by 90 degrees or
+        // more (a fold) is not a plane tolray's rays reach along +z.
+        let axis = self.axis();
+        if axis.z <= 1e-9 {
             return Err(invalid(
                 self.last_cb_line.unwrap_or(img.line),
-                "the image plane is tilted by coordinate breaks (the last one is here); tolray's image plane is perpendicular to z",
+                "the image plane is turned by 90 degrees or more by coordinate breaks (the last one is here); tolray traces along +z only",
             ));
         }
-        if self.origin.x != 0.0 || self.origin.y != 0.0 {
-            warnings.push(format!(
-                "line {}: the image surface is decentered by ({:.6}, {:.6}) mm; tolray's image plane is centred on the axis (spot positions are in global coordinates)",
-                img.line, self.origin.x, self.origin.y
-            ));
-        }
+        let normal = if is_identity(&self.rot) {
+            [0.0, 0.0, 1.0]
+        } else {
+            [axis.x, axis.y, axis.z]
+        };
+        let roll = super::system::roll_of(&self.rot, normal);
+        self.image_plane = ImagePlane {
+            decenter_mm: [self.origin.x, self.origin.y],
+            normal,
+            roll_deg: if roll.abs() > 1e-10 { roll } else { 0.0 },
+        };
         // An image surface before the last lens surface along the light's path is a virtual
         // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
         let Some(last) = self.built.last_mut() else {
@@ -1379,6 +1381,7 @@ fn build(
         dir: 1.0,
         medium: object_medium.clone(),
         last_cb_line: None,
+        image_plane: ImagePlane::default(),
         stop_line: None,
         built: Vec::new(),
         scale,
@@ -1399,12 +1402,9 @@ fn build(
             }
         }
     }
-    let r_sensor = walk.image(&surfs[last], &mut warnings)?;
+    let r_sensor = walk.image(&surfs[last])?;
     let first_vertex = walk.first_vertex;
-    let image_decenter = [
-        walk.origin.x - first_vertex.x,
-        walk.origin.y - first_vertex.y,
-    ];
+    let image_plane = walk.image_plane;
     let mut built = walk.built;
     if walk.stop_line.is_none() {
         warnings.push(format!(
@@ -1429,6 +1429,7 @@ fn build(
         ray_aiming: h.raim.as_ref().is_some_and(|r| r.v != 0),
         object_medium,
         fields: Vec::new(),
+        image_plane,
     };
     if let Object::Finite { distance_mm } = lens.object {
         if !(distance_mm > 0.0) {
@@ -1544,7 +1545,6 @@ fn build(
         glass_catalogs: h.gcat,
         surface_numbers: built.iter().map(|b| b.index).collect(),
         first_vertex_mm: [first_vertex.x, first_vertex.y, first_vertex.z],
-        image_decenter_mm: image_decenter,
     };
     Ok(ZmxLens {
         lens,
@@ -1869,7 +1869,7 @@ fn gcat_name(vendor: &str) -> String {
 /// `Rx(a) Ry(b) Rz(g)`) that give tolray's surface frame: +z turned onto `n` by the shortest arc,
 /// after a roll of `roll_deg` about the axis.
 fn tilt_angles(n: [f64; 3], roll_deg: f64) -> (f64, f64, f64) {
-    let r = super::system::rotation_to(n) * Mat3::rot_z(roll_deg.to_radians());
+    let r = super::system::frame_rotation(n, roll_deg);
     // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
     // (cos b cos g, -cos b sin g, sin b).
     let b = r.rows[0].z.clamp(-1.0, 1.0).asin();
@@ -2180,6 +2180,24 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             surf(&mut w, cb(-1.0, 1, s.d_next_mm));
         }
     }
+    // A decentred, tilted or rolled image plane: one coordinate break before it.
+    let ip = &lens.image_plane;
+    if !ip.is_default() {
+        let (a, b, g) = tilt_angles(ip.normal, ip.roll_deg);
+        surf(
+            &mut w,
+            vec![
+                "TYPE COORDBRK".into(),
+                "DISZ 0".into(),
+                format!("PARM 1 {}", fmt(ip.decenter_mm[0])),
+                format!("PARM 2 {}", fmt(ip.decenter_mm[1])),
+                format!("PARM 3 {}", fmt(a)),
+                format!("PARM 4 {}", fmt(b)),
+                format!("PARM 5 {}", fmt(g)),
+                "PARM 6 0".into(),
+            ],
+        );
+    }
     surf(
         &mut w,
         vec![
@@ -2280,7 +2298,10 @@ mod tests {
                 );
             }
             // The reader recovers the roll from the frame.
-            assert!((roll_deg(&r, n) - roll).abs() < 1e-12, "roll {roll}");
+            assert!(
+                (crate::lens::system::roll_of(&r, n) - roll).abs() < 1e-12,
+                "roll {roll}"
+            );
         }
     }
 

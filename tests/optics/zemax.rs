@@ -396,15 +396,22 @@ fn perturbed_lenses_round_trip_through_coordinate_breaks() {
               {"surface": 8, "gap_mm": 0.015}]}"#,
     )
     .unwrap();
-    let (perturbed, adj) = pattern.apply(&lens).unwrap();
+    let (perturbed, mut adj) = pattern.apply(&lens).unwrap();
+    // The image plane tilted and moved sideways too (a sensor's assembly error, set through the
+    // library): the baked lens holds it as its image plane.
+    adj.image_motion = tolray::math::Rigid {
+        rotation: tolray::math::Mat3::from_tilt_deg(0.3, -0.2, 0.0),
+        translation: adj.image_motion.translation + Vec3::new(0.05, -0.02, 0.0),
+    };
     let baked = perturbed.with_adjustments(&adj).unwrap();
+    assert!(!baked.image_plane.is_default());
     assert!(baked
         .surfaces
         .iter()
         .any(|s| s.vec_local[0] != 0.0 && s.pos_xy_mm[1] != 0.0));
     assert_eq!(
-        baked.surfaces[10].d_next_mm, lens.surfaces[10].d_next_mm,
-        "untouched gaps stay exact"
+        baked.surfaces[9].d_next_mm, lens.surfaces[9].d_next_mm,
+        "untouched gaps stay exact (the image gap moves with the tilted image plane's centre)"
     );
     // The element's axial shift moves the first vertex: the baked lens keeps it at z = 0 and
     // moves away from the object instead.
@@ -425,8 +432,8 @@ fn perturbed_lenses_round_trip_through_coordinate_breaks() {
     assert_eq!(moved_surfaces, 5, "element 0, surface 2 and element 2");
     assert_eq!(
         text1.matches("TYPE COORDBRK").count(),
-        2 * moved_surfaces,
-        "a pair per moved surface"
+        2 * moved_surfaces + 1,
+        "a pair per moved surface, one before the image"
     );
     let z1 = parse(&text1).unwrap();
     assert!(z1.warnings.is_empty(), "{:?}", z1.warnings);
@@ -737,8 +744,18 @@ fn malformed_lines_are_errors_that_name_the_line() {
             "SURF 5\n  TYPE STANDARD\n  CURV 0\n  DISZ 0",
         )
     };
-    let t = cb("  PARM 3 1.5");
-    check(&t, "TYPE COORDBRK", &["the image plane is tilted"]);
+    // A small tilt before a lens surface and the image is fine now (the image plane keeps it);
+    // one that turns the image plane past 90 degrees is not.
+    parse(&cb("  PARM 3 1.5")).unwrap();
+    let t = base.replace(
+        "SURF 4\n",
+        "SURF 4\n  TYPE COORDBRK\n  PARM 3 95\n  DISZ 0\nSURF 5\n",
+    );
+    check(
+        &t,
+        "TYPE COORDBRK",
+        &["the image plane is turned by 90 degrees or more"],
+    );
     let t = cb("  PARM 4 95");
     check(&t, "SURF 3", &["turned by 90 degrees or more"]);
     let t = cb("  STOP\n  PARM 2 0.5");
@@ -866,17 +883,30 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
         "GLAS N-BK7",
         "glass N-BK7 is defined from 0.3 to 2.5 µm; 0.25 µm outside",
     );
-    // A decentered image plane is only a change of origin.
+    // A decentred and tilted image plane is kept (no warning): the same lens with that pose.
     let t = base.replace(
         "SURF 4\n",
-        "SURF 4\n  TYPE COORDBRK\n  PARM 1 0.2\n  DISZ 0\nSURF 5\n",
+        "SURF 4\n  TYPE COORDBRK\n  PARM 1 0.2\n  PARM 3 1.5\n  DISZ 0\nSURF 5\n",
     );
-    let z = warn(
-        &t,
-        "SURF 5",
-        "the image surface is decentered by (0.200000, 0.000000) mm",
-    );
-    assert_eq!(z.lens, read("asphere.zmx").lens);
+    let z = parse(&t).unwrap();
+    assert!(z.warnings.is_empty(), "{:?}", z.warnings);
+    let mut want = read("asphere.zmx").lens;
+    let a = 1.5f64.to_radians();
+    want.image_plane = tolray::lens::ImagePlane {
+        decenter_mm: [0.2, 0.0],
+        normal: [0.0, -a.sin(), a.cos()],
+        roll_deg: 0.0,
+    };
+    assert_eq!(z.lens.surfaces, want.surfaces);
+    let ip = z.lens.image_plane;
+    assert_eq!(ip.decenter_mm, [0.2, 0.0]);
+    assert!(ip.roll_deg.abs() < 1e-12, "{ip:?}");
+    for k in 0..3 {
+        assert!(
+            (ip.normal[k] - want.image_plane.normal[k]).abs() < 1e-15,
+            "{ip:?}"
+        );
+    }
     // The clean fixtures give no warnings at all.
     for (f, _) in FIXTURES {
         assert!(read(f).warnings.is_empty(), "{f}");
@@ -1537,10 +1567,11 @@ fn corpus_mismatches(e: &serde_json::Value, z: &ZmxLens) -> Vec<String> {
             }
         }
         trace(&sys, wl, &mut b, TraceOptions { apertures: false });
+        // In the image surface's own frame (decentred, tilted), as optiland reports it.
         let hits: Vec<Vec3<f64>> = b
             .iter()
             .filter(|r| r.status.is_alive())
-            .map(|r| r.o)
+            .map(|r| sys.image.point_to_local(r.o))
             .collect();
         let n = hits.len() as f64;
         let (cx, cy) = (
@@ -1579,9 +1610,6 @@ fn corpus_mismatches(e: &serde_json::Value, z: &ZmxLens) -> Vec<String> {
         }
         let c = &fd["centroid_mm"];
         let scale = 1.0 + mm(&c[1]).abs();
-        // In the image surface's own frame, as optiland reports it.
-        let [ix, iy] = z.extras.image_decenter_mm;
-        let (cx, cy) = (cx - ix, cy - iy);
         if !((cx - mm(&c[0])).abs() <= 1e-9 * scale && (cy - mm(&c[1])).abs() <= 1e-9 * scale) {
             bad.push(format!("field {frac}: centroid ({cx}, {cy}), optiland {c}"));
         }
@@ -1600,7 +1628,7 @@ fn corpus_mismatches(e: &serde_json::Value, z: &ZmxLens) -> Vec<String> {
 #[test]
 fn corpus_agrees_with_optiland_or_is_refused_by_line() {
     // Files tolray refuses: (path, line, what the message says).
-    let refused: [(&str, usize, &str); 14] = [
+    let refused: [(&str, usize, &str); 11] = [
         (
             "dcclab_raytracing/ASL5040-UV-Zemax(ZMX).zmx",
             76,
@@ -1630,27 +1658,12 @@ fn corpus_agrees_with_optiland_or_is_refused_by_line() {
         (
             "optiland/one_mirror_up_45deg.zmx",
             140,
-            "the image plane is tilted",
+            "the image plane is turned by 90 degrees or more",
         ),
         (
             "optiland/simple_fold_mirror_up.zmx",
             7,
             "the lens is afocal",
-        ),
-        (
-            "rayoptics/HoO-V2C18Ex46.zmx",
-            209,
-            "the image plane is tilted",
-        ),
-        (
-            "rayoptics/HoO-V2C18Ex66.zmx",
-            329,
-            "the image plane is tilted",
-        ),
-        (
-            "rayoptics/HoO-V2C18Ex66NEW.zmx",
-            309,
-            "the image plane is tilted",
         ),
         (
             "rayoptics/354710-C-Zemax(ZMX).zmx",
@@ -1673,7 +1686,21 @@ fn corpus_agrees_with_optiland_or_is_refused_by_line() {
     // decenters), so it does not restore the frame after a tilted element the way OpticStudio's
     // Tilt/Decenter Elements does (its later surfaces sit 2.8e-5 mm off); tolray's reading of that
     // convention is checked in opticstudio_element_tilt_equals_tolray_element_tilt.
-    let optiland_differs = ["skzemax/e07_TiltDecenterAndMFOperand.zmx"];
+    // optiland 0.6.3 reads a TOROIDAL surface's radius of rotation from PARM 2 (OpticStudio and
+    // ray-optics: PARM 1; see toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray), so it
+    // traces HoO-V2C18Ex46's toroidal mirror (PARM 1 = 1035 mm) as a cylinder: a 1378 µm spot
+    // where tolray's is 1.2 µm.
+    let optiland_differs = [
+        "skzemax/e07_TiltDecenterAndMFOperand.zmx",
+        "rayoptics/HoO-V2C18Ex46.zmx",
+    ];
+    // Off-axis mirror systems with a tilted image plane: the real rays agree (spots and
+    // centroids in the tilted image plane's frame, to 1e-9), the paraxial values do not:
+    // tolray's paraxial model is the unfolded, untilted system; optiland's follows the tilts.
+    let paraxial_differs = [
+        "rayoptics/HoO-V2C18Ex66.zmx",
+        "rayoptics/HoO-V2C18Ex66NEW.zmx",
+    ];
     let dir = fixture("real");
     let refs: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("reference.json")).unwrap())
@@ -1742,7 +1769,14 @@ fn corpus_agrees_with_optiland_or_is_refused_by_line() {
                 if !(glass.is_empty() || alias) {
                     failures.push(format!("{path}: {glass:?}"));
                 }
-                let bad = corpus_mismatches(e, &z);
+                let mut bad = corpus_mismatches(e, &z);
+                if paraxial_differs.contains(&path) {
+                    let paraxial = |m: &String| m.starts_with("EFL") || m.starts_with("EP z");
+                    if !bad.iter().any(paraxial) {
+                        failures.push(format!("{path}: paraxial values now agree with optiland"));
+                    }
+                    bad.retain(|m| !paraxial(m));
+                }
                 match (bad.is_empty(), optiland_differs.contains(&path)) {
                     (true, false) => agreed += 1,
                     (false, false) => failures.push(format!("{path}: {bad:?}")),
@@ -1755,7 +1789,7 @@ fn corpus_agrees_with_optiland_or_is_refused_by_line() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
-    assert_eq!(agreed, 23, "files that open and agree");
+    assert_eq!(agreed, 25, "files that open and agree");
     assert_eq!(gratings, 2, "grating files that open");
     // With the opt-in, the Thorlabs file opens with its GLAS line's n_d / V_d (and says so).
     let opt_in = GlassCatalogs {
@@ -2110,13 +2144,14 @@ fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
             }
             let mut b = set.batch::<f64>();
             trace(&sys, wl, &mut b, TraceOptions { apertures: false });
-            let [ix, iy] = z.extras.image_decenter_mm;
             let hits = want["image_xy_mm"].as_array().unwrap();
             let mut alive = 0;
             for (i, (r, h)) in b.iter().zip(hits).enumerate() {
                 match (r.status.is_alive(), h.as_array()) {
                     (true, Some(h)) => {
-                        let (x, y) = (r.o.x - ix, r.o.y - iy);
+                        // In the image surface's own frame, as optiland reports it.
+                        let p = sys.image.point_to_local(r.o);
+                        let (x, y) = (p.x, p.y);
                         let (hx, hy) = (h[0].as_f64().unwrap(), h[1].as_f64().unwrap());
                         let tol = 1e-9 * (1.0 + hx.abs().max(hy.abs()));
                         assert!(

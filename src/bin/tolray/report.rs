@@ -133,6 +133,13 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
             ));
         }
     }
+    let ip = &lens.image_plane;
+    if !ip.is_default() {
+        s.push_str(&format!(
+            "  image plane: centre ({:.6}, {:.6}) mm from the axis, normal ({:.8}, {:.8}, {:.8}), roll {:.6} degrees (spots are in its own frame)\n",
+            ip.decenter_mm[0], ip.decenter_mm[1], ip.normal[0], ip.normal[1], ip.normal[2], ip.roll_deg
+        ));
+    }
     if !lens.fields.is_empty() {
         s.push_str(&format!(
             "\nFields of the lens file (the commands' default fields; tolray's sign: {})\n  {:>5} {:>22} {:>7} {:>8} {:>8} {:>8} {:>8}\n",
