@@ -191,6 +191,20 @@ def load_optic(path, feat):
             # the same indices; the comparison is of the reading and the tracing.
             s["material"] = TolrayModelGlass(s["index"], s["abbe"])
             patches.append(f"surface {i}: model glass nd={s['index']!r} Vd={s['abbe']!r} -> tolray's Cauchy law")
+    # Patch 7 (2026-11-27): TOROIDAL parameters as OpticStudio (and ray-optics) number them:
+    # PARM 1 is the radius of rotation and PARM 2..8 the y^2 .. y^14 terms. optiland 0.6.3 keys
+    # PARM k as param_{k-1} and takes the radius from param_1 (PARM 2) and the terms from
+    # param_2 on (PARM 3..): shift them by one. Only HoO-V2C18Ex46 has a non-zero TOROIDAL PARM
+    # in the corpus (PARM 1 = 1035), so only its entry changes (regenerated with --only).
+    for i, s in model.surfaces.items():
+        if s.get("type") == "toroidal":
+            old = {k: s.get(f"param_{k}", 0.0) for k in range(0, 10)}
+            if any(old.values()):
+                for k in range(1, 10):
+                    s[f"param_{k}"] = old[k - 1]
+                s["param_0"] = 0.0
+                patches.append(f"surface {i}: TOROIDAL PARM 1 (radius of rotation {old[0]!r}) "
+                               "and PARM 2.. (y^2.. terms) moved to where optiland reads them")
     # Patch 3: F_SILICA / SILICA as Zemax MISC.AGF defines them (optiland 0.6.3 does not know
     # F_SILICA and reads SILICA as its own SiO2 page); see ZemaxMiscSilica.
     # (falls back to AbbeMaterial(0, 0) -> NaN).  Use optiland's 'fused silica'
@@ -441,11 +455,21 @@ def rayoptics_reference(path):
 
 
 def main():
+    # `--only REL [REL ...]`: regenerate just those entries (paths relative to the corpus, as in
+    # the JSON) and keep every other entry of the existing reference.json as it is.
+    only = sys.argv[sys.argv.index("--only") + 1:] if "--only" in sys.argv else None
+    old = {}
+    if only:
+        with open(os.path.join(CORPUS, "reference.json")) as fh:
+            old = {e["path"]: e for e in json.load(fh)}
     # ray-optics writes zmx_read_lens.log into the working directory: keep it out of the repo.
     import tempfile
     os.chdir(tempfile.mkdtemp(prefix="zmxref-"))
     out = []
     for source, path, rel in corpus():
+        if only and rel not in only:
+            out.append(old[rel])
+            continue
         feat = scan(path)
         entry = {"source": source, "path": rel, "features": feat}
         print("==", rel, flush=True)
