@@ -727,8 +727,23 @@ pub fn layout_figure(
     let mut ray_height = vec![0.0f64; lens.surfaces.len()];
     // The axial extent of every vertex and the image (a mirror system folds back: a
     // Cassegrain's secondary lies before its primary, at negative z).
-    let z_lo = z.iter().copied().fold(0.0f64, f64::min);
-    let z_hi = z.iter().copied().fold(0.0f64, f64::max);
+    // The image plane's meridional section (decentred or tilted with the lens' image plane).
+    let h = lens.sensor.half_diagonal_mm();
+    let end = |y: f64| {
+        let p = sys.image.point_to_global(Vec3::new(0.0, y, 0.0));
+        (p.z, p.y)
+    };
+    let ends = [end(-h), end(h)];
+    let z_lo = z
+        .iter()
+        .copied()
+        .chain(ends.map(|e| e.0))
+        .fold(0.0f64, f64::min);
+    let z_hi = z
+        .iter()
+        .copied()
+        .chain(ends.map(|e| e.0))
+        .fold(0.0f64, f64::max);
     let span = (z_hi - z_lo).max(1e-3);
     let zmin = z_lo - 0.08 * span;
     let zmax = z_hi + 0.04 * span;
@@ -782,7 +797,10 @@ pub fn layout_figure(
                     break;
                 }
                 if let Some(i) = upto {
-                    ray_height[i] = ray_height[i].max(r.o.y.abs());
+                    // Measured in the surface's own frame (decentred or tilted surfaces).
+                    let row = &sys.rows[i];
+                    let local = row.rot.apply_t(r.o - row.pos);
+                    ray_height[i] = ray_height[i].max(local.y.abs());
                 }
                 pts.push((r.o.z, r.o.y));
             }
@@ -804,27 +822,37 @@ pub fn layout_figure(
             }
         })
         .collect();
-    let ymax = drawn
-        .iter()
-        .copied()
-        .fold(lens.sensor.half_diagonal_mm(), f64::max);
+    // A point (0, y, z) of surface i's own frame, drawn where the (decentred, tilted) surface
+    // puts it: (global z, global y).
+    let place = |i: usize, y: f64, zl: f64| {
+        let row = &sys.rows[i];
+        let p = row.rot.apply(Vec3::new(0.0, y, zl)) + row.pos;
+        (p.z, p.y)
+    };
     let profile = |i: usize| -> Vec<(f64, f64)> {
         let s = &lens.surfaces[i];
         let r = drawn[i];
         (0..=80)
             .filter_map(|j| {
                 let y = -r + 2.0 * r * j as f64 / 80.0;
-                s.sag(y).map(|sz| (z[i] + sz, y))
+                s.sag(y).map(|sz| place(i, y, sz))
             })
             .collect()
     };
+    // Every surface as drawn and the image plane's ends.
+    let ymax = (0..lens.surfaces.len())
+        .flat_map(|i| [place(i, drawn[i], 0.0).1, place(i, -drawn[i], 0.0).1])
+        .chain(ends.map(|e| e.1))
+        .map(f64::abs)
+        .fold(h, f64::max);
     let mut outlines = Vec::new();
     for (i, s) in lens.surfaces.iter().enumerate() {
         if s.role == SurfaceRole::Aperture || s.is_stop {
             let r = drawn[i];
-            let zs = z[i] + s.sag(r).unwrap_or(0.0);
-            outlines.push(vec![(zs, r), (zs, r + 0.15 * ymax)]);
-            outlines.push(vec![(zs, -r), (zs, -r - 0.15 * ymax)]);
+            let zs = s.sag(r).unwrap_or(0.0);
+            let bar = 0.15 * ymax;
+            outlines.push(vec![place(i, r, zs), place(i, r + bar, zs)]);
+            outlines.push(vec![place(i, -r, zs), place(i, -r - bar, zs)]);
         }
         if s.role != SurfaceRole::Aperture {
             outlines.push(profile(i));
@@ -855,12 +883,6 @@ pub fn layout_figure(
             }
         }
     }
-    let h = lens.sensor.half_diagonal_mm();
-    // The image plane's meridional section (decentred or tilted with the lens' image plane).
-    let end = |y: f64| {
-        let p = sys.image.point_to_global(Vec3::new(0.0, y, 0.0));
-        (p.z, p.y)
-    };
     Ok(Figure {
         width: 1100,
         height: 560,
@@ -876,7 +898,7 @@ pub fn layout_figure(
             rays,
             fields: legend,
             outlines,
-            sensor: [end(-h), end(h)],
+            sensor: ends,
         },
     })
 }
