@@ -9,6 +9,9 @@ Usage (from the repository root; nothing in tolray runs this, tests read its out
     /tmp/zmxref/venv/bin/pip install optiland==0.6.3 rayoptics==0.9.8 pyyaml
     /tmp/zmxref/venv/bin/python scripts/zmxref/gen_reference.py
 writes tests/data/zemax/real/reference.json for every tests/data/zemax/real/<source>/*.zmx.
+`... gen_reference.py --only rayoptics/HoO-V2C18Ex46.zmx` regenerates just the entries named
+(paths as in the JSON) and keeps the others as they are (so used on 2026-11-27 for patch 7,
+optiland 0.6.3 in /tmp/optvenv).
 
 Per file:
   * feature inventory (scan_zmx.scan, pure python)
