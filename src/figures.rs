@@ -161,15 +161,34 @@ impl Figure {
     /// [`ErrorKind::Numerical`] if the drawing backend fails (it does not for finite data).
     pub fn to_png(&self) -> Result<image::RgbImage> {
         register_font()?;
+        // Drawn at twice the size and averaged down: the bitmap backend draws thick lines
+        // without anti-aliasing or joins (a lens outline came out with one-pixel notches at
+        // every segment); 2x2 supersampling smooths every line, text and edge.
+        const SUPER: u32 = 2;
         let (w, h) = (self.width * PNG_SCALE, self.height * PNG_SCALE);
-        let mut buf = vec![255u8; w as usize * h as usize * 3];
+        let (ws, hs) = (w * SUPER, h * SUPER);
+        let mut buf = vec![255u8; ws as usize * hs as usize * 3];
         {
-            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-            self.draw(&root, f64::from(PNG_SCALE)).map_err(draw_error)?;
+            let root = BitMapBackend::with_buffer(&mut buf, (ws, hs)).into_drawing_area();
+            self.draw(&root, f64::from(PNG_SCALE * SUPER))
+                .map_err(draw_error)?;
             root.present().map_err(draw_error)?;
         }
-        image::RgbImage::from_raw(w, h, buf)
-            .ok_or_else(|| Error::new(ErrorKind::Numerical, "figure: image buffer size mismatch"))
+        let big = image::RgbImage::from_raw(ws, hs, buf).ok_or_else(|| {
+            Error::new(ErrorKind::Numerical, "figure: image buffer size mismatch")
+        })?;
+        // The mean of each 2x2 block (a box filter: exact, no ringing).
+        let mut out = image::RgbImage::new(w, h);
+        for (x, y, p) in out.enumerate_pixels_mut() {
+            for c in 0..3 {
+                let sum: u32 = (0..SUPER)
+                    .flat_map(|dy| (0..SUPER).map(move |dx| (dx, dy)))
+                    .map(|(dx, dy)| u32::from(big.get_pixel(x * SUPER + dx, y * SUPER + dy)[c]))
+                    .sum();
+                p[c] = ((sum + SUPER * SUPER / 2) / (SUPER * SUPER)) as u8;
+            }
+        }
+        Ok(out)
     }
 
     /// Draws the figure as an SVG document (`width x height` user units; text as text).
