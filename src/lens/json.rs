@@ -99,6 +99,13 @@ fn num(obj: &Map<String, Value>, key: &str, at: &str) -> Result<Option<f64>> {
     }
 }
 
+/// `unknown key "k" (a, b, ...)` for the first key of `obj` not in `allowed`.
+fn unknown_key(obj: &Map<String, Value>, allowed: &[&str]) -> Option<String> {
+    obj.keys()
+        .find(|k| !allowed.contains(&k.as_str()))
+        .map(|k| format!("unknown key \"{k}\" ({})", allowed.join(", ")))
+}
+
 fn num_array<const N: usize>(
     obj: &Map<String, Value>,
     key: &str,
@@ -209,13 +216,8 @@ fn image_plane(top: &Map<String, Value>) -> Result<ImagePlane> {
             format!("{at}must be an object like {{\"normal\": [0, -0.05, 1]}}, found {v}"),
         ));
     };
-    if let Some(key) = obj
-        .keys()
-        .find(|k| !["decenter", "normal", "roll_deg"].contains(&k.as_str()))
-    {
-        return Err(Error::invalid(format!(
-            "{at}unknown key \"{key}\" (decenter, normal, roll_deg)"
-        )));
+    if let Some(m) = unknown_key(obj, &["decenter", "normal", "roll_deg"]) {
+        return Err(Error::invalid(format!("{at}{m}")));
     }
     let d = ImagePlane::default();
     Ok(ImagePlane {
@@ -245,13 +247,8 @@ fn fields(top: &Map<String, Value>) -> Result<Vec<FieldPoint>> {
         let Value::Object(m) = f else {
             return Err(parse(format!("must be an object, found {f}")));
         };
-        if let Some(key) = m
-            .keys()
-            .find(|k| !["angle_deg", "height_mm", "weight", "vignetting"].contains(&k.as_str()))
-        {
-            return Err(parse(format!(
-                "unknown key \"{key}\" (angle_deg, height_mm, weight, vignetting)"
-            )));
+        if let Some(e) = unknown_key(m, &["angle_deg", "height_mm", "weight", "vignetting"]) {
+            return Err(parse(e));
         }
         let field = match (
             num_array::<2>(m, "angle_deg", &at)?,
@@ -270,13 +267,8 @@ fn fields(top: &Map<String, Value>) -> Result<Vec<FieldPoint>> {
             None => {}
             Some(Value::Object(v)) => {
                 let at = format!("{at}\"vignetting\": ");
-                if let Some(key) = v
-                    .keys()
-                    .find(|k| !["vdx", "vdy", "vcx", "vcy"].contains(&k.as_str()))
-                {
-                    return Err(parse(format!(
-                        "\"vignetting\": unknown key \"{key}\" (vdx, vdy, vcx, vcy)"
-                    )));
+                if let Some(e) = unknown_key(v, &["vdx", "vdy", "vcx", "vcy"]) {
+                    return Err(parse(format!("\"vignetting\": {e}")));
                 }
                 let get = |key: &str| num(v, key, &at).map(|x| x.unwrap_or(0.0));
                 vignetting = Vignetting {
@@ -702,13 +694,8 @@ fn grating(s: &Map<String, Value>, at: &str) -> Result<Option<Grating>> {
             format!("{at}\"grating\" must be an object like {{\"lines_per_um\": 0.6, \"order\": 1}}, found {v}"),
         ));
     };
-    if let Some(key) = obj
-        .keys()
-        .find(|k| !["lines_per_um", "order"].contains(&k.as_str()))
-    {
-        return Err(Error::invalid(format!(
-            "{at}\"grating\": unknown key \"{key}\" (lines_per_um, order)"
-        )));
+    if let Some(e) = unknown_key(obj, &["lines_per_um", "order"]) {
+        return Err(Error::invalid(format!("{at}\"grating\": {e}")));
     }
     let get = |key: &str| -> Result<f64> {
         match num(obj, key, at)? {

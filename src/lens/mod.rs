@@ -1086,14 +1086,17 @@ impl Lens {
         let z_img = z[n];
         let c = Vec3::new(ip.decenter_mm[0], ip.decenter_mm[1], z_img);
         let c2 = im.rotation.apply(c) + im.translation;
-        if im.rotation != Mat3::identity() {
+        out.image_plane.decenter_mm = [c2.x, c2.y];
+        if im.rotation == Mat3::identity() {
+            // An axial shift alone: the image gap changes by exactly the shift.
+            disp.push(im.translation.z);
+        } else {
             let frame = im.rotation * system::frame_rotation(ip.normal, ip.roll_deg);
             let a = frame.apply(Vec3::new(0.0, 0.0, 1.0));
             out.image_plane.normal = [a.x, a.y, a.z];
             out.image_plane.roll_deg = system::roll_of(&frame, out.image_plane.normal);
+            disp.push(c2.z - z_img);
         }
-        out.image_plane.decenter_mm = [c2.x, c2.y];
-        disp.push(c2.z - z_img);
         for i in 0..n {
             let dz = disp[i + 1] - disp[i];
             if dz != 0.0 {

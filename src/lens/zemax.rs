@@ -34,7 +34,8 @@
 //! y, z with order flag 0; tilt z, y, x then decenter with order flag 1; right-handed, degrees;
 //! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
 //! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`], and the frame's turn about
-//! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A surface turned by 90° or more,
+//! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A surface
+//! turned by 90° or more,
 //! surfaces out of order along z, and an image plane turned by 90° or more cannot be represented
 //! and are errors; a decentred, tilted or rolled image plane is kept ([`Lens::image_plane`]).
 //! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
@@ -51,7 +52,8 @@
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
 //! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` or
 //! `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
-//! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip. Model
+//! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip.
+//! Model
 //! glasses are written as `___BLANK` model glasses (tolray's dispersion law between the lines
 //! differs slightly from OpticStudio's model glass; n_d and V_d are exact), catalog glasses by
 //! name. A `NOTE 0 tolray ...` line records what Zemax has no place for (the exact primary and
@@ -1116,7 +1118,7 @@ impl Walker {
             // the surface is not symmetric about it (toroid, grating, a non-circular or
             // decentred aperture); elsewhere it changes nothing and is dropped.
             let roll = super::system::roll_of(&self.rot, surface.vec_local);
-            if roll.abs() > 1e-10 && !surface.is_axially_symmetric() {
+            if roll != 0.0 && !surface.is_axially_symmetric() {
                 surface.roll_deg = roll;
             }
             self.built.push(Built {
@@ -1170,11 +1172,10 @@ impl Walker {
         } else {
             [axis.x, axis.y, axis.z]
         };
-        let roll = super::system::roll_of(&self.rot, normal);
         self.image_plane = ImagePlane {
             decenter_mm: [self.origin.x, self.origin.y],
             normal,
-            roll_deg: if roll.abs() > 1e-10 { roll } else { 0.0 },
+            roll_deg: super::system::roll_of(&self.rot, normal),
         };
         // An image surface before the last lens surface along the light's path is a virtual
         // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
@@ -1865,6 +1866,17 @@ fn gcat_name(vendor: &str) -> String {
     }
 }
 
+/// A `COORDBRK` surface's lines: thickness `t`, PARM 1..5 = decenter x, y and tilts about x,
+/// y, z (degrees), PARM 6 the order flag.
+fn coordinate_break(t: f64, parms: [f64; 5], order: u8) -> Vec<String> {
+    let mut l = vec!["TYPE COORDBRK".to_string(), format!("DISZ {}", fmt(t))];
+    for (k, v) in parms.iter().enumerate() {
+        l.push(format!("PARM {} {}", k + 1, fmt(*v)));
+    }
+    l.push(format!("PARM 6 {order}"));
+    l
+}
+
 /// The tilts about x, the new y and the new z (degrees, a coordinate break with order flag 0:
 /// `Rx(a) Ry(b) Rz(g)`) that give tolray's surface frame: +z turned onto `n` by the shortest arc,
 /// after a roll of `roll_deg` about the axis.
@@ -2104,16 +2116,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         };
         let [dx, dy] = s.pos_xy_mm;
         let cb = |sign: f64, order: u8, t: f64| {
-            vec![
-                "TYPE COORDBRK".into(),
-                format!("DISZ {}", fmt(t)),
-                format!("PARM 1 {}", fmt(sign * dx)),
-                format!("PARM 2 {}", fmt(sign * dy)),
-                format!("PARM 3 {}", fmt(sign * a)),
-                format!("PARM 4 {}", fmt(sign * b)),
-                format!("PARM 5 {}", fmt(sign * g)),
-                format!("PARM 6 {order}"),
-            ]
+            coordinate_break(t, [dx, dy, a, b, g].map(|v| sign * v), order)
         };
         if moved {
             surf(&mut w, cb(1.0, 0, 0.0));
@@ -2184,19 +2187,8 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
     let ip = &lens.image_plane;
     if !ip.is_default() {
         let (a, b, g) = tilt_angles(ip.normal, ip.roll_deg);
-        surf(
-            &mut w,
-            vec![
-                "TYPE COORDBRK".into(),
-                "DISZ 0".into(),
-                format!("PARM 1 {}", fmt(ip.decenter_mm[0])),
-                format!("PARM 2 {}", fmt(ip.decenter_mm[1])),
-                format!("PARM 3 {}", fmt(a)),
-                format!("PARM 4 {}", fmt(b)),
-                format!("PARM 5 {}", fmt(g)),
-                "PARM 6 0".into(),
-            ],
-        );
+        let [dx, dy] = ip.decenter_mm;
+        surf(&mut w, coordinate_break(0.0, [dx, dy, a, b, g], 0));
     }
     surf(
         &mut w,

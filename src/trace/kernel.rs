@@ -4,7 +4,8 @@
 //! the surface is rotated), intersect (plane, cancellation-free quadric, or Newton for an even
 //! asphere started from the quadric root; odd aspheres, toroids, ideal thin lenses and gratings
 //! take a separate scalar loop, [`shaped`]), clip at the clear aperture, refract by the vector
-//! form of Snell's law (a grating: the grating equation on the tangential part), and move back. Conditions are evaluated on values and applied as
+//! form of Snell's law (a grating: the grating equation on the tangential part), and move back.
+//! Conditions are evaluated on values and applied as
 //! selects; a dead ray keeps its last state and its status.
 //!
 //! The lane loops are written for LLVM's loop vectorizer (8 `f32` or 4 `f64` lanes with AVX2).
@@ -256,7 +257,8 @@ fn surface<S: Real>(
 }
 
 /// A surface pass for the shapes other than the even asphere (odd asphere, toroid, ideal thin
-/// lens) and for gratings. Out of line and not inlined: these loops stay scalar (a per-lane Newton with an early
+/// lens) and for gratings. Out of line and not inlined: these loops stay scalar (a per-lane
+/// Newton with an early
 /// exit), are rare, and inlined into every instantiation of the vectorized loops they made the
 /// cold build of every number type several times slower without making anything faster.
 #[inline(never)]
