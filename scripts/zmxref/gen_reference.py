@@ -11,7 +11,7 @@ Usage (from the repository root; nothing in tolray runs this, tests read its out
 writes tests/data/zemax/real/reference.json for every tests/data/zemax/real/<source>/*.zmx.
 `... gen_reference.py --only rayoptics/HoO-V2C18Ex46.zmx` regenerates just the entries named
 (paths as in the JSON) and keeps the others as they are (so used on 2026-11-27 for patch 7,
-optiland 0.6.3 in /tmp/optvenv).
+optiland 0.6.3 in /tmp/optvenv), and for patch 8 on optiland/complicated_fold_mirrors_setup_v2.zmx.
 
 Per file:
   * feature inventory (scan_zmx.scan, pure python)
@@ -379,6 +379,50 @@ def trace_spot(op, z1, z_ep, r_ep, kind, value, wl_um, d_obj):
     return rms * 1000.0, int(ok.sum()), [float(xc), float(yc)], start
 
 
+def paraxial_refused(op, feat, res, model, err):
+    """Patch 8 (2026-11-27): optiland 0.6.3 refuses a paraxial model for folded systems whose
+    legs are not collinear (optiland/complicated_fold_mirrors_setup_v2.zmx: decentred fold
+    mirrors), but traces their real rays. When the stop comes first behind flat surfaces in
+    air and the aperture is ENPD, the entrance pupil is the stop itself (diameter ENPD, at
+    the stop's vertex) and the rays are traced as for any file; EFL and BFD are left out."""
+    ap = feat["system_aperture"]
+    stop = op.surfaces.stop_index
+    wl_um = fl(op.primary_wavelength)
+    before = op.surfaces[1:stop + 1]
+    flat_air = all(type(s.geometry).__name__ == "Plane"
+                   and fl(s.material_post.n(wl_um)) == 1.0 for s in before)
+    if ap["type"] != "ENPD" or not flat_air:
+        raise err
+    res["paraxial_refused"] = f"{type(err).__name__}: {err}"[:400]
+    res["efl_mm"] = None
+    res["bfd_mm"] = None
+    res["bfd_caveat"] = "optiland has no paraxial model of this file"
+    epd = float(ap["values"][0])
+    res["epd_mm"] = epd
+    z1 = fl(op.surfaces[1].geometry.cs.z)
+    epl = fl(op.surfaces[stop].geometry.cs.z) - z1
+    res["ep_z_mm"] = epl
+    res["ep_z_reference"] = "the stop's vertex (the entrance pupil: only flat air surfaces precede it)"
+    res["object_infinite"] = bool(op.object_surface.is_infinite)
+    if not op.object_surface.is_infinite:
+        raise err
+    kind, vmax, ymax, notes = field_spec(op, feat, None, wl_um)
+    res["field_notes"] = notes
+    res["field_kind"] = kind
+    res["field_max"] = vmax
+    fields = []
+    for fr in FRACS:
+        v = fr * vmax
+        rms, nr, cen, start = trace_spot(op, z1, epl, epd / 2.0, kind, v, wl_um, None)
+        e = {"frac": fr}
+        e["angle_deg" if kind == "angle" else "height_mm"] = v
+        e.update({"rms_um": rms, "n_rays": nr, "n_rays_launched": int(pupil_grid(epd / 2.0)[0].size),
+                  "centroid_mm": cen, "launch": start})
+        fields.append(e)
+    res["fields"] = fields
+    return res
+
+
 def optiland_reference(path, feat):
     res = {}
     op, patches, model, raw_epd = load_optic(path, feat)
@@ -390,7 +434,12 @@ def optiland_reference(path, feat):
         s.aperture = None
     res["glass_indices"] = glass_indices(model, wl_um, path)
     res["glass_fallback_warning"] = any(g["catalog_fallback_to_abbe_model"] for g in res["glass_indices"])
-    efl = fl(op.paraxial.f2())
+    try:
+        efl = fl(op.paraxial.f2())
+    except Exception as e:
+        if type(e).__name__ != "UnsupportedParaxialGeometryError":
+            raise
+        return paraxial_refused(op, feat, res, model, e)
     res["efl_mm"] = efl
     # BFD: paraxial back focus measured from the last surface before the image:
     # F2 (optiland: relative to image surface) + axial gap last->image.

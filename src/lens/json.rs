@@ -22,7 +22,9 @@
 //! Two more surface keys of tolray's: `"roll_deg"`, the surface's rotation about its own axis
 //! (degrees; [`Surface::roll_deg`]), and `"grating": {"lines_per_um": 0.6, "order": 1}`, a
 //! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
-//! DGRATING; [`super::Grating`]).
+//! DGRATING; [`super::Grating`]). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
+//! turns the axis for everything after it (a fold mirror; [`super::Fold`]); the lens stays
+//! described unfolded.
 //!
 //! A top-level `"image_plane"` (`{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`)
 //! places a decentred, tilted or rolled image plane ([`super::ImagePlane`]).
@@ -36,8 +38,8 @@
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::{
-    Aperture, ApertureShape, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object, Sensor,
-    Shape, Surface, SurfaceRole, N_ASPH,
+    Aperture, ApertureShape, Fold, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object,
+    Sensor, Shape, Surface, SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use crate::trace::{Field, FieldPoint, Vignetting};
@@ -679,8 +681,42 @@ fn surface_from(
             None => 0.0,
         },
         grating: grating(s, at)?,
+        fold: fold(s, at)?,
     };
     Ok((surface, num(s, "d", at)?))
+}
+
+/// tolray's `"fold"` key of a mirror: `{"tilt_deg": [a, b, g], "pivot_mm": p}` (`pivot_mm`
+/// defaults to 0).
+fn fold(s: &Map<String, Value>, at: &str) -> Result<Option<Fold>> {
+    let Some(v) = s.get("fold") else {
+        return Ok(None);
+    };
+    let Some(obj) = v.as_object() else {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}\"fold\" must be an object like {{\"tilt_deg\": [90, 0, 0], \"pivot_mm\": 0}}, found {v}"),
+        ));
+    };
+    if let Some(e) = unknown_key(obj, &["tilt_deg", "pivot_mm"]) {
+        return Err(Error::invalid(format!("{at}\"fold\": {e}")));
+    }
+    let Some(t) = num_array::<3>(obj, "tilt_deg", at)? else {
+        return Err(Error::invalid(format!(
+            "{at}\"fold\" needs \"tilt_deg\" (tilts about x, y, z in degrees)"
+        )));
+    };
+    let mut tilt_deg = [0.0; 3];
+    for (o, v) in tilt_deg.iter_mut().zip(t) {
+        *o = finite(v, at, "fold tilt_deg")?;
+    }
+    Ok(Some(Fold {
+        tilt_deg,
+        pivot_mm: match num(obj, "pivot_mm", at)? {
+            Some(p) => finite(p, at, "fold pivot_mm")?,
+            None => 0.0,
+        },
+    }))
 }
 
 /// tolray's `"grating"` key of a surface: `{"lines_per_um": T, "order": m}`.
@@ -809,6 +845,12 @@ pub fn to_value(lens: &Lens) -> Value {
                 m.insert(
                     "grating".into(),
                     json!({"lines_per_um": g.lines_per_um, "order": g.order}),
+                );
+            }
+            if let Some(f) = s.fold {
+                m.insert(
+                    "fold".into(),
+                    json!({"tilt_deg": f.tilt_deg, "pivot_mm": f.pivot_mm}),
                 );
             }
             m.insert("is_square".into(), json!(false));

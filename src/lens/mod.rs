@@ -285,6 +285,46 @@ pub struct Surface {
     pub roll_deg: f64,
     /// A diffraction grating ruled on the surface (OpticStudio `DGRATING`), or `None`.
     pub grating: Option<Grating>,
+    /// On a fold mirror: how the axis turns here for every surface after this one (and the
+    /// image), or `None` for a straight axis.
+    pub fold: Option<Fold>,
+}
+
+/// The turn of the optical axis at a fold mirror.
+///
+/// A lens is described *unfolded*: every vertex lies at its axial position (the sum of the gaps
+/// before it) plus its [`Surface::pos_xy_mm`], as if the axis were straight, and the paraxial
+/// model, tolerances and gaps all work in these coordinates. A fold on surface `m` places
+/// everything after `m` in a frame turned by [`Fold::rotation`] about the point on the axis
+/// [`Fold::pivot_mm`] beyond `m`'s vertex: the mechanical frame of a fold mirror's downstream
+/// optics (OpticStudio's coordinate break after a fold mirror). After a 45° mirror the fold turns
+/// the axis by 90° and the light goes on along the new axis' −z, the unfolded system's direction
+/// after a mirror (negative gaps, as in OpticStudio).
+///
+/// ```
+/// use tolray::lens::Fold;
+/// // A 45 degree fold mirror about x sends the axis from +z to -y (tilts as a .zmx coordinate
+/// // break: about x, the new y, the new z).
+/// let f = Fold { tilt_deg: [90.0, 0.0, 0.0], pivot_mm: 0.0 };
+/// let r = f.rotation();
+/// assert_eq!((r.rows[0].z, r.rows[1].z, r.rows[2].z), (0.0, -1.0, 0.0));
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fold {
+    /// The turn as tilts about x, then the new y, then the new z, degrees (a .zmx coordinate
+    /// break with order flag 0).
+    pub tilt_deg: [f64; 3],
+    /// Where the axis turns, mm along the axis from the surface's vertex (0: at the vertex). A
+    /// fold mirror moved along the axis keeps its downstream optics in place through it.
+    pub pivot_mm: f64,
+}
+
+impl Fold {
+    /// The turn as a rotation matrix (local-to-global axes of the downstream frame in the
+    /// upstream one), with entries within 1e-15 of 0 or ±1 made exact, so a 90° fold is exact.
+    pub fn rotation(&self) -> crate::math::Mat3<f64> {
+        system::clean_rotation(system::rotation_xyz_deg(self.tilt_deg))
+    }
 }
 
 /// A ruled diffraction grating on a surface: grooves parallel to the surface's local x axis,
@@ -334,6 +374,7 @@ impl Surface {
             vec_local: [0.0, 0.0, 1.0],
             roll_deg: 0.0,
             grating: None,
+            fold: None,
         }
     }
     /// A flat aperture stop in air.
@@ -885,6 +926,19 @@ impl Lens {
                     ));
                 }
             }
+            if let Some(f) = s.fold {
+                if s.role != SurfaceRole::Mirror {
+                    return Err(at(
+                        "a fold turns the axis at a mirror; this surface does not reflect".into(),
+                    ));
+                }
+                if !(f.tilt_deg.iter().all(|a| a.abs() <= 360.0) && f.pivot_mm.abs() <= 1e6) {
+                    return Err(at(format!(
+                        "fold tilts {:?} degrees must be within ±360 and its pivot {} mm within ±1e6",
+                        f.tilt_deg, f.pivot_mm
+                    )));
+                }
+            }
             // What the readers refuse, validation refuses (a lens edited through the library or
             // the C ABI must still be a lens its own JSON can hold).
             if let Material::Model { nd, vd } = s.material {
@@ -1079,6 +1133,11 @@ impl Lens {
             }
             s.pos_xy_mm = [p.x + d.x, p.y + d.y];
             s.c = s.c * (1.0 + adj.curvature_error[i]) + adj.curvature_offset[i];
+            // A fold mirror moved along the axis leaves its downstream optics where they were:
+            // the turn stays at its place on the axis.
+            if let Some(f) = &mut s.fold {
+                f.pivot_mm -= d.z;
+            }
             disp.push(d.z);
         }
         // The image plane: its centre and frame moved as the System moves them.

@@ -269,6 +269,29 @@ pub(crate) fn roll_of(frame: &Mat3<f64>, axis: [f64; 3]) -> f64 {
     }
 }
 
+/// Tilts about x, then the new y, then the new z (degrees; a .zmx coordinate break with order
+/// flag 0): `Rx(a) Ry(b) Rz(g)`.
+pub(crate) fn rotation_xyz_deg([a, b, g]: [f64; 3]) -> Mat3<f64> {
+    Mat3::rot_x(a.to_radians()) * Mat3::rot_y(b.to_radians()) * Mat3::rot_z(g.to_radians())
+}
+
+/// `r` with entries within 1e-15 of 0, 1 or -1 set to them (a turn by a multiple of 90° then
+/// is exact).
+pub(crate) fn clean_rotation(r: Mat3<f64>) -> Mat3<f64> {
+    let snap = |v: f64| {
+        if v.abs() <= 1e-15 {
+            0.0
+        } else if (v.abs() - 1.0).abs() <= 1e-15 {
+            v.signum()
+        } else {
+            v
+        }
+    };
+    Mat3 {
+        rows: r.rows.map(|v| Vec3::new(snap(v.x), snap(v.y), snap(v.z))),
+    }
+}
+
 fn is_identity(m: &Mat3<f64>) -> bool {
     *m == Mat3::identity()
 }
@@ -280,15 +303,34 @@ impl<S: Real> System<S> {
         let mut z = S::cst(0.0);
         let dirs = lens.travel_directions();
         let mut rows = Vec::with_capacity(lens.surfaces.len());
+        let lift_c = |m: Mat3<f64>| Mat3 {
+            rows: m.rows.map(|r| r.map_value::<S>()),
+        };
+        // The frame of the current leg of the axis (unfolded coordinates to global): the
+        // identity until a fold mirror turns it.
+        let mut leg_rot = Mat3::<f64>::identity();
+        let mut leg_t = Vec3::new(S::cst(0.0), S::cst(0.0), S::cst(0.0));
+        let mut folded = false;
         for (i, s) in lens.surfaces.iter().enumerate() {
             let r0 = frame_rotation(s.vec_local, s.roll_deg);
             let motion = &adj.surface_motion[i];
-            let rot = motion.rotation * r0;
-            let lift_c = |m: Mat3<f64>| Mat3 {
-                rows: m.rows.map(|r| r.map_value::<S>()),
-            };
             let nominal = Vec3::new(S::cst(s.pos_xy_mm[0]), S::cst(s.pos_xy_mm[1]), z);
-            let pos = motion.translation.map_value::<S>() + lift_c(motion.rotation).apply(nominal);
+            let mut rot = motion.rotation * r0;
+            let mut pos =
+                motion.translation.map_value::<S>() + lift_c(motion.rotation).apply(nominal);
+            if folded {
+                rot = leg_rot * rot;
+                pos = lift_c(leg_rot).apply(pos) + leg_t;
+            }
+            if let Some(f) = s.fold {
+                // The next leg turns about the axis point `pivot_mm` past this vertex:
+                // x ↦ leg(p + R (x - p)).
+                let r = f.rotation();
+                let p = Vec3::new(S::cst(0.0), S::cst(0.0), z + S::cst(f.pivot_mm));
+                leg_t = leg_t + lift_c(leg_rot).apply(p - lift_c(r).apply(p));
+                leg_rot = leg_rot * r;
+                folded = true;
+            }
             let c = lift(Param::Curvature(i), S::cst(s.c)) * S::cst(1.0 + adj.curvature_error[i])
                 + S::cst(adj.curvature_offset[i]);
             let k = lift(Param::Conic(i), S::cst(s.k));
@@ -344,15 +386,17 @@ impl<S: Real> System<S> {
         // motion in the global frame.
         let m = &adj.image_motion;
         let ip = &lens.image_plane;
-        let rotation = m.rotation * frame_rotation(ip.normal, ip.roll_deg);
-        let lift_m = |r: &Mat3<f64>| Mat3 {
-            rows: r.rows.map(|r| r.map_value::<S>()),
-        };
         let [dx, dy] = ip.decenter_mm;
+        let mut rotation = m.rotation * frame_rotation(ip.normal, ip.roll_deg);
+        let mut translation = m.translation.map_value::<S>()
+            + lift_c(m.rotation).apply(Vec3::new(S::cst(dx), S::cst(dy), z));
+        if folded {
+            rotation = leg_rot * rotation;
+            translation = lift_c(leg_rot).apply(translation) + leg_t;
+        }
         let image = Rigid {
-            rotation: lift_m(&rotation),
-            translation: m.translation.map_value::<S>()
-                + lift_m(&m.rotation).apply(Vec3::new(S::cst(dx), S::cst(dy), z)),
+            rotation: lift_c(rotation),
+            translation,
         };
         System {
             rows,

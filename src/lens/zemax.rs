@@ -34,10 +34,14 @@
 //! y, z with order flag 0; tilt z, y, x then decenter with order flag 1; right-handed, degrees;
 //! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
 //! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`], and the frame's turn about
-//! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A surface
-//! turned by 90° or more,
-//! surfaces out of order along z, and an image plane turned by 90° or more cannot be represented
-//! and are errors; a decentred, tilted or rolled image plane is kept ([`Lens::image_plane`]).
+//! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A mirror
+//! tilted by 20° or more against the axis is a fold mirror: the axis of everything after it
+//! turns with the reflection, about the mirror's point on the axis ([`super::Fold`]), and the
+//! lens stays described unfolded (so fold-mirror systems, periscopes included, open with the
+//! paraxial model of their unfolded axis). A surface or an image plane turned by 90° or more
+//! against the axis (other than by a fold mirror), and surfaces out of order along the axis,
+//! cannot be represented and are errors; a decentred, tilted or rolled image plane is kept
+//! ([`Lens::image_plane`]).
 //! Flat `STANDARD` surfaces that change nothing (same medium on both sides, not the stop, no fixed
 //! semi-diameter, no hard aperture) are the construction ("dummy") surfaces of coordinate-break sequences; they do
 //! not become tolray surfaces (OpticStudio does not clip there either).
@@ -789,11 +793,54 @@ fn glass(
 }
 
 fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
-    Mat3::rot_x(a.to_radians()) * Mat3::rot_y(b.to_radians()) * Mat3::rot_z(g.to_radians())
+    super::system::rotation_xyz_deg([a, b, g])
 }
 
 /// Snaps a rotation within 1e-12 of the identity to it, so that a coordinate break and its exact
 /// reverse leave no rounding residue.
+/// A mirror tilted by this much or more against the axis is a fold mirror (the axis of the
+/// surfaces after it turns with the reflection): fold mirrors are tilted by tens of degrees,
+/// off-axis and tolerance tilts by a few degrees or less.
+const FOLD_MIN_DEG: f64 = 20.0;
+
+/// The rotation turning the unit vector `u` onto the unit vector `v` by the shortest arc
+/// (`None` when they are opposite).
+fn turn_onto(u: Vec3<f64>, v: Vec3<f64>) -> Option<Mat3<f64>> {
+    let k = u.cross(v);
+    let (s, c) = (k.norm(), u.dot(v));
+    if s <= 1e-12 {
+        return (c > 0.0).then(Mat3::identity);
+    }
+    let k = k * (1.0 / s);
+    // Rodrigues: R = I + sin K + (1 - cos) K², K the cross-product matrix of the unit axis.
+    let kk = [[0.0, -k.z, k.y], [k.z, 0.0, -k.x], [-k.y, k.x, 0.0]];
+    let mut rows = [[0.0; 3]; 3];
+    for (i, row) in rows.iter_mut().enumerate() {
+        for (j, e) in row.iter_mut().enumerate() {
+            let k2: f64 = (0..3).map(|m| kk[i][m] * kk[m][j]).sum();
+            *e = f64::from(u8::from(i == j)) + s * kk[i][j] + (1.0 - c) * k2;
+        }
+    }
+    Some(Mat3 {
+        rows: rows.map(|r| Vec3::cst(r[0], r[1], r[2])),
+    })
+}
+
+/// The tilts about x, the new y and the new z (degrees, `Rx(a) Ry(b) Rz(g)`) of a rotation.
+fn angles_of(r: &Mat3<f64>) -> [f64; 3] {
+    // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
+    // (cos b cos g, -cos b sin g, sin b).
+    let b = r.rows[0].z.clamp(-1.0, 1.0).asin();
+    let a = (-r.rows[1].z).atan2(r.rows[2].z);
+    let g = (-r.rows[0].y).atan2(r.rows[0].x);
+    // (+ 0.0 turns a negative zero into zero.)
+    [
+        a.to_degrees() + 0.0,
+        b.to_degrees() + 0.0,
+        g.to_degrees() + 0.0,
+    ]
+}
+
 fn snap(r: Mat3<f64>) -> Mat3<f64> {
     let i = Mat3::<f64>::identity();
     let close = r.rows.iter().zip(i.rows.iter()).all(|(a, b)| {
@@ -844,6 +891,12 @@ struct Walker {
     last_cb_line: Option<usize>,
     /// The image plane's pose, set when the image surface is reached.
     image_plane: ImagePlane,
+    /// The current leg of the axis: tolray's unfolded coordinates to the file's frame (the
+    /// identity rotation until a fold mirror turns it; see [`super::Fold`]).
+    leg_rot: Mat3<f64>,
+    leg_t: Vec3<f64>,
+    /// True after the first fold.
+    folded: bool,
     stop_line: Option<usize>,
     built: Vec<Built>,
     scale: f64,
@@ -854,10 +907,48 @@ impl Walker {
         self.rot.apply(Vec3::cst(0.0, 0.0, 1.0))
     }
 
-    /// Moves the origin by `d` (global) and counts its axial part.
+    /// Moves the origin by `d` (global) and counts its axial part (along the leg's axis).
     fn shift(&mut self, d: Vec3<f64>) {
         self.origin = self.origin + d;
-        self.pending += d.z;
+        self.pending += self.leg_rot.apply_t(d).z;
+    }
+
+    /// The current frame in unfolded coordinates: origin, axes and axis. Tiny residues of a
+    /// fold's turn (under 1e-12) are dropped, so a surface on the folded axis is untilted.
+    fn unfolded(&self) -> (Vec3<f64>, Mat3<f64>, Vec3<f64>) {
+        if !self.folded {
+            return (self.origin, self.rot, self.axis());
+        }
+        let tiny = |v: f64| if v.abs() <= 1e-12 { 0.0 } else { v };
+        let o = self.leg_rot.apply_t(self.origin - self.leg_t);
+        let r = snap(self.leg_rot.transpose() * self.rot);
+        let a = r.apply(Vec3::cst(0.0, 0.0, 1.0));
+        (Vec3::cst(tiny(o.x), tiny(o.y), o.z), r, a)
+    }
+
+    /// After the fold mirror just placed (tilted by [`FOLD_MIN_DEG`] or more against the leg's
+    /// axis): the axis turns by the mirror's reflection of it, about the mirror's point on the
+    /// axis. Returns the fold kept on the mirror.
+    fn fold(&mut self, n: Vec3<f64>, dir_before: f64) -> Option<super::Fold> {
+        let n = n.normalized();
+        let d_in = Vec3::cst(0.0, 0.0, dir_before);
+        let v = d_in - n * (2.0 * d_in.dot(n));
+        let u = Vec3::cst(0.0, 0.0, -dir_before);
+        let r = super::system::clean_rotation(turn_onto(u, v)?);
+        let fold = super::Fold {
+            tilt_deg: angles_of(&r),
+            pivot_mm: 0.0,
+        };
+        let r = fold.rotation();
+        let z = self.leg_rot.apply_t(self.origin - self.leg_t).z;
+        let p = Vec3::cst(0.0, 0.0, z);
+        self.leg_t = self.leg_t + self.leg_rot.apply(p - r.apply(p));
+        self.leg_rot = self.leg_rot * r;
+        self.folded = true;
+        // The travel to the next surface counts from the fold's pivot: a mirror off the axis
+        // lies off the pivot along the turned axis too.
+        self.pending = self.leg_rot.apply_t(self.origin - self.leg_t).z - z;
+        Some(fold)
     }
 
     /// Travels `t` mm along the current z axis.
@@ -1031,12 +1122,12 @@ impl Walker {
             && aperture.is_none()
             && !diam.is_some_and(|d| d.1);
         if !dummy {
-            let axis = self.axis();
+            let (origin, rot, axis) = self.unfolded();
             if axis.z <= 1e-9 {
                 return Err(invalid(
                     s.line,
                     format!(
-                        "SURF {k} is turned by 90 degrees or more by coordinate breaks; tolray traces along +z only"
+                        "SURF {k} is turned by 90 degrees or more against the axis by coordinate breaks; tolray turns the axis only at a fold mirror (a mirror tilted {FOLD_MIN_DEG} degrees or more)"
                     ),
                 ));
             }
@@ -1054,6 +1145,7 @@ impl Walker {
                 None => {
                     self.object_gap = Some(self.pending);
                     self.first_vertex = self.origin;
+                    self.leg_t = Vec3::cst(0.0, 0.0, self.origin.z);
                 }
             }
             self.pending = 0.0;
@@ -1093,7 +1185,7 @@ impl Walker {
             } else {
                 SurfaceRole::Refractive
             };
-            let vec_local = if is_identity(&self.rot) {
+            let vec_local = if is_identity(&rot) {
                 [0.0, 0.0, 1.0]
             } else {
                 [axis.x, axis.y, axis.z]
@@ -1109,17 +1201,29 @@ impl Walker {
                 d_next_mm: 0.0,
                 material: material.clone(),
                 is_stop,
-                pos_xy_mm: [self.origin.x, self.origin.y],
+                pos_xy_mm: [origin.x, origin.y],
                 vec_local,
                 roll_deg: 0.0,
                 grating: (ty == "DGRATING").then_some(grating),
+                fold: None,
             };
             // A coordinate break that rolls the frame about the surface's axis matters where
             // the surface is not symmetric about it (toroid, grating, a non-circular or
             // decentred aperture); elsewhere it changes nothing and is dropped.
-            let roll = super::system::roll_of(&self.rot, surface.vec_local);
+            let roll = super::system::roll_of(&rot, surface.vec_local);
             if roll != 0.0 && !surface.is_axially_symmetric() {
                 surface.roll_deg = roll;
+            }
+            // A mirror tilted far enough against the axis is a fold mirror: the surfaces after
+            // it are placed on the reflected axis (the unfolded model stays paraxially right).
+            if mirror && axis.z < FOLD_MIN_DEG.to_radians().cos() {
+                surface.fold = self.fold(axis, self.dir);
+                if surface.fold.is_none() {
+                    return Err(invalid(
+                        s.line,
+                        format!("SURF {k} is a mirror at grazing incidence to the axis"),
+                    ));
+                }
             }
             self.built.push(Built {
                 surface,
@@ -1160,22 +1264,22 @@ impl Walker {
         }
         // A tilted, rolled or decentred image plane keeps its pose; one turned by 90 degrees or
         // more (a fold) is not a plane tolray's rays reach along +z.
-        let axis = self.axis();
+        let (origin, rot, axis) = self.unfolded();
         if axis.z <= 1e-9 {
             return Err(invalid(
                 self.last_cb_line.unwrap_or(img.line),
-                "the image plane is turned by 90 degrees or more by coordinate breaks (the last one is here); tolray traces along +z only",
+                format!("the image plane is turned by 90 degrees or more against the axis by coordinate breaks (the last one is here); tolray turns the axis only at a fold mirror (a mirror tilted {FOLD_MIN_DEG} degrees or more)"),
             ));
         }
-        let normal = if is_identity(&self.rot) {
+        let normal = if is_identity(&rot) {
             [0.0, 0.0, 1.0]
         } else {
             [axis.x, axis.y, axis.z]
         };
         self.image_plane = ImagePlane {
-            decenter_mm: [self.origin.x, self.origin.y],
+            decenter_mm: [origin.x, origin.y],
             normal,
-            roll_deg: super::system::roll_of(&self.rot, normal),
+            roll_deg: super::system::roll_of(&rot, normal),
         };
         // An image surface before the last lens surface along the light's path is a virtual
         // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
@@ -1383,6 +1487,9 @@ fn build(
         medium: object_medium.clone(),
         last_cb_line: None,
         image_plane: ImagePlane::default(),
+        leg_rot: Mat3::identity(),
+        leg_t: Vec3::cst(0.0, 0.0, 0.0),
+        folded: false,
         stop_line: None,
         built: Vec::new(),
         scale,
@@ -1881,13 +1988,8 @@ fn coordinate_break(t: f64, parms: [f64; 5], order: u8) -> Vec<String> {
 /// `Rx(a) Ry(b) Rz(g)`) that give tolray's surface frame: +z turned onto `n` by the shortest arc,
 /// after a roll of `roll_deg` about the axis.
 fn tilt_angles(n: [f64; 3], roll_deg: f64) -> (f64, f64, f64) {
-    let r = super::system::frame_rotation(n, roll_deg);
-    // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
-    // (cos b cos g, -cos b sin g, sin b).
-    let b = r.rows[0].z.clamp(-1.0, 1.0).asin();
-    let a = (-r.rows[1].z).atan2(r.rows[2].z);
-    let g = (-r.rows[0].y).atan2(r.rows[0].x);
-    (a.to_degrees(), b.to_degrees(), g.to_degrees())
+    let [a, b, g] = angles_of(&super::system::frame_rotation(n, roll_deg));
+    (a, b, g)
 }
 
 fn glas_line(m: &Material) -> Option<String> {
@@ -2167,10 +2269,13 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             l.push(format!("PARM 1 {}", fmt(g.lines_per_um)));
             l.push(format!("PARM 2 {}", fmt(g.order)));
         }
-        l.push(format!(
-            "DISZ {}",
-            fmt(if moved { 0.0 } else { s.d_next_mm })
-        ));
+        // A fold mirror: travel to the fold's pivot, turn the frame there, go on to the next
+        // vertex along the turned axis.
+        let to_next = match s.fold {
+            Some(f) => f.pivot_mm,
+            None => s.d_next_mm,
+        };
+        l.push(format!("DISZ {}", fmt(if moved { 0.0 } else { to_next })));
         if s.role == SurfaceRole::Mirror {
             l.push("GLAS MIRROR".into());
         } else if let Some(g) = glas_line(&s.material) {
@@ -2180,7 +2285,14 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         l.extend(aperture_lines(s));
         surf(&mut w, l);
         if moved {
-            surf(&mut w, cb(-1.0, 1, s.d_next_mm));
+            surf(&mut w, cb(-1.0, 1, to_next));
+        }
+        if let Some(f) = s.fold {
+            let [a, b, g] = f.tilt_deg;
+            surf(
+                &mut w,
+                coordinate_break(s.d_next_mm - f.pivot_mm, [0.0, 0.0, a, b, g], 0),
+            );
         }
     }
     // A decentred, tilted or rolled image plane: one coordinate break before it.

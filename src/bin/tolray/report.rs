@@ -115,6 +115,30 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 "", "", g.lines_per_um, g.order
             ));
         }
+        if sf.pos_xy_mm != [0.0, 0.0] {
+            s.push_str(&format!(
+                "  {:>4} {:>10} decentred ({:.6}, {:.6}) mm\n",
+                "", "", sf.pos_xy_mm[0], sf.pos_xy_mm[1]
+            ));
+        }
+        let [a, b, _] = sf.vec_local;
+        if a != 0.0 || b != 0.0 {
+            let n = sf.vec_local;
+            let tilt = (n[2] / (a * a + b * b + n[2] * n[2]).sqrt())
+                .acos()
+                .to_degrees();
+            s.push_str(&format!(
+                "  {:>4} {:>10} tilted {tilt:.6} degrees: axis ({a:.8}, {b:.8}, {:.8})\n",
+                "", "", n[2]
+            ));
+        }
+        if let Some(f) = sf.fold {
+            let [a, b, g] = f.tilt_deg;
+            s.push_str(&format!(
+                "  {:>4} {:>10} fold mirror: the axis after it turns by tilts ({a:.6}, {b:.6}, {g:.6}) degrees about x, y, z, {:.6} mm past the vertex (the prescription stays unfolded)\n",
+                "", "", f.pivot_mm
+            ));
+        }
         if sf.roll_deg != 0.0 {
             s.push_str(&format!(
                 "  {:>4} {:>10} rolled {:.6} degrees about its axis\n",
