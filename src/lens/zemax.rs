@@ -56,7 +56,8 @@
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
 //! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` or
 //! `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
-//! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip.
+//! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip,
+//! and one more `COORDBRK` after a fold mirror (the axis' turn at its pivot).
 //! Model
 //! glasses are written as `___BLANK` model glasses (tolray's dispersion law between the lines
 //! differs slightly from OpticStudio's model glass; n_d and V_d are exact), catalog glasses by
