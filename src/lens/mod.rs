@@ -963,8 +963,10 @@ impl Lens {
         let ip = &self.image_plane;
         let n = ip.normal;
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        // (A normal whose squares underflow to a zero length has no direction.)
         let ok = n[2] > 0.0
             && len.is_finite()
+            && len > 0.0
             && ip.decenter_mm.iter().all(|d| d.abs() <= 1e6)
             && ip.roll_deg.abs() <= 360.0;
         if !ok {
