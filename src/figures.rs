@@ -905,12 +905,16 @@ pub fn layout_figure(
     Ok(Figure {
         width: 1100,
         height: 560,
-        title: format!(
-            "{} · EFL {:.2} mm · F/{:.2}",
-            short(&lens.info),
-            para.efl_mm,
-            para.fnum
-        ),
+        title: {
+            // A lens without a name (an unnamed .zmx file) starts at its EFL.
+            let name = short(&lens.info);
+            let first = if name.trim().is_empty() {
+                String::new()
+            } else {
+                format!("{name} · ")
+            };
+            format!("{first}EFL {:.2} mm · F/{:.2}", para.efl_mm, para.fnum)
+        },
         kind: Kind::Layout {
             x: zmin..zmax,
             y: -ymax * 1.12..ymax * 1.12,
