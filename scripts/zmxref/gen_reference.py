@@ -379,6 +379,25 @@ def trace_spot(op, z1, z_ep, r_ep, kind, value, wl_um, d_obj):
     return rms * 1000.0, int(ok.sum()), [float(xc), float(yc)], start
 
 
+def spots(op, feat, res, efl, wl_um, z1, epl, epd, d_obj):
+    """The RMS spot, centroid and surviving count at each field fraction, into `res`."""
+    kind, vmax, ymax, notes = field_spec(op, feat, efl, wl_um)
+    res["field_notes"] = notes
+    res["field_kind"] = kind
+    res["field_max"] = vmax
+    fields = []
+    for fr in FRACS:
+        v = fr * vmax
+        rms, nr, cen, start = trace_spot(op, z1, epl, epd / 2.0, kind, v, wl_um, d_obj)
+        e = {"frac": fr}
+        e["angle_deg" if kind == "angle" else "height_mm"] = v
+        e.update({"rms_um": rms, "n_rays": nr, "n_rays_launched": int(pupil_grid(epd / 2.0)[0].size),
+                  "centroid_mm": cen, "launch": start})
+        fields.append(e)
+    res["fields"] = fields
+    return res
+
+
 def paraxial_refused(op, feat, res, model, err):
     """Patch 8 (2026-11-27): optiland 0.6.3 refuses a paraxial model for folded systems whose
     legs are not collinear (optiland/complicated_fold_mirrors_setup_v2.zmx: decentred fold
@@ -406,21 +425,7 @@ def paraxial_refused(op, feat, res, model, err):
     res["object_infinite"] = bool(op.object_surface.is_infinite)
     if not op.object_surface.is_infinite:
         raise err
-    kind, vmax, ymax, notes = field_spec(op, feat, None, wl_um)
-    res["field_notes"] = notes
-    res["field_kind"] = kind
-    res["field_max"] = vmax
-    fields = []
-    for fr in FRACS:
-        v = fr * vmax
-        rms, nr, cen, start = trace_spot(op, z1, epl, epd / 2.0, kind, v, wl_um, None)
-        e = {"frac": fr}
-        e["angle_deg" if kind == "angle" else "height_mm"] = v
-        e.update({"rms_um": rms, "n_rays": nr, "n_rays_launched": int(pupil_grid(epd / 2.0)[0].size),
-                  "centroid_mm": cen, "launch": start})
-        fields.append(e)
-    res["fields"] = fields
-    return res
+    return spots(op, feat, res, None, wl_um, z1, epl, epd, None)
 
 
 def optiland_reference(path, feat):
@@ -464,21 +469,7 @@ def optiland_reference(path, feat):
     if not op.object_surface.is_infinite:
         d_obj = z1 - fl(op.object_surface.geometry.cs.z)
         res["object_distance_mm"] = d_obj
-    kind, vmax, ymax, notes = field_spec(op, feat, efl, wl_um)
-    res["field_notes"] = notes
-    res["field_kind"] = kind
-    res["field_max"] = vmax
-    fields = []
-    for fr in FRACS:
-        v = fr * vmax
-        rms, nr, cen, start = trace_spot(op, z1, epl, epd / 2.0, kind, v, wl_um, d_obj)
-        e = {"frac": fr}
-        e["angle_deg" if kind == "angle" else "height_mm"] = v
-        e.update({"rms_um": rms, "n_rays": nr, "n_rays_launched": int(pupil_grid(epd / 2.0)[0].size),
-                  "centroid_mm": cen, "launch": start})
-        fields.append(e)
-    res["fields"] = fields
-    return res
+    return spots(op, feat, res, efl, wl_um, z1, epl, epd, d_obj)
 
 
 def rayoptics_reference(path):

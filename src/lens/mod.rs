@@ -295,8 +295,9 @@ pub struct Surface {
 /// A lens is described *unfolded*: every vertex lies at its axial position (the sum of the gaps
 /// before it) plus its [`Surface::pos_xy_mm`], as if the axis were straight, and the paraxial
 /// model, tolerances and gaps all work in these coordinates. A fold on surface `m` places
-/// everything after `m` in a frame turned by [`Fold::rotation`] about the point on the axis
-/// [`Fold::pivot_mm`] beyond `m`'s vertex: the mechanical frame of a fold mirror's downstream
+/// everything after `m` in a frame turned by [`Fold::rotation`] about the point of the axis
+/// [`Fold::pivot_mm`] beyond `m`'s axial position (a decentred mirror's vertex lies off that
+/// axis): the mechanical frame of a fold mirror's downstream
 /// optics (OpticStudio's coordinate break after a fold mirror). After a 45° mirror the fold turns
 /// the axis by 90° and the light goes on along the new axis' −z, the unfolded system's direction
 /// after a mirror (negative gaps, as in OpticStudio).

@@ -797,8 +797,6 @@ fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
     super::system::rotation_xyz_deg([a, b, g])
 }
 
-/// Snaps a rotation within 1e-12 of the identity to it, so that a coordinate break and its exact
-/// reverse leave no rounding residue.
 /// A mirror tilted by this much or more against the axis is a fold mirror (the axis of the
 /// surfaces after it turns with the reflection): fold mirrors are tilted by tens of degrees,
 /// off-axis and tolerance tilts by a few degrees or less.
@@ -842,6 +840,8 @@ fn angles_of(r: &Mat3<f64>) -> [f64; 3] {
     ]
 }
 
+/// Snaps a rotation within 1e-12 of the identity to it, so that a coordinate break and its exact
+/// reverse leave no rounding residue.
 fn snap(r: Mat3<f64>) -> Mat3<f64> {
     let i = Mat3::<f64>::identity();
     let close = r.rows.iter().zip(i.rows.iter()).all(|(a, b)| {
@@ -1263,8 +1263,9 @@ impl Walker {
         if let Some(l) = img.stop {
             return Err(invalid(l, "the image surface cannot be the stop"));
         }
-        // A tilted, rolled or decentred image plane keeps its pose; one turned by 90 degrees or
-        // more (a fold) is not a plane tolray's rays reach along +z.
+        // A tilted, rolled or decentred image plane keeps its pose (in the current leg of the
+        // axis); one turned by 90 degrees or more against that leg is not a plane the light
+        // reaches along it.
         let (origin, rot, axis) = self.unfolded();
         if axis.z <= 1e-9 {
             return Err(invalid(
