@@ -794,6 +794,16 @@ pub fn layout_figure(
             let (o0, d0) = set.chief;
             // Shift the chief ray's pupil point along y (same object point or direction).
             let (o, d) = match lens.object {
+                crate::Object::Finite { distance_mm } if distance_mm < 0.0 => {
+                    // A virtual object: the fan converges on it (the chief ray's point at its
+                    // depth), starting from the chief ray's start plane.
+                    let q = o0 + d0 * ((-distance_mm - o0.z) / d0.z);
+                    let target = o0
+                        + d0 * ((para.entrance_pupil_z_mm - o0.z) / d0.z)
+                        + Vec3::new(0.0, py, 0.0);
+                    let d = (q - target).normalized();
+                    (target - d * ((target.z - o0.z) / d.z), d)
+                }
                 crate::Object::Finite { .. } => {
                     let target = o0
                         + d0 * ((para.entrance_pupil_z_mm - o0.z) / d0.z)

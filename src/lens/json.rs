@@ -2,7 +2,8 @@
 //!
 //! Accepted: `d_next` gaps or legacy absolute `d` (+ `d_sensor`), `roc` or `c`, `mat2` as a glass
 //! name or `"n_d/V_d"` (legacy `mat1` ignored), `r_sensor` or `sensor_size`, `sensor_res`,
-//! `obj_depth` (negative mm), `ai` with or without `use_ai2`. Keys in parentheses are
+//! `obj_depth` (the object's z in mm: negative, or positive for a virtual object behind the
+//! first vertex), `ai` with or without `use_ai2`. Keys in parentheses are
 //! informational and ignored, except `"(object)": "inf"`, tolray's marker for an object at
 //! infinity (DeepLens ignores it too). Unknown surface types are errors, never skipped.
 //!
@@ -412,6 +413,9 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
         num(top, "obj_depth", "")?,
     ) {
         (Some(s), _) => Object::parse(s)?,
+        // DeepLens' depth is the object's z: negative in front of the lens, positive behind
+        // it (a virtual object).
+        (None, Some(d)) if d > 0.0 && d.is_finite() => Object::Finite { distance_mm: -d },
         (None, Some(d)) => Object::parse(&d.to_string())
             .map_err(|e| Error::invalid(format!("\"obj_depth\" {d}: {}", e.full_message())))?,
         (None, None) => Object::Infinite,

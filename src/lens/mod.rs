@@ -465,7 +465,9 @@ pub enum Object {
     Infinite,
     /// At a finite distance in front of the first vertex (the object plane is `z = -distance_mm`).
     Finite {
-        /// Distance from the object plane to the first vertex, mm (> 0).
+        /// Distance from the object plane to the first vertex, mm: positive for a real object;
+        /// negative for a virtual object behind the first vertex, on which the entering beam
+        /// converges (OpticStudio's negative object thickness).
         distance_mm: f64,
     },
 }
@@ -956,9 +958,12 @@ impl Lens {
             return Err(Error::invalid("primary wavelength must be positive"));
         }
         self.check_indices(self.primary_wavelength_nm)?;
+        // A negative distance is a virtual object behind the first vertex (a converging beam).
         if let Object::Finite { distance_mm } = self.object {
-            if !(distance_mm > 0.0) || !distance_mm.is_finite() {
-                return Err(Error::invalid("object distance must be positive"));
+            if distance_mm == 0.0 || !distance_mm.is_finite() {
+                return Err(Error::invalid(
+                    "object distance must be finite and not 0 (negative: a virtual object)",
+                ));
             }
         }
         let ip = &self.image_plane;

@@ -1132,7 +1132,8 @@ impl Walker {
                     ),
                 ));
             }
-            if self.pending * self.dir < 0.0 {
+            // (Before the first surface, a negative travel is a virtual object's distance.)
+            if self.pending * self.dir < 0.0 && !self.built.is_empty() {
                 return Err(invalid(
                     s.line,
                     format!(
@@ -1333,10 +1334,11 @@ fn object_distance(
             ))
         }
         Some(At { v: None, .. }) => None,
-        Some(At { v: Some(d), line }) if !(*d > 0.0) => {
+        // A negative thickness is a virtual object behind the first surface.
+        Some(At { v: Some(d), line }) if *d == 0.0 || !d.is_finite() => {
             return Err(invalid(
                 *line,
-                format!("object distance {d}: it must be positive (or INFINITY)"),
+                format!("object distance {d}: it must be finite and not 0 (or INFINITY; negative for a virtual object)"),
             ))
         }
         Some(At { v: Some(d), .. }) => Some(d * scale),
@@ -1542,10 +1544,10 @@ fn build(
         image_plane,
     };
     if let Object::Finite { distance_mm } = lens.object {
-        if !(distance_mm > 0.0) {
+        if distance_mm == 0.0 {
             return Err(invalid(
                 built[0].raw.line,
-                "the first lens surface must lie behind the object",
+                "the first lens surface lies on the object plane",
             ));
         }
     }

@@ -580,6 +580,9 @@ pub(crate) struct Beam<S = f64> {
 enum Source<S> {
     /// A finite object point.
     Point(Vec3<S>),
+    /// A virtual object point behind the entrance pupil (a converging beam), and the start
+    /// plane in front of the lens.
+    Toward { q: Vec3<S>, z0: S },
     /// An object at infinity: the direction, and the distance back along it from the pupil
     /// plane to the start plane.
     Direction { d: Vec3<S>, back: S },
@@ -614,18 +617,40 @@ impl<S: Real> Beam<S> {
     pub(crate) fn launch(lens: &Lens, o: &LaunchOptics<S>, field: Field) -> Result<Beam<S>> {
         let (tx, ty) = field.tangents(lens, o.efl_mm)?;
         let z_ep = o.entrance_pupil_z_mm;
+        // Rays start on a plane in front of the lens when they do not start at an object point
+        // (a constant: moving the start along the ray changes no intersection).
+        let start_plane = || {
+            let s = &lens.surfaces[0];
+            let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
+            S::cst(z_ep.value().min(sag).min(0.0) - 1.0)
+        };
         let source = match lens.object {
+            Object::Finite { distance_mm } if distance_mm < 0.0 => {
+                // A virtual object: the rays converge toward it through the entrance pupil.
+                let q = Vec3::new(
+                    S::cst(distance_mm) * tx,
+                    S::cst(distance_mm) * ty,
+                    S::cst(-distance_mm),
+                );
+                if !(q.z.value() > z_ep.value()) {
+                    return Err(Error::invalid(format!(
+                        "the virtual object ({} mm behind the first vertex) lies in front of the entrance pupil ({} mm): no beam converges on it through the pupil",
+                        -distance_mm,
+                        z_ep.value()
+                    )));
+                }
+                Source::Toward {
+                    q,
+                    z0: start_plane(),
+                }
+            }
             Object::Finite { distance_mm } => Source::Point(Vec3::new(
                 S::cst(distance_mm) * tx,
                 S::cst(distance_mm) * ty,
                 S::cst(-distance_mm),
             )),
             Object::Infinite => {
-                // Infinite-object rays start on a plane in front of the lens (a constant: moving
-                // the start along the ray changes no intersection).
-                let s = &lens.surfaces[0];
-                let sag = s.sag(s.semi_aperture_mm).unwrap_or(0.0).min(0.0);
-                let z0 = S::cst(z_ep.value().min(sag).min(0.0) - 1.0);
+                let z0 = start_plane();
                 let d = Vec3::new(-tx, -ty, S::cst(1.0)).normalized();
                 Source::Direction {
                     d,
@@ -646,6 +671,10 @@ impl<S: Real> Beam<S> {
         let p = Vec3::new(x, y, self.z_ep);
         match self.source {
             Source::Point(q) => (q, (p - q).normalized()),
+            Source::Toward { q, z0 } => {
+                let d = (q - p).normalized();
+                (p - d * ((p.z - z0) / d.z), d)
+            }
             Source::Direction { d, back } => (p - d * back, d),
         }
     }
@@ -679,6 +708,17 @@ fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
                     let v = Vec3::new(px[l], py[l], beam.z_ep) - q;
                     let u = v * (1.0 / v.dot(v).sqrt());
                     (r[0][l], r[1][l], r[2][l]) = (q.x, q.y, q.z);
+                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                }
+            }
+            // As `ray`: direction (q - p) / |q - p|, origin p - d (p.z - z0) / d.z.
+            Source::Toward { q, z0 } => {
+                for l in 0..LANES {
+                    let p = Vec3::new(px[l], py[l], beam.z_ep);
+                    let v = q - p;
+                    let u = v * (1.0 / v.dot(v).sqrt());
+                    let o = p - u * ((beam.z_ep - z0) / u.z);
+                    (r[0][l], r[1][l], r[2][l]) = (o.x, o.y, o.z);
                     (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
                 }
             }

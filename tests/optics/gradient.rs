@@ -1,8 +1,8 @@
 //! Exact dual-number gradients against central finite differences, for every variable kind, on
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
 //! odd-asphere and an ideal-thin-lens system, a lens with a virtual image, one with its object in
-//! water, a ruled (grating) surface, toroids rolled about the axis and a singlet folded by two
-//! fold mirrors, nominal and perturbed.
+//! water, a ruled (grating) surface, toroids rolled about the axis, a singlet folded by two
+//! fold mirrors and one meeting a converging beam (a virtual object), nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -195,6 +195,7 @@ fn gradients_match_finite_differences_nominal() {
     check("grating", &ruled(), false);
     check("rolled toroid", &rolled_toroid(), false);
     check("fold mirrors", &zmx("fold.zmx"), false);
+    check("virtual object", &zmx("virtual-object.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -236,6 +237,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("grating", &ruled(), true);
     check("rolled toroid", &rolled_toroid(), true);
     check("fold mirrors", &zmx("fold.zmx"), true);
+    check("virtual object", &zmx("virtual-object.zmx"), true);
 }
 
 #[test]

@@ -2487,3 +2487,83 @@ fn fabricated_fold_mirror_systems_bake_and_round_trip() {
     assert_same_trace(&back.lens.compile(), &baked.compile(), 1e-9, "read back");
     assert_eq!(json::from_str(&json::to_string(&baked)).unwrap(), baked);
 }
+
+/// A virtual object (OpticStudio's negative object thickness): a singlet meets a beam that
+/// converges on a point 50 mm behind its first vertex (tests/data/zemax/virtual-object.zmx).
+/// The paraxial image distance and magnification agree with the refraction equation surface by
+/// surface (n'/s' = n/s + (n' - n)/R, worked here independently of tolray's paraxial code);
+/// every generated ray, for both of the file's fields and with ray aiming, lies on the line
+/// through its pupil point and the object point and starts in front of the lens; the real chief
+/// ray meets the paraxial image plane at the paraxial image height (to the third-order distortion
+/// of a 1.5 mm object, 1e-3 relative); JSON (DeepLens' positive `obj_depth`) and .zmx keep it.
+#[test]
+fn a_virtual_object_is_a_converging_beam() {
+    let z = read("virtual-object.zmx");
+    let lens = &z.lens;
+    assert_eq!(lens.object, Object::Finite { distance_mm: -50.0 });
+    let p = lens.paraxial(LAMBDA_D_NM).unwrap();
+    // Surface by surface: the object 48 mm behind the front surface (z = 2), n = 1.5168.
+    let n = 1.5168;
+    let s1 = n / (1.0 / 48.0 + (n - 1.0) / 40.0);
+    let s2 = 1.0 / (n / (s1 - 4.0) + (1.0 - n) / -100.0);
+    let m = (s1 / (n * 48.0)) * (n * s2 / (s1 - 4.0));
+    assert!(
+        (p.image_distance_mm - s2).abs() < 1e-10,
+        "{} vs {s2}",
+        p.image_distance_mm
+    );
+    assert!(
+        (p.magnification - m).abs() < 1e-12,
+        "{} vs {m}",
+        p.magnification
+    );
+    let q = |h: f64| Vec3::cst(0.0, h, 50.0);
+    for (h, aim) in [(0.0, false), (1.5, false), (1.5, true)] {
+        let set = tolray::trace::RaySet::generate(
+            lens,
+            &p,
+            Field::HeightMm { x: 0.0, y: h },
+            &Pupil {
+                pattern: PupilPattern::Grid(8),
+                scale: 1.0,
+                aim,
+            },
+            LAMBDA_D_NM,
+        )
+        .unwrap();
+        assert!(set.origins.len() > 40);
+        for (o, d) in set.origins.iter().zip(&set.directions) {
+            assert!(o.z < 0.0, "starts in front of the lens: {o:?}");
+            // The line o + t d passes through the object point.
+            let t = (50.0 - o.z) / d.z;
+            let miss = (*o + *d * t - q(h)).norm();
+            assert!(
+                miss < 1e-12,
+                "h {h} aim {aim}: {miss:e} mm off the object point"
+            );
+        }
+    }
+    // The chief ray of the 1.5 mm object at the paraxial image plane.
+    let mut at_focus = lens.clone();
+    at_focus.surfaces.last_mut().unwrap().d_next_mm = s2;
+    let sys = at_focus.compile();
+    let set = tolray::trace::RaySet::generate(
+        &at_focus,
+        &at_focus.paraxial(LAMBDA_D_NM).unwrap(),
+        Field::HeightMm { x: 0.0, y: 1.5 },
+        &Pupil::grid(4),
+        LAMBDA_D_NM,
+    )
+    .unwrap();
+    let mut b = RayBatch::<f64>::new();
+    b.push(set.chief.0, set.chief.1);
+    trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions { apertures: false });
+    let y = b.get(0).o.y;
+    assert!((y - 1.5 * m).abs() < 1e-3 * 1.5 * m, "{y} vs {}", 1.5 * m);
+    // Both formats keep the virtual object.
+    let j = json::to_string(lens);
+    assert!(j.contains("\"obj_depth\": 50.0"), "{j}");
+    assert_eq!(json::from_str(&j).unwrap().object, lens.object);
+    let back = parse(&zemax::to_string(lens, None)).unwrap().lens;
+    assert_eq!(back.object, lens.object);
+}
