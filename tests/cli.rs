@@ -20,6 +20,26 @@ fn info_prints_the_reference_first_order_data() {
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let efl = v["paraxial"]["efl_mm"].as_f64().unwrap();
     assert!((efl - 48.53684694175222).abs() < 1e-9);
+    // A folded lens: its folds and tilts; a virtual object: said so.
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/");
+    let (code, out, _) = tolray(&["info", &format!("{data}fold.zmx")]);
+    assert_eq!(code, 0);
+    assert_eq!(
+        out.matches("fold mirror: the axis after it turns").count(),
+        2,
+        "{out}"
+    );
+    assert!(out.contains("tilted 45.000000 degrees"), "{out}");
+    let (code, out, _) = tolray(&["info", &format!("{data}virtual-object.zmx")]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("object at 50 mm behind the first vertex: a virtual object"),
+        "{out}"
+    );
+    assert!(
+        out.contains("23.685824 mm"),
+        "paraxial image distance\n{out}"
+    );
 }
 
 #[test]

@@ -12,6 +12,10 @@ use tolray::{Lens, Object};
 pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
     let obj = match lens.object {
         Object::Infinite => "infinity".to_string(),
+        Object::Finite { distance_mm } if distance_mm < 0.0 => format!(
+            "{} mm behind the first vertex: a virtual object",
+            -distance_mm
+        ),
         Object::Finite { distance_mm } => format!("{distance_mm} mm"),
     };
     let medium = if lens.object_medium.is_air() {
