@@ -742,7 +742,8 @@ pub fn layout_figure(
     wavelength_nm: f64,
     rays_per_field: usize,
 ) -> Result<Figure> {
-    let z = lens.vertex_z_mm();
+    // Where each vertex lies (after decentres, tilts and fold mirrors).
+    let z: Vec<f64> = sys.rows.iter().map(|r| r.pos.z).collect();
     let mut ray_height = vec![0.0f64; lens.surfaces.len()];
     // The axial extent of every vertex and the image (a mirror system folds back: a
     // Cassegrain's secondary lies before its primary, at negative z).
@@ -794,21 +795,19 @@ pub fn layout_figure(
             let (o0, d0) = set.chief;
             // Shift the chief ray's pupil point along y (same object point or direction).
             let (o, d) = match lens.object {
-                crate::Object::Finite { distance_mm } if distance_mm < 0.0 => {
-                    // A virtual object: the fan converges on it (the chief ray's point at its
-                    // depth), starting from the chief ray's start plane.
-                    let q = o0 + d0 * ((-distance_mm - o0.z) / d0.z);
+                crate::Object::Finite { distance_mm } => {
                     let target = o0
                         + d0 * ((para.entrance_pupil_z_mm - o0.z) / d0.z)
                         + Vec3::new(0.0, py, 0.0);
-                    let d = (q - target).normalized();
-                    (target - d * ((target.z - o0.z) / d.z), d)
-                }
-                crate::Object::Finite { .. } => {
-                    let target = o0
-                        + d0 * ((para.entrance_pupil_z_mm - o0.z) / d0.z)
-                        + Vec3::new(0.0, py, 0.0);
-                    (o0, (target - o0).normalized())
+                    if distance_mm < 0.0 {
+                        // A virtual object: the fan converges on it (the chief ray's point at
+                        // its depth), starting from the chief ray's start plane.
+                        let q = o0 + d0 * ((-distance_mm - o0.z) / d0.z);
+                        let d = (q - target).normalized();
+                        (target - d * ((target.z - o0.z) / d.z), d)
+                    } else {
+                        (o0, (target - o0).normalized())
+                    }
                 }
                 crate::Object::Infinite => (o0 + Vec3::new(0.0, py, 0.0), d0),
             };
@@ -894,7 +893,11 @@ pub fn layout_figure(
             for sign in [1.0, -1.0] {
                 let y = sign * r;
                 let back = sign * (r + tip);
-                outlines.push(vec![(z[i] - a, back), (z[i], y), (z[i] + a, back)]);
+                outlines.push(vec![
+                    place(i, back, -a),
+                    place(i, y, 0.0),
+                    place(i, back, a),
+                ]);
             }
         }
         // Element edges: join this surface to the next through the glass.

@@ -625,30 +625,28 @@ impl<S: Real> Beam<S> {
             S::cst(z_ep.value().min(sag).min(0.0) - 1.0)
         };
         let source = match lens.object {
-            Object::Finite { distance_mm } if distance_mm < 0.0 => {
-                // A virtual object: the rays converge toward it through the entrance pupil.
+            Object::Finite { distance_mm } => {
                 let q = Vec3::new(
                     S::cst(distance_mm) * tx,
                     S::cst(distance_mm) * ty,
                     S::cst(-distance_mm),
                 );
-                if !(q.z.value() > z_ep.value()) {
+                if distance_mm > 0.0 {
+                    Source::Point(q)
+                } else if q.z.value() > z_ep.value() {
+                    // A virtual object: the rays converge toward it through the entrance pupil.
+                    Source::Toward {
+                        q,
+                        z0: start_plane(),
+                    }
+                } else {
                     return Err(Error::invalid(format!(
                         "the virtual object ({} mm behind the first vertex) lies in front of the entrance pupil ({} mm): no beam converges on it through the pupil",
                         -distance_mm,
                         z_ep.value()
                     )));
                 }
-                Source::Toward {
-                    q,
-                    z0: start_plane(),
-                }
             }
-            Object::Finite { distance_mm } => Source::Point(Vec3::new(
-                S::cst(distance_mm) * tx,
-                S::cst(distance_mm) * ty,
-                S::cst(-distance_mm),
-            )),
             Object::Infinite => {
                 let z0 = start_plane();
                 let d = Vec3::new(-tx, -ty, S::cst(1.0)).normalized();
