@@ -518,8 +518,8 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 }
 
 /// Refuses surfaces the check cannot mesh or trace: it tessellates even aspheres (rings of equal
-/// sag) and refracts with Snell's law, so odd aspheres, toroids, ideal thin lenses and gratings
-/// are refused by name.
+/// sag) and refracts with Snell's law, so odd aspheres, toroids, Q-type aspheres, ideal thin
+/// lenses and gratings are refused by name.
 fn supported(sys: &System<f64>) -> Result<()> {
     for (i, row) in sys.rows.iter().enumerate() {
         let what = match row.shape {
@@ -528,6 +528,7 @@ fn supported(sys: &System<f64>) -> Result<()> {
             crate::lens::Shape::Odd => "an odd asphere",
             crate::lens::Shape::Toroidal { .. } => "a toroid",
             crate::lens::Shape::Paraxial { .. } => "an ideal thin lens",
+            crate::lens::Shape::Qbfs { .. } => "a Q-type asphere",
         };
         return Err(Error::invalid(format!(
             "surface {i} is {what}; the Embree check covers even aspheres, conics, spheres, planes and mirrors"

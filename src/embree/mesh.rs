@@ -474,6 +474,7 @@ impl Mesh {
                 "surface {surface}: the Embree check tessellates even aspheres (rings of equal sag); this surface is {}",
                 match row.shape {
                     Shape::Odd => "an odd asphere",
+                    Shape::Qbfs { .. } => "a Q-type asphere",
                     _ => "a toroid",
                 }
             )));

@@ -568,6 +568,28 @@ const ALIASES: [(&str, &str); 7] = [
     ("fused_silica", "F_SILICA"),
 ];
 
+/// Vendor names of fused silica whose maker publishes no dispersion formula of its own in a
+/// public catalog, and the built-in glass that is the same material: Corning 7980 is the
+/// renamed Corning 7940 whose index Malitson (1965) measured, the data behind `F_SILICA`
+/// (Corning's data sheet gives n = 1.45702 at 632.8 nm; Malitson's formula 1.45702).
+const SAME_MATERIAL: [(&str, &str, &str); 1] =
+    [("C79-80", "F_SILICA", "Corning 7980 fused silica")];
+
+/// A glass name that is the same material as a built-in glass under another name (see
+/// `SAME_MATERIAL` in the source): the built-in glass and what the name is.
+///
+/// ```
+/// let (g, what) = tolray::lens::material::same_material("c79-80").unwrap();
+/// assert_eq!(g.name, "F_SILICA");
+/// assert!(what.contains("Corning 7980"));
+/// ```
+pub fn same_material(name: &str) -> Option<(&'static CatalogGlass, &'static str)> {
+    SAME_MATERIAL
+        .iter()
+        .find(|(n, _, _)| n.eq_ignore_ascii_case(name))
+        .and_then(|(_, g, what)| find_in_vendors(g, &VENDOR_ORDER).map(|g| (g, *what)))
+}
+
 /// Looks a glass up in the built-in catalog by name or DeepLens alias, ignoring case; a name
 /// two vendors share resolves in [`VENDOR_ORDER`].
 pub fn find_glass(name: &str) -> Option<&'static CatalogGlass> {

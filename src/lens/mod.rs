@@ -14,6 +14,7 @@ mod catalog_data;
 pub mod json;
 pub mod material;
 pub mod paraxial;
+pub mod qbfs;
 mod system;
 mod text;
 pub mod zemax;
@@ -230,16 +231,53 @@ pub enum Shape {
         /// Focal length, mm (negative for a diverging lens).
         focal_mm: f64,
     },
+    /// Forbes' slope-orthogonal Q polynomials on the base conic (OpticStudio's Q-type asphere
+    /// of type 0, `QED_TYPE`): `asph` = a_0..a_7 (mm), the coefficients of Q_0^bfs..Q_7^bfs in
+    /// a departure along the base conic's normal, `φ(ρ) x (1 - x) Σ a_m Q_m(x)` with
+    /// `x = (ρ / norm_radius_mm)²`; the formula and its checks are in [`qbfs`]. The departure
+    /// vanishes at the vertex and at the normalization radius; beyond that radius the same
+    /// formula continues.
+    Qbfs {
+        /// Normalization radius ρ_n, mm (positive).
+        norm_radius_mm: f64,
+    },
 }
 
 impl Shape {
-    /// Index in [`Surface::asph`] of the coefficient on the squared radius (the one that adds
-    /// to the paraxial curvature, 2·a).
-    pub fn r2_index(self) -> usize {
+    /// The coefficient on ρ² (y² for a toroid) that each of [`Surface::asph`] contributes to
+    /// the sag's Taylor series at the vertex: the paraxial curvature is
+    /// `c + 2 Σ_j w_j asph_j`.
+    ///
+    /// ```
+    /// use tolray::lens::Shape;
+    /// assert_eq!(Shape::Even.r2_weights()[0], 1.0);
+    /// assert_eq!(Shape::Odd.r2_weights()[1], 1.0);
+    /// // Qbfs: Q_m(0) / ρ_n² (Q_0 = 1).
+    /// assert_eq!(Shape::Qbfs { norm_radius_mm: 2.0 }.r2_weights()[0], 0.25);
+    /// ```
+    pub fn r2_weights(self) -> [f64; N_ASPH] {
+        let mut w = [0.0; N_ASPH];
         match self {
-            Shape::Odd => 1,
-            _ => 0,
+            Shape::Even | Shape::Toroidal { .. } => w[0] = 1.0,
+            Shape::Odd => w[1] = 1.0,
+            Shape::Paraxial { .. } => {}
+            Shape::Qbfs { norm_radius_mm } => {
+                let r2 = norm_radius_mm * norm_radius_mm;
+                w = qbfs::polynomials(0.0).map(|q| q / r2);
+            }
         }
+        w
+    }
+    /// The paraxial (vertex) curvature of a surface of this shape with curvature `c` and
+    /// coefficients `asph`, 1/mm: `c + 2 Σ_j w_j asph_j` ([`Shape::r2_weights`]).
+    pub fn paraxial_curvature(self, c: f64, asph: &[f64; N_ASPH]) -> f64 {
+        c + 2.0
+            * self
+                .r2_weights()
+                .iter()
+                .zip(asph)
+                .map(|(w, a)| w * a)
+                .sum::<f64>()
     }
     /// True for shapes without rotational symmetry about the surface's axis.
     pub fn is_rotational(self) -> bool {
@@ -448,6 +486,9 @@ impl Surface {
                 Some(z)
             }
             Shape::Paraxial { .. } => Some(0.0),
+            Shape::Qbfs { norm_radius_mm } => {
+                qbfs::sag(self.c, self.k, &self.asph, norm_radius_mm, x * x + y * y)
+            }
             Shape::Toroidal { c_rot } => {
                 let zy = even(y * y)?;
                 let g = c_rot / (1.0 - c_rot * zy);
@@ -830,9 +871,16 @@ impl Lens {
                     )));
                 }
             }
+            if let Shape::Qbfs { norm_radius_mm } = s.shape {
+                if !(norm_radius_mm > 1e-6 && norm_radius_mm <= 1e6) {
+                    return Err(at(format!(
+                        "Q-type normalization radius {norm_radius_mm} mm: needs 1e-6 < radius <= 1e6"
+                    )));
+                }
+            }
             if s.shape != Shape::Even && s.role == SurfaceRole::Aperture {
                 return Err(at(
-                    "a bare aperture is flat; it cannot be an odd asphere or a toroid".into(),
+                    "a bare aperture is flat; it cannot be an odd asphere, a toroid or a Q-type asphere".into(),
                 ));
             }
             // Magnitudes past these give no lens but overflow in the tracer (NaN or inf spots):
@@ -849,7 +897,7 @@ impl Lens {
             }
             // The paraxial curvature adds twice the r² (a toroid: y²) term; past this bound the
             // paraxial model overflows (an infinite power: EFL -0, a NaN exit pupil).
-            let c_par = s.c + 2.0 * s.asph[s.shape.r2_index()];
+            let c_par = s.shape.paraxial_curvature(s.c, &s.asph);
             if !(c_par.abs() <= 1e3) {
                 return Err(at(format!(
                     "paraxial curvature {c_par} (1/mm; the curvature plus twice the r² term) is beyond ±1e3"

@@ -84,11 +84,16 @@ impl<S: Real> Prescription<S> {
         };
         for (i, s) in lens.surfaces.iter().enumerate() {
             let c = lift(Param::Curvature(i), S::cst(s.c));
-            // The ρ² term adds 2 a to the vertex curvature (y² for a toroid: the paraxial
-            // trace is in the y-z plane, as OpticStudio's).
-            let j = s.shape.r2_index();
-            let a2 = lift(Param::Asphere(i, j), S::cst(s.asph[j]));
-            p.curvature.push(c + S::cst(2.0) * a2);
+            // The ρ² terms add 2 Σ w_j a_j to the vertex curvature (y² for a toroid: the
+            // paraxial trace is in the y-z plane, as OpticStudio's; Qbfs: every Q_m(0)).
+            let mut c_par = c;
+            for (j, w) in s.shape.r2_weights().into_iter().enumerate() {
+                if w != 0.0 {
+                    let a = lift(Param::Asphere(i, j), S::cst(s.asph[j]));
+                    c_par += S::cst(2.0 * w) * a;
+                }
+            }
+            p.curvature.push(c_par);
             // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
             p.thin_power.push(match s.shape {
                 Shape::Paraxial { focal_mm } => {

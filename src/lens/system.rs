@@ -182,6 +182,8 @@ pub struct SurfaceRow<S> {
     pub shape: Shape,
     /// Curvature of a toroid's rotation, 1/mm (0 otherwise).
     pub c_rot: S,
+    /// 1 / a Q-type asphere's normalization radius², 1/mm² (0 otherwise).
+    pub inv_norm2: S,
     /// Power of an ideal thin lens (1 / focal length), 1/mm; 0 otherwise. Such a surface is a
     /// [`SurfaceKind::Plane`] that turns each ray's slopes by minus its height times the power.
     pub power: S,
@@ -368,6 +370,10 @@ impl<S: Real> System<S> {
                     Shape::Toroidal { c_rot } => c_rot,
                     _ => 0.0,
                 }),
+                inv_norm2: S::cst(match s.shape {
+                    Shape::Qbfs { norm_radius_mm } => 1.0 / (norm_radius_mm * norm_radius_mm),
+                    _ => 0.0,
+                }),
                 power: S::cst(match s.shape {
                     Shape::Paraxial { focal_mm } => 1.0 / focal_mm,
                     _ => 0.0,
@@ -461,6 +467,7 @@ impl<S: Real> System<S> {
                     n_asph: r.n_asph,
                     shape: r.shape,
                     c_rot: T::cst(r.c_rot.value()),
+                    inv_norm2: T::cst(r.inv_norm2.value()),
                     power: T::cst(r.power.value()),
                     ap2: T::cst(r.ap2.value()),
                     clip: r.clip.convert(),

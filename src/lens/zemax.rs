@@ -6,11 +6,13 @@
 //!
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
 //! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
-//!   `DGRATING` and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
+//!   `DGRATING`, `QED_TYPE` (the Q-type asphere of type 0, Forbes' Qbfs on a conic:
+//!   [`super::Shape::Qbfs`]) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
 //!   r¹⁶, odd-asphere terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal
 //!   lens' focal length, a grating's lines per µm and order ([`super::Grating`]), or the
 //!   coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
-//!   terms are refused),
+//!   terms are refused), a Q-type surface's `XDAT` (type, number of terms, normalization
+//!   radius, coefficients),
 //!   `DISZ` (a number, or `INFINITY` for the object), `DIAM` (the semi-diameter: the surface's
 //!   size, which clips nothing, as in OpticStudio; `MEMA` when there is no `DIAM`; without
 //!   either, the paraxial beam's size), hard apertures `CLAP`, `OBSC`, `SQAP`, `OBSQ`, `ELAP`,
@@ -54,8 +56,8 @@
 //!
 //! # Writing
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
-//! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL` or
-//! `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
+//! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
+//! `QED_TYPE` or `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
 //! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip,
 //! and one more `COORDBRK` after a fold mirror (the axis' turn at its pivot).
 //! Model
@@ -747,6 +749,13 @@ fn glass(
         ));
         return Ok(m);
     }
+    if let Some((g, what)) = super::material::same_material(name) {
+        warnings.push(format!(
+            "line {line}: glass {name} ({what}) is read as the built-in {} (the same material)",
+            g.name
+        ));
+        return Ok(Material::Catalog(g));
+    }
     let file_values = match (num(3), num(4)) {
         (Some(nd), Some(vd)) if nd >= 1.0 && vd > 0.0 && nd.is_finite() && vd.is_finite() => {
             Some((nd, vd))
@@ -989,6 +998,73 @@ impl Walker {
         self.travel(s.thickness()? * self.scale, s.type_line())
     }
 
+    /// The Forbes polynomials of a `QED_TYPE` surface (OpticStudio's Q-type asphere) into
+    /// `asph`: XDAT 1 the type (0: Qbfs; others are refused), XDAT 2 the number of terms,
+    /// XDAT 3 the normalization radius, XDAT 4.. the coefficients a_0, a_1, ... (lens units).
+    fn q_type(
+        &self,
+        s: &RawSurf,
+        asph: &mut [f64; N_ASPH],
+        warnings: &mut Vec<String>,
+    ) -> Result<Shape> {
+        let get = |n: usize| s.xdat.iter().rev().find(|x| x.0 == n);
+        let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
+        let value = |n: usize| get(n).map_or(0.0, |x| x.1);
+        let ty = value(1);
+        if ty != 0.0 {
+            return Err(invalid(
+                line_of(1),
+                format!(
+                    "XDAT 1 = {ty}: Q-type asphere type {ty}; tolray reads type 0 (Forbes' Qbfs polynomials on a conic)"
+                ),
+            ));
+        }
+        let terms = value(2);
+        if !((0.0..=1000.0).contains(&terms) && terms.fract() == 0.0) {
+            return Err(invalid(
+                line_of(2),
+                format!("XDAT 2 = {terms}: the number of Q terms must be a whole number"),
+            ));
+        }
+        let terms = terms as usize;
+        let norm = value(3) * self.scale;
+        for m in 0..terms {
+            let v = value(4 + m);
+            if m >= N_ASPH {
+                if v != 0.0 {
+                    return Err(invalid(
+                        line_of(4 + m),
+                        format!(
+                            "XDAT {} = {v}: Q term a_{m}; tolray traces Q terms a_0 to a_{}",
+                            4 + m,
+                            N_ASPH - 1
+                        ),
+                    ));
+                }
+                continue;
+            }
+            // A departure: lens units to mm.
+            asph[m] = v * self.scale;
+        }
+        if asph.iter().any(|&a| a != 0.0) && !(norm > 0.0 && norm.is_finite()) {
+            return Err(invalid(
+                line_of(3),
+                format!(
+                    "XDAT 3 = {}: the Q terms need a positive normalization radius",
+                    value(3)
+                ),
+            ));
+        }
+        if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 4 + terms && x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} ignored: beyond the {terms} Q terms of XDAT 2"
+            ));
+        }
+        Ok(Shape::Qbfs {
+            norm_radius_mm: if norm > 0.0 { norm } else { 1.0 },
+        })
+    }
+
     /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
     fn surface(
         &mut self,
@@ -1056,6 +1132,7 @@ impl Walker {
                         }
                         "PARAXIAL" => "a PARAXIAL surface has a focal length (PARM 1) and an OPD mode (PARM 2)",
                         "DGRATING" => "a DGRATING surface has lines per µm (PARM 1) and an order (PARM 2)",
+                        "QED_TYPE" => "a Q-type surface keeps its data in XDAT",
                         _ => "a STANDARD surface has no parameters",
                     };
                     warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
@@ -1098,6 +1175,8 @@ impl Walker {
                     ));
                 }
             }
+        } else if ty == "QED_TYPE" {
+            shape = self.q_type(s, &mut asph, warnings)?;
         } else if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.1 != 0.0) {
             warnings.push(format!(
                 "line {line}: XDAT {n} = {v} (extra surface data) ignored: a {ty} surface has none tolray reads"
@@ -1501,14 +1580,13 @@ fn build(
     for (k, s) in surfs.iter().enumerate().take(last).skip(1) {
         match s.type_name().as_str() {
             "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
-            "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" | "DGRATING" => {
-                walk.surface(k, s, catalogs, &mut warnings)?
-            }
+            "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" | "DGRATING"
+            | "QED_TYPE" => walk.surface(k, s, catalogs, &mut warnings)?,
             other => {
                 return Err(invalid(
                     s.type_line(),
                     format!(
-                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING and COORDBRK"
+                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING, QED_TYPE and COORDBRK"
                     ),
                 ))
             }
@@ -2238,6 +2316,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 Shape::Paraxial { .. } => "TYPE PARAXIAL",
                 Shape::Odd => "TYPE ODDASPHE",
                 Shape::Toroidal { .. } => "TYPE TOROIDAL",
+                Shape::Qbfs { .. } => "TYPE QED_TYPE",
                 Shape::Even if asph => "TYPE EVENASPH",
                 Shape::Even => "TYPE STANDARD",
             }
@@ -2259,6 +2338,17 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 l.push(format!("PARM 1 {}", fmt(r)));
                 for (j, a) in s.asph.iter().take(N_ASPH - 1).enumerate() {
                     l.push(format!("PARM {} {}", j + 2, fmt(*a)));
+                }
+            }
+            Shape::Qbfs { norm_radius_mm } => {
+                // XDAT 1: type 0 (Qbfs), 2: the number of terms, 3: the normalization radius,
+                // 4..: a_0, a_1, ...
+                let n = s.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
+                l.push("XDAT 1 0".into());
+                l.push(format!("XDAT 2 {n}"));
+                l.push(format!("XDAT 3 {}", fmt(norm_radius_mm)));
+                for (j, a) in s.asph.iter().take(n).enumerate() {
+                    l.push(format!("XDAT {} {}", j + 4, fmt(*a)));
                 }
             }
             _ if asph => {

@@ -434,6 +434,18 @@ pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool
         }
         Shape::Odd => odd_sag(row, x, y),
         Shape::Toroidal { .. } => toroid_sag(row, x, y),
+        Shape::Qbfs { .. } => {
+            let (z, dz, ok) = crate::lens::qbfs::sag_u(
+                row.c,
+                row.k1,
+                &row.asph,
+                row.n_asph,
+                row.inv_norm2,
+                x * x + y * y,
+            );
+            let two = S::cst(2.0);
+            (z, two * x * dz, two * y * dz, ok)
+        }
     }
 }
 

@@ -72,6 +72,12 @@ pub fn surface_sag_xy(row: &SurfaceRow<f64>, x: f64, y: f64) -> Option<(f64, f64
             Some((z, x * slope_over_r, y * slope_over_r))
         }
         Shape::Paraxial { .. } => Some((0.0, 0.0, 0.0)),
+        Shape::Qbfs { .. } => {
+            let norm = row.inv_norm2.sqrt().recip();
+            let (z, dzu) =
+                crate::lens::qbfs::sag_and_slope(row.c, row.k1 - 1.0, asph, norm, x * x + y * y)?;
+            Some((z, 2.0 * x * dzu, 2.0 * y * dzu))
+        }
         Shape::Toroidal { .. } => {
             // The y-z profile, rotated about the axis parallel to y at z = 1 / c_rot: with
             // R = 1 / c_rot, z = R - sqrt((R - z_y)² - x²) on the vertex side.

@@ -90,6 +90,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 Shape::Toroidal { c_rot: 0.0 } => "cylinder",
                 Shape::Toroidal { .. } => "toroid",
                 Shape::Paraxial { .. } => "thin lens",
+                Shape::Qbfs { .. } => "Q asphere",
                 Shape::Even => "asphere",
             },
             (_, true, _) => "sphere/stop",
@@ -147,6 +148,17 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
             s.push_str(&format!(
                 "  {:>4} {:>10} rolled {:.6} degrees about its axis\n",
                 "", "", sf.roll_deg
+            ));
+        }
+        if let Shape::Qbfs { norm_radius_mm } = sf.shape {
+            let n = sf.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
+            let terms: Vec<String> = sf.asph[..n].iter().map(|a| format!("{a:.6e}")).collect();
+            s.push_str(&format!(
+                "  {:>4} {:>10} Qbfs on the conic above: normalization radius {norm_radius_mm:.4} mm, a_0.. = [{}] mm (paraxial radius {:.4} mm)\n",
+                "",
+                "",
+                terms.join(", "),
+                1.0 / sf.shape.paraxial_curvature(sf.c, &sf.asph)
             ));
         }
         if let Shape::Toroidal { c_rot } = sf.shape {
