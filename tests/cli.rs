@@ -40,6 +40,23 @@ fn info_prints_the_reference_first_order_data() {
         out.contains("23.685824 mm"),
         "paraxial image distance\n{out}"
     );
+    // --object: a real object overrides the file's virtual one; virtual:MM gives it back.
+    let file = format!("{data}virtual-object.zmx");
+    let (code, out, _) = tolray(&["info", &file, "--object", "1000"]);
+    assert_eq!(code, 0);
+    assert!(!out.contains("virtual object"), "{out}");
+    let (code, out, _) = tolray(&["info", &file, "--object", "virtual:50"]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("a virtual object") && out.contains("23.685824 mm"),
+        "{out}"
+    );
+    let (code, _, err) = tolray(&["info", &file, "--object", "virtual:-5"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("a virtual object needs a distance in mm"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -514,14 +514,33 @@ pub enum Object {
 }
 
 impl Object {
-    /// Parses `inf` / `infinity` or a distance in mm (DeepLens' negative `obj_depth` is accepted).
+    /// Parses `inf` / `infinity`, a distance in mm to a real object in front of the first
+    /// vertex (its magnitude: DeepLens' negative `obj_depth` is accepted), or `virtual:MM`, a
+    /// virtual object MM behind the first vertex (a beam converging on it).
+    ///
+    /// ```
+    /// use tolray::Object;
+    /// assert_eq!(Object::parse("-1000").unwrap(), Object::Finite { distance_mm: 1000.0 });
+    /// assert_eq!(Object::parse("virtual:50").unwrap(), Object::Finite { distance_mm: -50.0 });
+    /// assert_eq!(Object::parse("inf").unwrap(), Object::Infinite);
+    /// assert!(Object::parse("virtual:inf").is_err());
+    /// ```
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for anything else or a zero distance.
+    /// [`crate::ErrorKind::Argument`] for anything else, a zero distance, or a virtual object
+    /// that is not a finite positive distance.
     pub fn parse(s: &str) -> Result<Object> {
         let t = s.trim().to_ascii_lowercase();
         if matches!(t.as_str(), "inf" | "infinity" | "-inf") {
             return Ok(Object::Infinite);
+        }
+        if let Some(v) = t.strip_prefix("virtual:") {
+            return match v.trim().parse::<f64>() {
+                Ok(v) if v.is_finite() && v > 0.0 => Ok(Object::Finite { distance_mm: -v }),
+                _ => Err(Error::argument(format!(
+                    "object distance \"{s}\": a virtual object needs a distance in mm behind the first vertex, greater than 0 (e.g. virtual:50)"
+                ))),
+            };
         }
         match t.parse::<f64>() {
             Ok(v) if v.is_infinite() => Ok(Object::Infinite),
@@ -529,7 +548,7 @@ impl Object {
                 distance_mm: v.abs(),
             }),
             _ => Err(Error::argument(format!(
-                "object distance \"{s}\": give a distance in mm (e.g. 1000) or \"inf\""
+                "object distance \"{s}\": give a distance in mm (e.g. 1000), \"inf\", or virtual:MM for a virtual object MM behind the first vertex"
             ))),
         }
     }

@@ -401,3 +401,54 @@ fn folds_read_and_malformed_ones_are_refused() {
     let m = with(&|v| v["image_plane"]["normal"] = json!([0.0, 0.0, 5e-324]));
     assert!(m.contains("image plane: normal"), "{m}");
 }
+
+/// A lens of Q-type aspheres (tests/data/qbfs.json, tests/data/zemax/qbfs.zmx converted) reads
+/// as the .zmx file does and round-trips exactly; a "qbfs" shape without its normalization
+/// radius, or with a radius of zero, is an error naming the surface and the key.
+#[test]
+fn q_type_aspheres_read_and_malformed_ones_are_refused() {
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/qbfs.json"))
+            .unwrap();
+    let lens = from_str(&text).unwrap();
+    let zmx = tolray::lens::zemax::read_file(
+        std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/data/zemax/qbfs.zmx"
+        )),
+        &tolray::lens::GlassCatalogs::builtin(),
+    )
+    .unwrap()
+    .lens;
+    for (a, b) in lens.surfaces.iter().zip(&zmx.surfaces) {
+        assert_eq!((a.shape, a.asph, a.c, a.k), (b.shape, b.asph, b.c, b.k));
+    }
+    assert_eq!(from_str(&to_string(&lens)).unwrap(), lens);
+    let v: Value = serde_json::from_str(&text).unwrap();
+    let with = |f: &dyn Fn(&mut Value)| {
+        let mut v = v.clone();
+        f(&mut v);
+        err(v)
+    };
+    let q = v["surfaces"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .position(|s| s["shape"] == "qbfs")
+        .unwrap();
+    let m = with(&|v| {
+        v["surfaces"][q]
+            .as_object_mut()
+            .unwrap()
+            .remove("norm_radius");
+    });
+    assert!(
+        m.contains(&format!("surface {q}")) && m.contains("missing \"norm_radius\""),
+        "{m}"
+    );
+    let m = with(&|v| v["surfaces"][q]["norm_radius"] = json!(0.0));
+    assert!(
+        m.contains(&format!("surface {q}")) && m.contains("normalization radius 0"),
+        "{m}"
+    );
+}
