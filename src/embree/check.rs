@@ -517,21 +517,23 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
     (1.02 * used + 0.05).min(row.clip.reach_mm)
 }
 
-/// Refuses surfaces the check cannot mesh or trace: it tessellates even aspheres (rings of equal
-/// sag) and refracts with Snell's law, so odd aspheres, toroids, Q-type aspheres, ideal thin
-/// lenses and gratings are refused by name.
+/// Refuses surfaces the check cannot mesh or trace: it tessellates rotationally symmetric
+/// surfaces of bounded curvature (rings of equal sag) and refracts with Snell's law, so
+/// toroids, odd aspheres with a cone term, ideal thin lenses and gratings are refused by name.
 fn supported(sys: &System<f64>) -> Result<()> {
+    use crate::lens::Shape;
     for (i, row) in sys.rows.iter().enumerate() {
         let what = match row.shape {
             _ if row.grating.is_some() => "a diffraction grating",
-            crate::lens::Shape::Even => continue,
-            crate::lens::Shape::Odd => "an odd asphere",
-            crate::lens::Shape::Toroidal { .. } => "a toroid",
-            crate::lens::Shape::Paraxial { .. } => "an ideal thin lens",
-            crate::lens::Shape::Qbfs { .. } => "a Q-type asphere",
+            Shape::Odd if row.asph[0] != 0.0 => {
+                "an odd asphere with a cone term (r^1: a point at the vertex)"
+            }
+            Shape::Even | Shape::Odd | Shape::Qbfs { .. } => continue,
+            Shape::Toroidal { .. } => "a toroid",
+            Shape::Paraxial { .. } => "an ideal thin lens",
         };
         return Err(Error::invalid(format!(
-            "surface {i} is {what}; the Embree check covers even aspheres, conics, spheres, planes and mirrors"
+            "surface {i} is {what}; the Embree check covers even, odd (without r^1) and Q-type aspheres, conics, spheres, planes and mirrors"
         )));
     }
     Ok(())

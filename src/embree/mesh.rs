@@ -33,7 +33,9 @@
 //! `R = s / √2`, so `B ≈ M s² / 4`; we start from `s = 2 √(ε / M)` for the requested `ε`,
 //! compute `B` exactly over every band's triangle shapes, and shrink `s` until `B <= ε`. `M` is the maximum of the closed-form
 //! second derivatives over 8192 radii, times 1.001 (the derivatives are smooth polynomials and
-//! conic terms, so the sampling error is far below that margin).
+//! conic terms, so the sampling error is far below that margin). Odd aspheres (without the cone
+//! term, whose vertex point has no bounded curvature) and Q-type aspheres are meshed the same
+//! way, their `f_uu` the central difference of the closed-form slope.
 //!
 //! # Footprints
 //!
@@ -52,7 +54,7 @@
 use crate::error::{Error, Result};
 use crate::lens::{Shape, SurfaceKind, SurfaceRow};
 use crate::math::Vec3;
-use crate::trace::reference::{intersect_local, surface_sag};
+use crate::trace::reference::{intersect_local, surface_sag, surface_sag_xy};
 
 /// Where mesh vertices (and the rays traced against them) are expressed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -109,8 +111,47 @@ pub struct Mesh {
     pub z_range_mm: [f64; 2],
 }
 
+/// Sag `z` and `dz/du` at `u = r²` of a rotationally symmetric surface (an even asphere, an odd
+/// asphere without the cone term, a Q-type asphere), from the reference tracer's definitions.
+fn radial_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
+    match row.shape {
+        Shape::Qbfs { .. } => crate::lens::qbfs::sag_and_slope(
+            row.c,
+            row.k1 - 1.0,
+            &row.asph[..row.n_asph],
+            row.inv_norm2.sqrt().recip(),
+            u,
+        ),
+        Shape::Odd => {
+            let r = u.sqrt();
+            let (z, _, fr) = surface_sag_xy(row, 0.0, r)?;
+            // dz/du = f_r / (2 r); at the vertex the limit, c/2 + β2 (no cone term here).
+            let fu = if r > 0.0 {
+                fr / (2.0 * r)
+            } else {
+                row.c / 2.0 + row.asph.get(1).copied().unwrap_or(0.0)
+            };
+            Some((z, fu))
+        }
+        _ => surface_sag(row, u),
+    }
+}
+
 /// Second-derivative data of a surface's sag at `u = r²`: (`2 f_u`, `f_rr`, slope `f_r`).
+/// Closed forms for the even asphere; for the other rotational shapes `f_uu` is the central
+/// difference of the closed-form `f_u` (relative step 1e-5: its error, ~1e-10 of `f_uu` for
+/// these smooth functions, is far inside the bound's 1.001 margin).
 fn derivatives(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64, f64)> {
+    if row.shape != Shape::Even {
+        let (_, fu) = radial_sag(row, u)?;
+        let h = 1e-5 * (u + 1e-2);
+        let fuu = if u > h {
+            (radial_sag(row, u + h)?.1 - radial_sag(row, u - h)?.1) / (2.0 * h)
+        } else {
+            (radial_sag(row, u + h)?.1 - fu) / h
+        };
+        return Some((2.0 * fu, 2.0 * fu + 4.0 * u * fuu, 2.0 * u.sqrt() * fu));
+    }
     let (c, k1) = (row.c, row.k1);
     let arg = 1.0 - k1 * c * c * u;
     if arg <= 0.0 {
@@ -469,12 +510,13 @@ impl Mesh {
         frame: Frame,
         footprint: Option<&[(Vec3<f64>, Vec3<f64>)]>,
     ) -> Result<Mesh> {
-        if row.shape != Shape::Even {
+        let cone = row.shape == Shape::Odd && row.asph[0] != 0.0;
+        if !matches!(row.shape, Shape::Even | Shape::Odd | Shape::Qbfs { .. }) || cone {
             return Err(Error::invalid(format!(
-                "surface {surface}: the Embree check tessellates even aspheres (rings of equal sag); this surface is {}",
+                "surface {surface}: the Embree check tessellates rotationally symmetric surfaces with a bounded curvature (rings of equal sag); this surface is {}",
                 match row.shape {
-                    Shape::Odd => "an odd asphere",
-                    Shape::Qbfs { .. } => "a Q-type asphere",
+                    Shape::Odd => "an odd asphere with a cone term (r^1): a point at the vertex",
+                    Shape::Paraxial { .. } => "an ideal thin lens",
                     _ => "a toroid",
                 }
             )));
@@ -497,7 +539,7 @@ impl Mesh {
         let mut ring_sag = Vec::with_capacity(rings + 1);
         for i in 0..=rings {
             let r = i as f64 * dr;
-            ring_sag.push(surface_sag(row, r * r).ok_or_else(|| {
+            ring_sag.push(radial_sag(row, r * r).ok_or_else(|| {
                 Error::invalid(format!(
                     "surface {surface}: the sag is undefined at r = {r:.4} mm"
                 ))
@@ -766,7 +808,7 @@ impl Mesh {
             ];
             let mut check = |w: [f64; 3]| {
                 let q = p[0] * w[0] + p[1] * w[1] + p[2] * w[2];
-                if let Some((z, _)) = surface_sag(row, q.x * q.x + q.y * q.y) {
+                if let Some((z, _)) = radial_sag(row, q.x * q.x + q.y * q.y) {
                     worst = worst.max((q.z - z).abs());
                 }
             };
