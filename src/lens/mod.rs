@@ -270,6 +270,13 @@ impl Shape {
     }
     /// The paraxial (vertex) curvature of a surface of this shape with curvature `c` and
     /// coefficients `asph`, 1/mm: `c + 2 Σ_j w_j asph_j` ([`Shape::r2_weights`]).
+    ///
+    /// ```
+    /// use tolray::lens::Shape;
+    /// let mut a = [0.0; 8];
+    /// a[0] = 1e-3; // 1e-3 ρ² on an even asphere adds 2e-3 /mm
+    /// assert!((Shape::Even.paraxial_curvature(0.01, &a) - 0.012).abs() < 1e-15);
+    /// ```
     pub fn paraxial_curvature(self, c: f64, asph: &[f64; N_ASPH]) -> f64 {
         c + 2.0
             * self

@@ -146,6 +146,11 @@ pub fn polynomials(x: f64) -> [f64; N_ASPH] {
 
 /// `Q_m(x)` and `dQ_m/dx`, m = 0..7, from the three-term relation and its derivative
 /// (`P'_m = (2 - 4x) P'_{m-1} - 4 P_{m-1} - P'_{m-2}`).
+///
+/// ```
+/// let (_, dq) = tolray::lens::qbfs::polynomials_and_slopes(0.3);
+/// assert!((dq[1] + 16.0 / 19f64.sqrt()).abs() < 1e-14); // Q_1 = (13 - 16 x) / √19
+/// ```
 pub fn polynomials_and_slopes(x: f64) -> ([f64; N_ASPH], [f64; N_ASPH]) {
     let (mut p, mut dp) = ([0.0; N_ASPH], [0.0; N_ASPH]);
     p[0] = 2.0;
