@@ -2012,6 +2012,46 @@ fn mirror_systems_round_trip_through_zmx() {
     assert_eq!(json::from_str(&json::to_string(&lens)).unwrap(), lens);
 }
 
+/// A 3-vector of a reference file.
+fn v3(v: &serde_json::Value) -> Vec3<f64> {
+    let a: Vec<f64> = v
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    Vec3::cst(a[0], a[1], a[2])
+}
+
+/// Traces a reference file's rays (`start`, `dir`) through `lens` at `wl` nm without apertures,
+/// asserts every ray alive, and returns the worst distances of the image positions and
+/// directions from the reference's (`image`, `image_dir`) and the traced batch.
+fn worst_against(
+    lens: &Lens,
+    wl: f64,
+    rays: &[serde_json::Value],
+    file: &str,
+) -> ((f64, f64), RayBatch<f64>) {
+    let mut b = RayBatch::<f64>::new();
+    for r in rays {
+        b.push(v3(&r["start"]), v3(&r["dir"]));
+    }
+    trace(
+        &lens.compile(),
+        wl,
+        &mut b,
+        TraceOptions { apertures: false },
+    );
+    let mut worst = (0.0f64, 0.0f64);
+    for (i, r) in rays.iter().enumerate() {
+        let k = b.get(i);
+        assert!(k.status.is_alive(), "{file} ray {i}: {:?}", k.status);
+        worst.0 = worst.0.max((k.o - v3(&r["image"])).norm());
+        worst.1 = worst.1.max((k.d - v3(&r["image_dir"])).norm());
+    }
+    (worst, b)
+}
+
 /// Toroids (a toroidal front with a radius of rotation, conic and y⁴, y⁶ terms, a cylindrical
 /// back) and odd aspheres (conic, ρ, ρ³, ρ⁴, ρ⁵ terms), read from hand-made .zmx files, trace
 /// every ray as optiland 0.6.3 does with the same surfaces (tests/data/zemax/
@@ -2026,15 +2066,6 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
     let doc: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(fixture("shapes_reference.json")).unwrap())
             .unwrap();
-    let v3 = |v: &serde_json::Value| {
-        let a: Vec<f64> = v
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect();
-        Vec3::cst(a[0], a[1], a[2])
-    };
     for (file, rays) in doc["lenses"].as_object().unwrap() {
         let z = zemax::read_file(&fixture(file), &GlassCatalogs::builtin()).unwrap();
         assert!(z.warnings.is_empty(), "{file}: {:?}", z.warnings);
@@ -2062,23 +2093,7 @@ fn toroids_and_odd_aspheres_trace_as_optiland_ray_by_ray() {
         // Constant index 1.5168 on both sides, as the reference.
         assert_eq!(front.material, Material::Constant(1.5168));
         let rays = rays.as_array().unwrap();
-        let mut b = RayBatch::<f64>::new();
-        for r in rays {
-            b.push(v3(&r["start"]), v3(&r["dir"]));
-        }
-        trace(
-            &lens.compile(),
-            LAMBDA_D_NM,
-            &mut b,
-            TraceOptions { apertures: false },
-        );
-        let mut worst = (0.0f64, 0.0f64);
-        for (i, r) in rays.iter().enumerate() {
-            let k = b.get(i);
-            assert!(k.status.is_alive(), "{file} ray {i}: {:?}", k.status);
-            worst.0 = worst.0.max((k.o - v3(&r["image"])).norm());
-            worst.1 = worst.1.max((k.d - v3(&r["image_dir"])).norm());
-        }
+        let (worst, b) = worst_against(lens, LAMBDA_D_NM, rays, file);
         assert!(rays.len() == 147, "{file}");
         if file == "virtual-image.zmx" {
             // Every ray ends in front of the lens, where no real ray goes.
@@ -2118,15 +2133,6 @@ fn q_type_aspheres_trace_as_optiland_ray_by_ray() {
     let doc: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(fixture("qbfs_reference.json")).unwrap())
             .unwrap();
-    let v3 = |v: &serde_json::Value| {
-        let a: Vec<f64> = v
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect();
-        Vec3::cst(a[0], a[1], a[2])
-    };
     for (file, entry) in doc["lenses"].as_object().unwrap() {
         let z = zemax::read_file(&fixture(file), &GlassCatalogs::builtin()).unwrap();
         let lens = &z.lens;
@@ -2194,23 +2200,7 @@ fn q_type_aspheres_trace_as_optiland_ray_by_ray() {
             );
         }
         let rays = entry["rays"].as_array().unwrap();
-        let mut b = RayBatch::<f64>::new();
-        for r in rays {
-            b.push(v3(&r["start"]), v3(&r["dir"]));
-        }
-        trace(
-            &lens.compile(),
-            wl,
-            &mut b,
-            TraceOptions { apertures: false },
-        );
-        let mut worst = (0.0f64, 0.0f64);
-        for (i, r) in rays.iter().enumerate() {
-            let k = b.get(i);
-            assert!(k.status.is_alive(), "{file} ray {i}: {:?}", k.status);
-            worst.0 = worst.0.max((k.o - v3(&r["image"])).norm());
-            worst.1 = worst.1.max((k.d - v3(&r["image_dir"])).norm());
-        }
+        let (worst, _) = worst_against(lens, wl, rays, file);
         assert!(rays.len() >= 147, "{file}");
         assert!(
             worst.0 < 1e-9 && worst.1 < 1e-11,
