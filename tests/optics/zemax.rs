@@ -2223,7 +2223,7 @@ fn q_type_aspheres_trace_as_optiland_ray_by_ray() {
     }
 }
 
-/// Q-type data tolray cannot trace is refused at its line: another Q type (Qcon), a term past
+/// Q-type data tolray cannot trace is refused at its line: another Q type (XDAT 1 = 1), a term past
 /// a_7, Q terms without a normalization radius.
 #[test]
 fn q_type_surfaces_tolray_cannot_trace_are_refused() {
