@@ -129,7 +129,7 @@ fn radial_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
             let fu = if r > 0.0 {
                 fr / (2.0 * r)
             } else {
-                row.c / 2.0 + row.asph.get(1).copied().unwrap_or(0.0)
+                row.c / 2.0 + row.asph[1]
             };
             Some((z, fu))
         }
