@@ -528,7 +528,7 @@ fn supported(sys: &System<f64>) -> Result<()> {
             Shape::Odd if row.asph[0] != 0.0 => {
                 "an odd asphere with a cone term (r^1: a point at the vertex)"
             }
-            Shape::Even | Shape::Odd | Shape::Qbfs { .. } => continue,
+            Shape::Even | Shape::Odd | Shape::Qbfs { .. } | Shape::Qcon { .. } => continue,
             Shape::Toroidal { .. } => "a toroid",
             Shape::Paraxial { .. } => "an ideal thin lens",
         };

@@ -122,6 +122,13 @@ fn radial_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
             row.inv_norm2.sqrt().recip(),
             u,
         ),
+        Shape::Qcon { .. } => crate::lens::qcon::sag_and_slope(
+            row.c,
+            row.k1 - 1.0,
+            &row.asph[..row.n_asph],
+            row.inv_norm2.sqrt().recip(),
+            u,
+        ),
         Shape::Odd => {
             let r = u.sqrt();
             let (z, _, fr) = surface_sag_xy(row, 0.0, r)?;
@@ -511,7 +518,11 @@ impl Mesh {
         footprint: Option<&[(Vec3<f64>, Vec3<f64>)]>,
     ) -> Result<Mesh> {
         let cone = row.shape == Shape::Odd && row.asph[0] != 0.0;
-        if !matches!(row.shape, Shape::Even | Shape::Odd | Shape::Qbfs { .. }) || cone {
+        if !matches!(
+            row.shape,
+            Shape::Even | Shape::Odd | Shape::Qbfs { .. } | Shape::Qcon { .. }
+        ) || cone
+        {
             return Err(Error::invalid(format!(
                 "surface {surface}: the Embree check tessellates rotationally symmetric surfaces with a bounded curvature (rings of equal sag); this surface is {}",
                 match row.shape {

@@ -17,9 +17,9 @@
 //! Also tolray's own (DeepLens ignores it, so such files are tolray's): `"shape"` on an
 //! `Aspheric` or `Mirror` surface, `"even"` (the default: `ai` on ρ², ρ⁴, ...), `"odd"` (`ai` =
 //! β1..β8 on ρ¹..ρ⁸, OpticStudio ODDASPHE), `"toroidal"` with `"c_rot"` (1/mm; `roc`, `k`
-//! and `ai` describe the y-z profile, OpticStudio TOROIDAL) or `"qbfs"` with `"norm_radius"`
-//! (mm; `ai` = a_0..a_7 on Forbes' Q_0^bfs..Q_7^bfs, OpticStudio's Q-type asphere;
-//! [`Shape::Qbfs`]). DeepLens' `ThinLens` (`"f"`, the
+//! and `ai` describe the y-z profile, OpticStudio TOROIDAL), `"qbfs"` or `"qcon"` with
+//! `"norm_radius"` (mm; `ai` = a_0..a_7 on Forbes' Q_0..Q_7, OpticStudio's Q-type asphere of
+//! type 0 or 1; [`Shape::Qbfs`], [`Shape::Qcon`]). DeepLens' `ThinLens` (`"f"`, the
 //! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
 //!
 //! Two more surface keys of tolray's: `"roll_deg"`, the surface's rotation about its own axis
@@ -642,20 +642,25 @@ fn surface_from(
             "toroidal" => Shape::Toroidal {
                 c_rot: finite(num(s, "c_rot", at)?.unwrap_or(0.0), at, "c_rot")?,
             },
-            "qbfs" => Shape::Qbfs {
-                norm_radius_mm: finite(
+            q @ ("qbfs" | "qcon") => {
+                let norm_radius_mm = finite(
                     num(s, "norm_radius", at)?.ok_or_else(|| {
                         Error::invalid(format!(
-                            "{at}missing \"norm_radius\" (mm) of the \"qbfs\" shape"
+                            "{at}missing \"norm_radius\" (mm) of the \"{q}\" shape"
                         ))
                     })?,
                     at,
                     "norm_radius",
-                )?,
-            },
+                )?;
+                if q == "qbfs" {
+                    Shape::Qbfs { norm_radius_mm }
+                } else {
+                    Shape::Qcon { norm_radius_mm }
+                }
+            }
             other => {
                 return Err(Error::invalid(format!(
-                    "{at}unknown \"shape\" \"{other}\" (even, odd, toroidal or qbfs)"
+                    "{at}unknown \"shape\" \"{other}\" (even, odd, toroidal, qbfs or qcon)"
                 )))
             }
         },
@@ -852,6 +857,10 @@ pub fn to_value(lens: &Lens) -> Value {
                     }
                     Shape::Qbfs { norm_radius_mm } => {
                         m.insert("shape".into(), json!("qbfs"));
+                        m.insert("norm_radius".into(), json!(norm_radius_mm));
+                    }
+                    Shape::Qcon { norm_radius_mm } => {
+                        m.insert("shape".into(), json!("qcon"));
                         m.insert("norm_radius".into(), json!(norm_radius_mm));
                     }
                 }

@@ -15,6 +15,7 @@ pub mod json;
 pub mod material;
 pub mod paraxial;
 pub mod qbfs;
+pub mod qcon;
 mod system;
 mod text;
 pub mod zemax;
@@ -241,6 +242,14 @@ pub enum Shape {
         /// Normalization radius ρ_n, mm (positive).
         norm_radius_mm: f64,
     },
+    /// Forbes' Q^con polynomials on the base conic (OpticStudio's Q-type asphere of type 1):
+    /// `asph` = a_0..a_7 (mm), the coefficients of Q_0^con..Q_7^con in an axial departure
+    /// `x² Σ a_m Q_m(x)`, `x = (ρ / norm_radius_mm)²`, which starts at ρ⁴ (the paraxial
+    /// curvature is `c`); the formula and its checks are in [`qcon`].
+    Qcon {
+        /// Normalization radius ρ_n, mm (positive).
+        norm_radius_mm: f64,
+    },
 }
 
 impl Shape {
@@ -265,8 +274,22 @@ impl Shape {
                 let r2 = norm_radius_mm * norm_radius_mm;
                 w = qbfs::polynomials(0.0).map(|q| q / r2);
             }
+            Shape::Qcon { .. } => {}
         }
         w
+    }
+    /// The normalization radius (mm) of a Q-type asphere ([`Shape::Qbfs`], [`Shape::Qcon`]).
+    ///
+    /// ```
+    /// use tolray::lens::Shape;
+    /// assert_eq!(Shape::Qcon { norm_radius_mm: 3.0 }.norm_radius_mm(), Some(3.0));
+    /// assert_eq!(Shape::Even.norm_radius_mm(), None);
+    /// ```
+    pub fn norm_radius_mm(self) -> Option<f64> {
+        match self {
+            Shape::Qbfs { norm_radius_mm } | Shape::Qcon { norm_radius_mm } => Some(norm_radius_mm),
+            _ => None,
+        }
     }
     /// The paraxial (vertex) curvature of a surface of this shape with curvature `c` and
     /// coefficients `asph`, 1/mm: `c + 2 Σ_j w_j asph_j` ([`Shape::r2_weights`]).
@@ -495,6 +518,9 @@ impl Surface {
             Shape::Paraxial { .. } => Some(0.0),
             Shape::Qbfs { norm_radius_mm } => {
                 qbfs::sag(self.c, self.k, &self.asph, norm_radius_mm, x * x + y * y)
+            }
+            Shape::Qcon { norm_radius_mm } => {
+                qcon::sag(self.c, self.k, &self.asph, norm_radius_mm, x * x + y * y)
             }
             Shape::Toroidal { c_rot } => {
                 let zy = even(y * y)?;
@@ -897,7 +923,7 @@ impl Lens {
                     )));
                 }
             }
-            if let Shape::Qbfs { norm_radius_mm } = s.shape {
+            if let Some(norm_radius_mm) = s.shape.norm_radius_mm() {
                 if !(norm_radius_mm > 1e-6 && norm_radius_mm <= 1e6) {
                     return Err(at(format!(
                         "Q-type normalization radius {norm_radius_mm} mm: needs 1e-6 < radius <= 1e6"

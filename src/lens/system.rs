@@ -370,9 +370,9 @@ impl<S: Real> System<S> {
                     Shape::Toroidal { c_rot } => c_rot,
                     _ => 0.0,
                 }),
-                inv_norm2: S::cst(match s.shape {
-                    Shape::Qbfs { norm_radius_mm } => 1.0 / (norm_radius_mm * norm_radius_mm),
-                    _ => 0.0,
+                inv_norm2: S::cst(match s.shape.norm_radius_mm() {
+                    Some(norm_radius_mm) => 1.0 / (norm_radius_mm * norm_radius_mm),
+                    None => 0.0,
                 }),
                 power: S::cst(match s.shape {
                     Shape::Paraxial { focal_mm } => 1.0 / focal_mm,

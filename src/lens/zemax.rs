@@ -7,7 +7,7 @@
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
 //! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
 //!   `DGRATING`, `QED_TYPE` (the Q-type asphere of type 0, Forbes' Qbfs on a conic:
-//!   [`super::Shape::Qbfs`]) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
+//!   [`super::Shape::Qbfs`], or type 1, Qcon: [`super::Shape::Qcon`]) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
 //!   r¹⁶, odd-asphere terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal
 //!   lens' focal length, a grating's lines per µm and order ([`super::Grating`]), or the
 //!   coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
@@ -37,8 +37,10 @@
 //! the thickness is along the new z axis), and each lens surface's resulting vertex and axis
 //! become its [`Surface::pos_xy_mm`] and [`Surface::vec_local`], and the frame's turn about
 //! that axis its [`Surface::roll_deg`] where the surface is not symmetric about it. A mirror
-//! tilted by 20° or more against the axis is a fold mirror: the axis of everything after it
-//! turns with the reflection, about the mirror's point on the axis ([`super::Fold`]), and the
+//! tilted by 20° or more against the axis is a fold mirror, and so is any tilted mirror after
+//! which the file's frame follows the reflected axis (coordinate break, mirror, coordinate
+//! break: OpticStudio's way of writing an off-axis or fold mirror): the axis of everything after
+//! it turns with the reflection, about the mirror's point on the axis ([`super::Fold`]), and the
 //! lens stays described unfolded (so fold-mirror systems, periscopes included, open with the
 //! paraxial model of their unfolded axis). A surface or an image plane turned by 90° or more
 //! against the axis (other than by a fold mirror), and surfaces out of order along the axis,
@@ -806,6 +808,17 @@ fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
     super::system::rotation_xyz_deg([a, b, g])
 }
 
+/// The rotation of a coordinate break (PARM 3..5 degrees; PARM 6 = 0: about x, the new y, the
+/// new z; otherwise about z, the new y, the new x).
+fn cb_rotation(s: &RawSurf) -> Mat3<f64> {
+    let (a, b, g) = (s.parm(3), s.parm(4), s.parm(5));
+    if s.parm(6) == 0.0 {
+        rotation_xyz_deg(a, b, g)
+    } else {
+        Mat3::from_tilt_deg(a, b, g)
+    }
+}
+
 /// A mirror tilted by this much or more against the axis is a fold mirror (the axis of the
 /// surfaces after it turns with the reflection): fold mirrors are tilted by tens of degrees,
 /// off-axis and tolerance tilts by a few degrees or less.
@@ -961,6 +974,23 @@ impl Walker {
         Some(fold)
     }
 
+    /// True when the mirror with unfolded normal `n` is tilted against the leg's axis and the
+    /// file's frame `frame_after` (global) after it has its z axis along the reflected light,
+    /// against the direction of travel after the mirror, as thicknesses after a mirror are
+    /// negative.
+    fn follows_reflection(&self, n: Vec3<f64>, frame_after: Mat3<f64>) -> bool {
+        let n = n.normalized();
+        if n.z.abs() >= 1.0 - 1e-15 {
+            return false;
+        }
+        let d_in = Vec3::cst(0.0, 0.0, self.dir);
+        let v = d_in - n * (2.0 * d_in.dot(n));
+        let after = self
+            .leg_rot
+            .apply_t(frame_after.apply(Vec3::cst(0.0, 0.0, 1.0)));
+        (v + after * self.dir).norm() <= 1e-9
+    }
+
     /// Travels `t` mm along the current z axis.
     fn travel(&mut self, t: f64, line: usize) -> Result<()> {
         self.shift(self.axis() * t);
@@ -984,14 +1014,13 @@ impl Walker {
             ));
         }
         let decenter = Vec3::cst(s.parm(1) * self.scale, s.parm(2) * self.scale, 0.0);
-        let (a, b, g) = (s.parm(3), s.parm(4), s.parm(5));
         if s.parm(6) == 0.0 {
             // Decenter, then tilt about x, the new y, the new z.
             self.shift(self.rot.apply(decenter));
-            self.rot = snap(self.rot * rotation_xyz_deg(a, b, g));
+            self.rot = snap(self.rot * cb_rotation(s));
         } else {
             // Tilt about z, the new y, the new x, then decenter.
-            self.rot = snap(self.rot * Mat3::from_tilt_deg(a, b, g));
+            self.rot = snap(self.rot * cb_rotation(s));
             self.shift(self.rot.apply(decenter));
         }
         self.last_cb_line = Some(s.type_line());
@@ -999,7 +1028,7 @@ impl Walker {
     }
 
     /// The Forbes polynomials of a `QED_TYPE` surface (OpticStudio's Q-type asphere) into
-    /// `asph`: XDAT 1 the type (0: Qbfs; others are refused), XDAT 2 the number of terms,
+    /// `asph`: XDAT 1 the type (0: Qbfs, 1: Qcon; others are refused), XDAT 2 the number of terms,
     /// XDAT 3 the normalization radius, XDAT 4.. the coefficients a_0, a_1, ... (lens units).
     fn q_type(
         &self,
@@ -1011,11 +1040,11 @@ impl Walker {
         let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
         let value = |n: usize| get(n).map_or(0.0, |x| x.1);
         let ty = value(1);
-        if ty != 0.0 {
+        if ty != 0.0 && ty != 1.0 {
             return Err(invalid(
                 line_of(1),
                 format!(
-                    "XDAT 1 = {ty}: Q-type asphere type {ty}; tolray reads type 0 (Forbes' Qbfs polynomials on a conic)"
+                    "XDAT 1 = {ty}: Q-type asphere type {ty}; tolray reads type 0 (Forbes' Qbfs polynomials) and type 1 (Qcon), each on a conic"
                 ),
             ));
         }
@@ -1060,16 +1089,23 @@ impl Walker {
                 "line {line}: XDAT {n} = {v} ignored: beyond the {terms} Q terms of XDAT 2"
             ));
         }
-        Ok(Shape::Qbfs {
-            norm_radius_mm: if norm > 0.0 { norm } else { 1.0 },
+        let norm_radius_mm = if norm > 0.0 { norm } else { 1.0 };
+        Ok(if ty == 0.0 {
+            Shape::Qbfs { norm_radius_mm }
+        } else {
+            Shape::Qcon { norm_radius_mm }
         })
     }
 
     /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
+    ///
+    /// `frame_after`: the file's frame after the coordinate breaks that follow the surface
+    /// (global), which tells whether a tilted mirror is a fold mirror.
     fn surface(
         &mut self,
         k: usize,
         s: &RawSurf,
+        frame_after: Mat3<f64>,
         catalogs: &GlassCatalogs,
         warnings: &mut Vec<String>,
     ) -> Result<()> {
@@ -1295,9 +1331,15 @@ impl Walker {
             if roll != 0.0 && !surface.is_axially_symmetric() {
                 surface.roll_deg = roll;
             }
-            // A mirror tilted far enough against the axis is a fold mirror: the surfaces after
-            // it are placed on the reflected axis (the unfolded model stays paraxially right).
-            if mirror && axis.z < FOLD_MIN_DEG.to_radians().cos() {
+            // A mirror tilted far enough against the axis is a fold mirror, and so is any
+            // tilted mirror after which the file's frame follows the reflected axis (OpticStudio's
+            // coordinate break, mirror, coordinate break): the surfaces after it are placed on
+            // the reflected axis, so the unfolded model's gaps are the file's thicknesses and
+            // its paraxial model that of OpticStudio, which ignores the coordinate breaks.
+            if mirror
+                && (axis.z < FOLD_MIN_DEG.to_radians().cos()
+                    || self.follows_reflection(axis, frame_after))
+            {
                 surface.fold = self.fold(axis, self.dir);
                 if surface.fold.is_none() {
                     return Err(invalid(
@@ -1581,7 +1623,24 @@ fn build(
         match s.type_name().as_str() {
             "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
             "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" | "DGRATING"
-            | "QED_TYPE" => walk.surface(k, s, catalogs, &mut warnings)?,
+            | "QED_TYPE" => {
+                // The frame in which the light leaves the surface: its own, or, when its
+                // thickness is 0, that of the first coordinate break after it with a non-zero
+                // thickness (or of the last one before the next surface).
+                let mut frame_after = walk.rot;
+                if s.thickness().is_ok_and(|t| t == 0.0) {
+                    for t in surfs[k + 1..last].iter() {
+                        if t.type_name() != "COORDBRK" {
+                            break;
+                        }
+                        frame_after = snap(frame_after * cb_rotation(t));
+                        if !t.thickness().is_ok_and(|d| d == 0.0) {
+                            break;
+                        }
+                    }
+                }
+                walk.surface(k, s, frame_after, catalogs, &mut warnings)?
+            }
             other => {
                 return Err(invalid(
                     s.type_line(),
@@ -2316,7 +2375,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 Shape::Paraxial { .. } => "TYPE PARAXIAL",
                 Shape::Odd => "TYPE ODDASPHE",
                 Shape::Toroidal { .. } => "TYPE TOROIDAL",
-                Shape::Qbfs { .. } => "TYPE QED_TYPE",
+                Shape::Qbfs { .. } | Shape::Qcon { .. } => "TYPE QED_TYPE",
                 Shape::Even if asph => "TYPE EVENASPH",
                 Shape::Even => "TYPE STANDARD",
             }
@@ -2340,11 +2399,16 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                     l.push(format!("PARM {} {}", j + 2, fmt(*a)));
                 }
             }
-            Shape::Qbfs { norm_radius_mm } => {
-                // XDAT 1: type 0 (Qbfs), 2: the number of terms, 3: the normalization radius,
-                // 4..: a_0, a_1, ...
+            Shape::Qbfs { norm_radius_mm } | Shape::Qcon { norm_radius_mm } => {
+                // XDAT 1: type 0 (Qbfs) or 1 (Qcon), 2: the number of terms, 3: the
+                // normalization radius, 4..: a_0, a_1, ...
                 let n = s.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
-                l.push("XDAT 1 0".into());
+                let ty = if matches!(s.shape, Shape::Qbfs { .. }) {
+                    0
+                } else {
+                    1
+                };
+                l.push(format!("XDAT 1 {ty}"));
                 l.push(format!("XDAT 2 {n}"));
                 l.push(format!("XDAT 3 {}", fmt(norm_radius_mm)));
                 for (j, a) in s.asph.iter().take(n).enumerate() {

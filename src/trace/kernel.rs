@@ -434,8 +434,13 @@ pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool
         }
         Shape::Odd => odd_sag(row, x, y),
         Shape::Toroidal { .. } => toroid_sag(row, x, y),
-        Shape::Qbfs { .. } => {
-            let (z, dz, ok) = crate::lens::qbfs::sag_u(
+        Shape::Qbfs { .. } | Shape::Qcon { .. } => {
+            let sag_u = if matches!(row.shape, Shape::Qbfs { .. }) {
+                crate::lens::qbfs::sag_u
+            } else {
+                crate::lens::qcon::sag_u
+            };
+            let (z, dz, ok) = sag_u(
                 row.c,
                 row.k1,
                 &row.asph,

@@ -72,10 +72,14 @@ pub fn surface_sag_xy(row: &SurfaceRow<f64>, x: f64, y: f64) -> Option<(f64, f64
             Some((z, x * slope_over_r, y * slope_over_r))
         }
         Shape::Paraxial { .. } => Some((0.0, 0.0, 0.0)),
-        Shape::Qbfs { .. } => {
+        Shape::Qbfs { .. } | Shape::Qcon { .. } => {
             let norm = row.inv_norm2.sqrt().recip();
-            let (z, dzu) =
-                crate::lens::qbfs::sag_and_slope(row.c, row.k1 - 1.0, asph, norm, x * x + y * y)?;
+            let sag_and_slope = if matches!(row.shape, Shape::Qbfs { .. }) {
+                crate::lens::qbfs::sag_and_slope
+            } else {
+                crate::lens::qcon::sag_and_slope
+            };
+            let (z, dzu) = sag_and_slope(row.c, row.k1 - 1.0, asph, norm, x * x + y * y)?;
             Some((z, 2.0 * x * dzu, 2.0 * y * dzu))
         }
         Shape::Toroidal { .. } => {

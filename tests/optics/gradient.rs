@@ -2,8 +2,8 @@
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
 //! odd-asphere and an ideal-thin-lens system, a lens with a virtual image, one with its object in
 //! water, a ruled (grating) surface, toroids rolled about the axis, a singlet folded by two
-//! fold mirrors, one meeting a converging beam (a virtual object) and a singlet of Q-type
-//! (Qbfs) aspheres, nominal and perturbed.
+//! fold mirrors, one meeting a converging beam (a virtual object) and singlets of Q-type
+//! aspheres (Qbfs and Qcon), nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -128,7 +128,7 @@ fn step(lens: &Lens, p: Param) -> f64 {
             let power = match s.shape {
                 tolray::lens::Shape::Odd => j as i32 + 1,
                 // A Q term is a departure in mm whatever its index.
-                tolray::lens::Shape::Qbfs { .. } => 0,
+                tolray::lens::Shape::Qbfs { .. } | tolray::lens::Shape::Qcon { .. } => 0,
                 _ => 2 * j as i32 + 2,
             };
             (1e-5 * v.max(1e-12 / 10f64.powi(j as i32))).max(1e-7 / s.semi_aperture_mm.powi(power))
@@ -200,6 +200,7 @@ fn gradients_match_finite_differences_nominal() {
     check("fold mirrors", &zmx("fold.zmx"), false);
     check("virtual object", &zmx("virtual-object.zmx"), false);
     check("Q-type aspheres", &zmx("qbfs.zmx"), false);
+    check("Qcon aspheres", &zmx("qcon.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -243,6 +244,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("fold mirrors", &zmx("fold.zmx"), true);
     check("virtual object", &zmx("virtual-object.zmx"), true);
     check("Q-type aspheres", &zmx("qbfs.zmx"), true);
+    check("Qcon aspheres", &zmx("qcon.zmx"), true);
 }
 
 #[test]

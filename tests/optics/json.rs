@@ -403,8 +403,9 @@ fn folds_read_and_malformed_ones_are_refused() {
 }
 
 /// A lens of Q-type aspheres (tests/data/qbfs.json, tests/data/zemax/qbfs.zmx converted) reads
-/// as the .zmx file does and round-trips exactly; a "qbfs" shape without its normalization
-/// radius, or with a radius of zero, is an error naming the surface and the key.
+/// as the .zmx file does and round-trips exactly, and so does a "qcon" shape; a Q shape without
+/// its normalization radius, with a radius of zero, or an unknown shape is an error naming the
+/// surface and the key.
 #[test]
 fn q_type_aspheres_read_and_malformed_ones_are_refused() {
     let text =
@@ -449,6 +450,29 @@ fn q_type_aspheres_read_and_malformed_ones_are_refused() {
     let m = with(&|v| v["surfaces"][q]["norm_radius"] = json!(0.0));
     assert!(
         m.contains(&format!("surface {q}")) && m.contains("normalization radius 0"),
+        "{m}"
+    );
+    // "qcon" (Q-type of type 1) reads as the same surface with Qcon polynomials, and its
+    // missing radius is named as its own.
+    let mut qcon = v.clone();
+    qcon["surfaces"][q]["shape"] = json!("qcon");
+    let l = from_str(&qcon.to_string()).unwrap();
+    assert_eq!(
+        l.surfaces[q].shape,
+        tolray::lens::Shape::Qcon {
+            norm_radius_mm: v["surfaces"][q]["norm_radius"].as_f64().unwrap()
+        }
+    );
+    assert_eq!(from_str(&to_string(&l)).unwrap(), l);
+    qcon["surfaces"][q]
+        .as_object_mut()
+        .unwrap()
+        .remove("norm_radius");
+    let m = err(qcon);
+    assert!(m.contains("of the \"qcon\" shape"), "{m}");
+    let m = with(&|v| v["surfaces"][q]["shape"] = json!("qted"));
+    assert!(
+        m.contains("unknown \"shape\" \"qted\"") && m.contains("qcon"),
         "{m}"
     );
 }

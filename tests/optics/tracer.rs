@@ -71,6 +71,7 @@ fn lenses() -> Vec<(String, Lens)> {
     v.push(("odd asphere".into(), zmx("oddasphere.zmx")));
     v.push(("ideal thin lens".into(), zmx("thinlens.zmx")));
     v.push(("Q-type aspheres".into(), zmx("qbfs.zmx")));
+    v.push(("Qcon aspheres".into(), zmx("qcon.zmx")));
     // The toroid's front turned the other way about x (a negative radius of rotation).
     let mut t = zmx("toroid.zmx");
     t.surfaces[1].shape = tolray::lens::Shape::Toroidal { c_rot: -1.0 / 30.0 };

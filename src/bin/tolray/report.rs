@@ -90,7 +90,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 Shape::Toroidal { c_rot: 0.0 } => "cylinder",
                 Shape::Toroidal { .. } => "toroid",
                 Shape::Paraxial { .. } => "thin lens",
-                Shape::Qbfs { .. } => "Q asphere",
+                Shape::Qbfs { .. } | Shape::Qcon { .. } => "Q asphere",
                 Shape::Even => "asphere",
             },
             (_, true, _) => "sphere/stop",
@@ -150,13 +150,14 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 "", "", sf.roll_deg
             ));
         }
-        if let Shape::Qbfs { norm_radius_mm } = sf.shape {
+        if let Some(norm_radius_mm) = sf.shape.norm_radius_mm() {
             let n = sf.asph.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
             let terms: Vec<String> = sf.asph[..n].iter().map(|a| format!("{a:.6e}")).collect();
             s.push_str(&format!(
-                "  {:>4} {:>10} Qbfs on the conic above: normalization radius {norm_radius_mm:.4} mm, a_0.. = [{}] mm (paraxial radius {:.4} mm)\n",
+                "  {:>4} {:>10} {} on the conic above: normalization radius {norm_radius_mm:.4} mm, a_0.. = [{}] mm (paraxial radius {:.4} mm)\n",
                 "",
                 "",
+                if matches!(sf.shape, Shape::Qbfs { .. }) { "Qbfs" } else { "Qcon" },
                 terms.join(", "),
                 1.0 / sf.shape.paraxial_curvature(sf.c, &sf.asph)
             ));
