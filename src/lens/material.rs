@@ -278,13 +278,30 @@ impl Material {
         matches!(self, Material::Air)
     }
 
-    /// The name DeepLens' JSON uses for this material (`air`, `n-bk7`, `1.5168/64.17`).
+    /// The name DeepLens' JSON uses for this material (`air`, `n-bk7`, `1.5168/64.17`). A
+    /// built-in glass whose bare name would be read as another vendor's glass of that name
+    /// carries its vendor (`f2 (hikari)`: Hikari's F2, where `f2` is Schott's), which
+    /// [`Material::parse`] reads back.
+    ///
+    /// ```
+    /// use tolray::lens::Material;
+    /// let hikari_f2 = Material::parse("F2 (Hikari)").unwrap();
+    /// assert_eq!(hikari_f2.json_name(), "f2 (hikari)");
+    /// assert_eq!(Material::parse("f2").unwrap().json_name(), "f2");
+    /// assert_eq!(Material::parse(&hikari_f2.json_name()).unwrap(), hikari_f2);
+    /// ```
     pub fn json_name(&self) -> String {
         match self {
             Material::Air => "air".to_string(),
             Material::Constant(n) => format!("{n}"),
             Material::Model { nd, vd } => format!("{nd}/{vd}"),
-            Material::Catalog(g) => g.name.to_ascii_lowercase(),
+            Material::Catalog(g) => {
+                let bare = g.name.to_ascii_lowercase();
+                match GlassCatalogs::builtin().find(&bare) {
+                    Some(Material::Catalog(h)) if h.vendor == g.vendor && h.name == g.name => bare,
+                    _ => format!("{bare} ({})", g.vendor.to_ascii_lowercase()),
+                }
+            }
             Material::Agf(g) => g.name.to_ascii_lowercase(),
             Material::Perturbed { nd_new, scale, .. } => {
                 let disp = self.index(LAMBDA_F_NM) - self.index(LAMBDA_C_NM);
@@ -351,6 +368,23 @@ impl Material {
         }
         if let Some(m) = catalogs.find(s) {
             return Ok(m);
+        }
+        // A built-in glass with its vendor: "F2 (Hikari)".
+        if let Some((n, v)) = s.strip_suffix(')').and_then(|t| t.split_once(" (")) {
+            let vendor = VENDOR_ORDER
+                .iter()
+                .copied()
+                .find(|x| x.eq_ignore_ascii_case(v.trim()))
+                .or_else(|| vendor_of_gcat(v.trim()));
+            if let Some(g) = vendor.and_then(|v| find_in_vendors(n.trim(), &[v])) {
+                return Ok(Material::Catalog(g));
+            }
+            return Err(Error::invalid(format!(
+                "unknown glass \"{s}\": {} has no glass \"{}\" built in (vendors: {})",
+                v.trim(),
+                n.trim(),
+                VENDOR_ORDER.join(", ")
+            )));
         }
         let close = catalogs.suggest(s, 3);
         let hint = if close.is_empty() {

@@ -2114,6 +2114,57 @@ fn gcat_name(vendor: &str) -> String {
     }
 }
 
+/// The `GCAT` line's catalogs: `initial` (a file's own order), then every catalog a material
+/// comes from, ordered so that each built-in glass name resolves to its own vendor's glass when
+/// read back (the reader looks names up in `GCAT` order): a vendor moves before any other listed
+/// vendor that has a glass of the same name (Hikari's F2 before Schott, which has an F2 too).
+/// Two materials of one name from two vendors cannot both be named in a file; the first wins.
+fn gcat_order(lens: &Lens, initial: Vec<String>) -> Vec<String> {
+    let mut gcat = initial;
+    let media =
+        std::iter::once(&lens.object_medium).chain(lens.surfaces.iter().map(|s| &s.material));
+    let mut glasses = Vec::new();
+    for m in media {
+        let c = match m {
+            Material::Catalog(g) => {
+                glasses.push(*g);
+                Some(gcat_name(g.vendor))
+            }
+            Material::Agf(g) => Some(g.catalog.clone()),
+            _ => None,
+        };
+        if let Some(c) = c {
+            if !gcat.iter().any(|x| x.eq_ignore_ascii_case(&c)) {
+                gcat.push(c);
+            }
+        }
+    }
+    let vendor = |c: &String| super::material::vendor_of_gcat(c);
+    // Each pass moves one vendor ahead of the first listed vendor that would take its glass;
+    // a bounded number of passes ends a cycle (the same name wanted from two vendors).
+    for _ in 0..gcat.len() * gcat.len() {
+        let mut moved = false;
+        for g in &glasses {
+            let Some(own) = gcat.iter().position(|c| vendor(c) == Some(g.vendor)) else {
+                continue;
+            };
+            let thief = gcat[..own].iter().position(|c| {
+                vendor(c).is_some_and(|v| super::material::find_in_vendors(g.name, &[v]).is_some())
+            });
+            if let Some(t) = thief {
+                let c = gcat.remove(own);
+                gcat.insert(t, c);
+                moved = true;
+                break;
+            }
+        }
+        if !moved {
+            break;
+        }
+    }
+    gcat
+}
+
 /// A `COORDBRK` surface's lines: thickness `t`, PARM 1..5 = decenter x, y and tilts about x,
 /// y, z (degrees), PARM 6 the order flag.
 fn coordinate_break(t: f64, parms: [f64; 5], order: u8) -> Vec<String> {
@@ -2218,21 +2269,10 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         "RAIM 0 {} 1 1 0 0 0 0 0",
         if lens.ray_aiming { 2 } else { 0 }
     ));
-    let mut gcat: Vec<String> = extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default();
-    let media =
-        std::iter::once(&lens.object_medium).chain(lens.surfaces.iter().map(|s| &s.material));
-    for m in media {
-        let c = match m {
-            Material::Catalog(g) => Some(gcat_name(g.vendor)),
-            Material::Agf(g) => Some(g.catalog.clone()),
-            _ => None,
-        };
-        if let Some(c) = c {
-            if !gcat.iter().any(|x| x.eq_ignore_ascii_case(&c)) {
-                gcat.push(c);
-            }
-        }
-    }
+    let gcat = gcat_order(
+        lens,
+        extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default(),
+    );
     if !gcat.is_empty() {
         w(format!("GCAT {}", gcat.join(" ")));
     }
@@ -2511,7 +2551,36 @@ fn aperture_lines(s: &Surface) -> Vec<String> {
 ///
 /// # Errors
 /// [`ErrorKind::Io`] naming the path.
+///
+/// # Errors
+/// A lens with two built-in glasses of one name from two vendors that no `GCAT` order tells
+/// apart (Schott's F2 with Hikari's SF5: each name is in both catalogs) is refused, naming them,
+/// since the file would be read back with another glass; and any error of the write.
 pub fn write_file(lens: &Lens, extras: Option<&ZmxExtras>, path: &Path) -> Result<()> {
+    let gcat = gcat_order(
+        lens,
+        extras.map(|e| e.glass_catalogs.clone()).unwrap_or_default(),
+    );
+    let mut order: Vec<&str> = gcat
+        .iter()
+        .filter_map(|c| super::material::vendor_of_gcat(c))
+        .collect();
+    order.extend(super::material::VENDOR_ORDER);
+    for (i, s) in lens.surfaces.iter().enumerate() {
+        if let Material::Catalog(g) = s.material {
+            let found = super::material::find_in_vendors(g.name, &order);
+            if let Some(h) = found.filter(|h| h.vendor != g.vendor) {
+                return Err(Error::invalid(format!(
+                    "{}: surface {i}: {}'s glass {} cannot be named in this .zmx file: with the other glasses' catalogs listed, GCAT finds {}'s {} first",
+                    path.display(),
+                    g.vendor,
+                    g.name,
+                    h.vendor,
+                    h.name
+                )));
+            }
+        }
+    }
     crate::files::write_atomic(path, to_string(lens, extras).as_bytes())
 }
 
