@@ -1961,6 +1961,44 @@ fn shared_glass_names_keep_their_vendor_through_zmx_and_json() {
     assert!(e.message().contains("Acme has no glass \"F2\""), "{e}");
 }
 
+/// The paraxial model of optiland's five-mirror periscope (complicated_fold_mirrors_setup_v2,
+/// of which optiland has none): five flat fold mirrors, two of them off their incoming leg,
+/// then a biconvex N-BK7 singlet (R = 60 mm, 5 mm thick) met in the reversed direction. Folds
+/// and flat mirrors add no power, so its EFL and back focus are the thick lens' closed forms
+/// 1/f = (n-1) (2/R - (n-1) d / (n R²)) and f (1 - (n-1) d / (n R)) (1e-12), the back focus
+/// against the travel after the odd number of mirrors; the stop is the first surface.
+#[test]
+fn a_fold_periscope_has_the_paraxial_model_of_its_thick_lens() {
+    let path = fixture("real").join("optiland/complicated_fold_mirrors_setup_v2.zmx");
+    let lens = zemax::read_file(&path, &GlassCatalogs::builtin())
+        .unwrap()
+        .lens;
+    let wl = lens.primary_wavelength_nm;
+    let glass: Vec<&tolray::lens::Surface> = lens
+        .surfaces
+        .iter()
+        .filter(|s| !s.material.is_air())
+        .collect();
+    assert_eq!(glass.len(), 1);
+    assert_eq!(glass[0].material.catalog_name(), Some("N-BK7"));
+    let n = glass[0].material.index(wl);
+    let (r, d) = (60.0, 5.0);
+    let power = (n - 1.0) * (2.0 / r - (n - 1.0) * d / (n * r * r));
+    let f = 1.0 / power;
+    let bfd = f * (1.0 - (n - 1.0) * d / (n * r));
+    let p = lens.paraxial(wl).unwrap();
+    assert!((p.efl_mm - f).abs() < 1e-12 * f, "EFL {} vs {f}", p.efl_mm);
+    assert!(
+        (p.bfd_mm + bfd).abs() < 1e-12 * f,
+        "BFD {} vs -{bfd}",
+        p.bfd_mm
+    );
+    assert_eq!(p.stop_surface, 0);
+    assert!((p.entrance_pupil_z_mm).abs() < 1e-12);
+    let folds = lens.surfaces.iter().filter(|s| s.fold.is_some()).count();
+    assert_eq!(folds, 5);
+}
+
 /// Apertures as OpticStudio means them: DIAM is a size that clips nothing, CLAP / OBSC / SQAP /
 /// OBSQ / ELAP / OBEL (with OBDC decenters) and FLAP clip, the stop clips at its semi-diameter;
 /// the kernel's branch-free test agrees ray by ray with the plain shape test, and every aperture
@@ -2327,6 +2365,36 @@ fn q_type_aspheres_trace_as_optiland_ray_by_ray() {
             assert!(
                 (p.bfd_mm - lens.image_distance_mm()).abs() < 1e-3,
                 "BFD {}",
+                p.bfd_mm
+            );
+            // The paraxial model (every Q_m(0) in the vertex curvature; optiland's paraxial
+            // trace leaves the Q terms out and finds 36.997 mm) is the limit of the real rays,
+            // which agree with optiland's: a collimated ray 1e-3 mm off the axis leaves at the
+            // slope -h / f and crosses the axis a back focus behind the last vertex (both to
+            // (h / 17 mm)², the aperture error of a ray that high).
+            let h = 1e-3;
+            let mut b = RayBatch::<f64>::new();
+            b.push(Vec3::cst(0.0, h, -1.0), Vec3::cst(0.0, 0.0, 1.0));
+            trace(
+                &lens.compile(),
+                wl,
+                &mut b,
+                TraceOptions { apertures: false },
+            );
+            let r = b.get(0);
+            let slope = r.d.y / r.d.z;
+            let behind_image = -r.o.y / slope;
+            let last = lens.image_distance_mm();
+            assert!(
+                ((-h / slope) - p.efl_mm).abs() < 1e-7 * p.efl_mm,
+                "real-ray EFL {} vs paraxial {}",
+                -h / slope,
+                p.efl_mm
+            );
+            assert!(
+                (last + behind_image - p.bfd_mm).abs() < 1e-7 * p.efl_mm,
+                "real-ray back focus {} vs paraxial {}",
+                last + behind_image,
                 p.bfd_mm
             );
             let opts = SpotOptions {
