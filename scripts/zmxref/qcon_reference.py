@@ -27,8 +27,10 @@ import optiland.backend as be
 from numpy.polynomial import Polynomial
 from optiland.materials.ideal import IdealMaterial
 from optiland.optic import Optic
-from optiland.rays import RealRays
 from scipy.special import jacobi
+
+# The same ray sets and optiland trace as the Qbfs reference (three directions on a square grid).
+from qbfs_reference import rays, trace
 
 warnings.filterwarnings("ignore")
 be.set_backend("numpy")
@@ -69,36 +71,6 @@ def lens():
                    coefficients=qcon_power_series(BACK["a"], BACK["norm"]), thickness=1.21 * IN)
     op.add_surface(index=4)
     return op
-
-
-def rays(radius, n):
-    g = np.linspace(-radius, radius, n)
-    pts = [(x, y) for x in g for y in g if x * x + y * y <= radius ** 2 * (1 + 1e-12)]
-    dirs = [(0.0, 0.0, 1.0), (0.0, math.sin(math.radians(3)), math.cos(math.radians(3)))]
-    t = math.tan(math.radians(2))
-    m = math.sqrt(2 * t * t + 1)
-    dirs.append((t / m, t / m, 1 / m))
-    return [(x, y, -1.0, *d) for d in dirs for (x, y) in pts]
-
-
-def trace(op, rs, wl_um, epd):
-    op.set_aperture(aperture_type="EPD", value=epd)
-    op.set_field_type("angle")
-    op.add_field(y=0.0)
-    op.add_wavelength(value=wl_um, is_primary=True)
-    for s in op.surface_group.surfaces:
-        if hasattr(s.geometry, "tol"):
-            s.geometry.tol = 1e-15
-    z0 = float(be.to_numpy(op.surface_group.positions[1]).ravel()[0])
-    a = np.array(rs, float)
-    n = len(a)
-    r = RealRays(a[:, 0], a[:, 1], a[:, 2] + z0, a[:, 3], a[:, 4], a[:, 5], np.ones(n),
-                 np.full(n, wl_um))
-    op.surface_group.trace(r, skip=1)
-    f = lambda v: np.asarray(be.to_numpy(v), float)
-    x, y, z, L, M, N = f(r.x), f(r.y), f(r.z) - z0, f(r.L), f(r.M), f(r.N)
-    return [{"start": a[k, :3].tolist(), "dir": a[k, 3:].tolist(),
-             "image": [x[k], y[k], z[k]], "image_dir": [L[k], M[k], N[k]]} for k in range(n)]
 
 
 def sags(s):

@@ -209,6 +209,98 @@ pub(crate) fn sag(c: f64, k: f64, a: &[f64; N_ASPH], norm_radius_mm: f64, u: f64
     sag_and_slope(c, k, a, norm_radius_mm, u).map(|(z, _)| z)
 }
 
+/// `n`-point Gauss-Legendre nodes and weights on [-1, 1], by Newton on the Legendre polynomial
+/// (for the Q polynomials' orthogonality tests).
+#[cfg(test)]
+pub(crate) fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
+    let mut nodes = Vec::new();
+    for i in 1..=n {
+        let mut x = (std::f64::consts::PI * (i as f64 - 0.25) / (n as f64 + 0.5)).cos();
+        let mut dp = 0.0;
+        for _ in 0..100 {
+            let (mut p0, mut p1) = (1.0, x);
+            for k in 2..=n {
+                let kf = k as f64;
+                let p2 = ((2.0 * kf - 1.0) * x * p1 - (kf - 1.0) * p0) / kf;
+                p0 = p1;
+                p1 = p2;
+            }
+            dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
+            let step = p1 / dp;
+            x -= step;
+            if step.abs() < 1e-16 {
+                break;
+            }
+        }
+        nodes.push((x, 2.0 / ((1.0 - x * x) * dp * dp)));
+    }
+    nodes
+}
+
+/// A Q type's kernel sag (`sag_u`) against its term-by-term definition (`sag_and_slope`) and
+/// that definition's central difference, at ρ = 0, step, .., 40 step (all inside the base
+/// conic's rim), and both refusing ρ² = 1e4 mm² beyond it.
+#[cfg(test)]
+#[allow(clippy::type_complexity)]
+pub(crate) fn check_kernel_sag(
+    sag_u: fn(f64, f64, &[f64; N_ASPH], usize, f64, f64) -> (f64, f64, bool),
+    sag_and_slope: fn(f64, f64, &[f64], f64, f64) -> Option<(f64, f64)>,
+    (c, k, rn): (f64, f64, f64),
+    a: &[f64; N_ASPH],
+    n: usize,
+    step: f64,
+) {
+    let sag = |u: f64| sag_and_slope(c, k, &a[..], rn, u).unwrap().0;
+    for i in 0..=40 {
+        let u = (i as f64 * step).powi(2);
+        let (z, dz, ok) = sag_u(c, 1.0 + k, a, n, 1.0 / (rn * rn), u);
+        assert!(ok);
+        let (want, slope) = sag_and_slope(c, k, &a[..], rn, u).unwrap();
+        assert!((z - want).abs() < 1e-13, "u {u}: {z} vs {want}");
+        assert!(
+            (dz - slope).abs() < 1e-13 * (1.0 + slope.abs()),
+            "u {u}: {dz} vs {slope}"
+        );
+        let h = 1e-4 * (1.0 + u);
+        let fd = (sag(u + h) - sag(u - h)) / (2.0 * h);
+        assert!(
+            (dz - fd).abs() < 1e-8 * (1.0 + fd.abs()),
+            "u {u}: {dz} vs {fd}"
+        );
+    }
+    assert!(sag_and_slope(c, k, &a[..], rn, 1e4).is_none());
+    assert!(!sag_u(c, 1.0 + k, a, n, 1.0 / (rn * rn), 1e4).2);
+}
+
+/// A Q type's kernel summation `sum` (value and x-derivative of Σ_{m<n} a_m Q_m(x)) against the
+/// polynomials one by one (`polys`: values and slopes) and a central difference, for every
+/// number of terms and x from -0.2 to 1.2.
+#[cfg(test)]
+#[allow(clippy::type_complexity)]
+pub(crate) fn check_summation(
+    sum: fn(&[f64; N_ASPH], usize, f64) -> (f64, f64),
+    polys: fn(f64) -> ([f64; N_ASPH], [f64; N_ASPH]),
+) {
+    let a = [0.3, -0.7, 0.11, 0.05, -0.02, 0.013, -0.004, 0.002];
+    for n in 0..=N_ASPH {
+        for i in 0..=10 {
+            let x = -0.2 + 1.4 * i as f64 / 10.0;
+            let (s, ds) = sum(&a, n, x);
+            let (q, dq) = polys(x);
+            let want: f64 = q.iter().zip(&a).take(n).map(|(q, a)| q * a).sum();
+            let dwant: f64 = dq.iter().zip(&a).take(n).map(|(q, a)| q * a).sum();
+            assert!((s - want).abs() < 1e-12, "n {n} x {x}: {s} vs {want}");
+            assert!((ds - dwant).abs() < 1e-11, "n {n} x {x}: {ds} vs {dwant}");
+            let h = 1e-6;
+            let fd = (sum(&a, n, x + h).0 - sum(&a, n, x - h).0) / (2.0 * h);
+            assert!(
+                (ds - fd).abs() < 1e-6 * (1.0 + fd.abs()),
+                "n {n} x {x}: {ds} vs {fd}"
+            );
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -256,29 +348,7 @@ mod tests {
     /// metric <f g> = (2/π) ∫_0^1 f g / sqrt(1 - u²) du (u = sin t; Gauss-Legendre in t).
     #[test]
     fn the_departure_slopes_are_orthonormal() {
-        // 64-point Gauss-Legendre nodes by Newton on the Legendre polynomial.
-        let n = 64;
-        let mut nodes = Vec::new();
-        for i in 1..=n {
-            let mut x = (std::f64::consts::PI * (i as f64 - 0.25) / (n as f64 + 0.5)).cos();
-            let mut dp = 0.0;
-            for _ in 0..100 {
-                let (mut p0, mut p1) = (1.0, x);
-                for k in 2..=n {
-                    let kf = k as f64;
-                    let p2 = ((2.0 * kf - 1.0) * x * p1 - (kf - 1.0) * p0) / kf;
-                    p0 = p1;
-                    p1 = p2;
-                }
-                dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
-                let step = p1 / dp;
-                x -= step;
-                if step.abs() < 1e-16 {
-                    break;
-                }
-            }
-            nodes.push((x, 2.0 / ((1.0 - x * x) * dp * dp)));
-        }
+        let nodes = gauss_legendre(64);
         let slope = |m: usize, u: f64| {
             // d/du [u² (1 - u²) Q_m(u²)] with dQ/dx from the kernel's summation.
             let mut a = [0.0; N_ASPH];
@@ -302,58 +372,20 @@ mod tests {
         }
     }
 
-    /// Clenshaw's sum equals the sum of the polynomials, and its x-derivative central
-    /// differences, for every number of terms.
+    /// Clenshaw's sum equals the sum of the polynomials, and its x-derivative their slopes and
+    /// central differences, for every number of terms.
     #[test]
     fn the_summation_matches_the_polynomials() {
-        let a = [0.3, -0.7, 0.11, 0.05, -0.02, 0.013, -0.004, 0.002];
-        for n in 0..=N_ASPH {
-            for i in 0..=10 {
-                let x = -0.2 + 1.4 * i as f64 / 10.0;
-                let (s, ds) = sum(&a, n, x);
-                let want: f64 = polynomials(x)
-                    .iter()
-                    .zip(&a)
-                    .take(n)
-                    .map(|(q, a)| q * a)
-                    .sum();
-                assert!((s - want).abs() < 1e-13, "n {n} x {x}: {s} vs {want}");
-                let h = 1e-6;
-                let fd = (sum(&a, n, x + h).0 - sum(&a, n, x - h).0) / (2.0 * h);
-                assert!(
-                    (ds - fd).abs() < 1e-7 * (1.0 + fd.abs()),
-                    "n {n} x {x}: {ds} vs {fd}"
-                );
-            }
-        }
+        check_summation(sum::<f64>, polynomials_and_slopes);
     }
 
     /// The kernel's sag and dz/du equal the definition's sag and its central difference.
     #[test]
     fn the_kernel_sag_matches_the_definition() {
-        let (c, k, rn) = (0.0575607876278, -0.676091206404, 27.0);
         let a = [
             -0.8148, -0.3231, 0.10591, -0.05058, 0.00987, -0.0022, 0.0, 0.0,
         ];
-        for i in 0..=40 {
-            let u = (i as f64 * 0.6).powi(2);
-            let (z, dz, ok) = sag_u(c, 1.0 + k, &a, 6, 1.0 / (rn * rn), u);
-            assert!(ok);
-            let (want, slope) = sag_and_slope(c, k, &a, rn, u).unwrap();
-            assert!((z - want).abs() < 1e-13, "u {u}: {z} vs {want}");
-            assert!(
-                (dz - slope).abs() < 1e-13 * (1.0 + slope.abs()),
-                "u {u}: {dz} vs {slope}"
-            );
-            let h = 1e-4 * (1.0 + u);
-            let fd =
-                (sag(c, k, &a, rn, u + h).unwrap() - sag(c, k, &a, rn, u - h).unwrap()) / (2.0 * h);
-            assert!(
-                (dz - fd).abs() < 1e-8 * (1.0 + fd.abs()),
-                "u {u}: {dz} vs {fd}"
-            );
-        }
-        assert!(sag(c, k, &a, rn, 1e4).is_none());
-        assert!(!sag_u(c, 1.0 + k, &a, 6, 1.0 / (rn * rn), 1e4).2);
+        let (c, k, rn) = (0.0575607876278, -0.676091206404, 27.0);
+        check_kernel_sag(sag_u::<f64>, sag_and_slope, (c, k, rn), &a, 6, 0.6);
     }
 }
