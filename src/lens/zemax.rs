@@ -820,8 +820,10 @@ fn cb_rotation(s: &RawSurf) -> Mat3<f64> {
 }
 
 /// A mirror tilted by this much or more against the axis is a fold mirror (the axis of the
-/// surfaces after it turns with the reflection): fold mirrors are tilted by tens of degrees,
-/// off-axis and tolerance tilts by a few degrees or less.
+/// surfaces after it turns with the reflection) whatever the coordinate breaks after it say; a
+/// mirror tilted less is one when the file's frame after it follows the reflected axis
+/// (`Walker::follows_reflection`: an off-axis mirror written as OpticStudio writes a fold), and
+/// otherwise a tilted mirror on the axis (a tolerance tilt, say).
 const FOLD_MIN_DEG: f64 = 20.0;
 
 /// The rotation turning the unit vector `u` onto the unit vector `v` by the shortest arc
