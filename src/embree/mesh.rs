@@ -115,20 +115,20 @@ pub struct Mesh {
 /// asphere without the cone term, a Q-type asphere), from the reference tracer's definitions.
 fn radial_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
     match row.shape {
-        Shape::Qbfs { .. } => crate::lens::qbfs::sag_and_slope(
-            row.c,
-            row.k1 - 1.0,
-            &row.asph[..row.n_asph],
-            row.inv_norm2.sqrt().recip(),
-            u,
-        ),
-        Shape::Qcon { .. } => crate::lens::qcon::sag_and_slope(
-            row.c,
-            row.k1 - 1.0,
-            &row.asph[..row.n_asph],
-            row.inv_norm2.sqrt().recip(),
-            u,
-        ),
+        Shape::Qbfs { .. } | Shape::Qcon { .. } => {
+            let sag_and_slope = if matches!(row.shape, Shape::Qbfs { .. }) {
+                crate::lens::qbfs::sag_and_slope
+            } else {
+                crate::lens::qcon::sag_and_slope
+            };
+            sag_and_slope(
+                row.c,
+                row.k1 - 1.0,
+                &row.asph[..row.n_asph],
+                row.inv_norm2.sqrt().recip(),
+                u,
+            )
+        }
         Shape::Odd => {
             let r = u.sqrt();
             let (z, _, fr) = surface_sag_xy(row, 0.0, r)?;

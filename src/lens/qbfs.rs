@@ -100,6 +100,18 @@ pub(crate) fn sum<S: Real>(a: &[S; N_ASPH], n: usize, x: S) -> (S, S) {
     (two * (a1 + a2), two * (d1 + d2))
 }
 
+/// The base conic of a Q-type surface at `u = ρ²` (`k1` = 1 + k): its sag, dz/du,
+/// `1 - (1+k) c² u` (1 beyond the rim) and whether `u` lies inside the rim.
+#[inline(always)]
+pub(crate) fn base_conic<S: Real>(c: S, k1: S, u: S) -> (S, S, S, bool) {
+    let one = S::cst(1.0);
+    let den = one - k1 * (c * c) * u;
+    let ok = S::cst(0.0).lt(den);
+    let den = S::pick(ok, den, one);
+    let q = den.sqrt();
+    (c * u / (one + q), c / (S::cst(2.0) * q), den, ok)
+}
+
 /// The sag of a Qbfs surface and its derivative with respect to `u = ρ²`, in the number type
 /// of the kernel; `ok` is false beyond the base conic's rim. `inv_norm2` = 1 / ρ_n².
 #[inline(always)]
@@ -112,14 +124,8 @@ pub(crate) fn sag_u<S: Real>(
     u: S,
 ) -> (S, S, bool) {
     let one = S::cst(1.0);
-    let zero = S::cst(0.0);
     let cc = c * c;
-    let den = one - k1 * cc * u;
-    let ok = zero.lt(den);
-    let den = S::pick(ok, den, one);
-    let q = den.sqrt();
-    let z0 = c * u / (one + q);
-    let dz0 = c / (S::cst(2.0) * q);
+    let (z0, dz0, den, ok) = base_conic(c, k1, u);
     // φ² = (1 - k c² u) / den = 1 + c² u / den; d(φ²)/du = c² / den².
     let phi = (one + cc * u / den).sqrt();
     let dphi = cc / (S::cst(2.0) * phi * den * den);

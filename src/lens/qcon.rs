@@ -84,13 +84,7 @@ pub(crate) fn sag_u<S: Real>(
     inv_norm2: S,
     u: S,
 ) -> (S, S, bool) {
-    let one = S::cst(1.0);
-    let zero = S::cst(0.0);
-    let den = one - k1 * c * c * u;
-    let ok = zero.lt(den);
-    let q = S::pick(ok, den, one).sqrt();
-    let z0 = c * u / (one + q);
-    let dz0 = c / (S::cst(2.0) * q);
+    let (z0, dz0, _, ok) = crate::lens::qbfs::base_conic(c, k1, u);
     let x = u * inv_norm2;
     let (s, ds) = sum(a, n, x);
     let xx = x * x;

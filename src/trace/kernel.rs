@@ -435,12 +435,8 @@ pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool
         Shape::Odd => odd_sag(row, x, y),
         Shape::Toroidal { .. } => toroid_sag(row, x, y),
         Shape::Qbfs { .. } | Shape::Qcon { .. } => {
-            let sag_u = if matches!(row.shape, Shape::Qbfs { .. }) {
-                crate::lens::qbfs::sag_u
-            } else {
-                crate::lens::qcon::sag_u
-            };
-            let (z, dz, ok) = sag_u(
+            // Direct calls (not a function pointer): both inline into the Newton loop.
+            let (c, k1, a, n, s, u) = (
                 row.c,
                 row.k1,
                 &row.asph,
@@ -448,6 +444,11 @@ pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool
                 row.inv_norm2,
                 x * x + y * y,
             );
+            let (z, dz, ok) = if matches!(row.shape, Shape::Qbfs { .. }) {
+                crate::lens::qbfs::sag_u(c, k1, a, n, s, u)
+            } else {
+                crate::lens::qcon::sag_u(c, k1, a, n, s, u)
+            };
             let two = S::cst(2.0);
             (z, two * x * dz, two * y * dz, ok)
         }
