@@ -32,7 +32,10 @@
  *   a finite object). TOLRAY_FIELD_HEIGHT_MM: tx = x / d, ty = y / d. An object at infinity
  *   sends parallel rays of direction (-tx, -ty, 1), normalized, from a plane 1 mm in front of
  *   the first of: the entrance pupil, the first vertex, the rim of surface 0. An object at
- *   distance d sends rays from the point (d tx, d ty, -d).
+ *   distance d sends rays from the point (d tx, d ty, -d). TOLRAY_FIELD_IMAGE_HEIGHT_MM: the
+ *   tangents of the field whose paraxial chief ray meets the image plane at (x, y);
+ *   TOLRAY_FIELD_REAL_IMAGE_HEIGHT_MM: of the field whose real chief ray (primary wavelength,
+ *   through the paraxial pupil centre, or the stop centre with `aim`) meets it there.
  * - Pupil: a ray passes through the point (px r_ep, py r_ep) of the paraxial entrance-pupil
  *   plane (z = entrance_pupil_z_mm), (px, py) being a tolray_pupil point (unit disk times
  *   `scale`) and r_ep the paraxial entrance-pupil radius; the chief ray passes through its
@@ -213,6 +216,21 @@
  * (finite objects only; at infinity `TOLRAY_ERROR_ARGUMENT`).
  */
 #define TOLRAY_FIELD_HEIGHT_MM 2
+
+/**
+ * `x`, `y` are paraxial image heights, mm (OpticStudio's field type 2): the field whose
+ * paraxial chief ray meets the image plane at (x, y); positive values put the image above/right
+ * of the axis.
+ */
+#define TOLRAY_FIELD_IMAGE_HEIGHT_MM 3
+
+/**
+ * `x`, `y` are real image heights, mm (OpticStudio's field type 3): the field whose real chief
+ * ray at the primary wavelength meets the image plane at (x, y), solved by Newton's method
+ * (`TOLRAY_ERROR_NUMERICAL` when no chief ray reaches it); positive values put the image
+ * above/right of the axis.
+ */
+#define TOLRAY_FIELD_REAL_IMAGE_HEIGHT_MM 4
 
 /**
  * Cell-centred square grid: point (i, j) at ((2i + 1) / n - 1, (2j + 1) / n - 1).
@@ -514,7 +532,7 @@ typedef struct tolray_paraxial {
 } tolray_paraxial;
 
 /**
- * A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 2, `x` and `y` finite. How a
+ * A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 4, `x` and `y` finite. How a
  * field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
  */
 typedef struct tolray_field {

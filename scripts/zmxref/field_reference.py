@@ -8,7 +8,8 @@ Usage (from the repository root):
     /tmp/optvenv/bin/python scripts/zmxref/field_reference.py
 writes tests/data/zemax/real/field_reference.json.
 
-For each file in FILES and each of its field points (FTYP/XFLN/YFLN, angles or object heights):
+For each file in FILES and each of its field points (FTYP/XFLN/YFLN: angles, object heights,
+paraxial or real image heights, as optiland's field types of the same names define them):
   * the pupil: tolray's `grid:16` pattern (16 x 16 cell-centred points of [-1, 1]^2 kept inside
     the unit disk, x fastest), moved into the field's vignetted pupil as OpticStudio defines it,
     Px' = VDX + Px (1 - VCX), Py' = VDY + Py (1 - VCY) (VDXN/VDYN/VCXN/VCYN of the file, read
@@ -18,7 +19,8 @@ For each file in FILES and each of its field points (FTYP/XFLN/YFLN, angles or o
     largest radial field; its field sign is OpticStudio's: a positive angle is a positive ray
     slope) with optiland's default paraxial aiming, every aperture removed, traced to the image
     surface; each ray's (x, y) in the image surface's frame, mm, or null when optiland's
-    intensity says it failed.
+    intensity says it failed; and the rays optiland moved backwards to a surface
+    (`optiland_backward`: tolray stops those as backward@k).
 Glasses resolve as gen_reference.load_optic resolves them (the file's GCAT order).
 """
 from __future__ import annotations
@@ -45,6 +47,13 @@ FILES = [
     "rayoptics/US08011793-1.zmx",
     # Object-height fields at a finite object.
     "deeplens/zemax_double_gaussian.zmx",
+    # Paraxial image heights (FTYP 2), a catadioptric system at infinity (added 2026-11-27:
+    # optiland's ParaxialImageHeightField, its unit chief ray at the primary wavelength).
+    "rayoptics/US05331467-1.zmx",
+    # Real image heights (FTYP 3) at a finite object (added 2026-11-27: optiland's
+    # RealImageHeightField, Newton on the chief ray through the paraxial pupil centre at the
+    # primary wavelength, to the image surface's global x, y; the image plane is not tilted).
+    "rayoptics/US05831776-1.zmx",
 ]
 NGRID = 16
 
@@ -73,6 +82,18 @@ def numbers(lines, cmd):
         if t and t[0] == cmd:
             return [float(v) for v in t[1:]]
     return []
+
+
+def backward_rays(op):
+    """Indices of the rays that optiland moved backwards to a surface (a negative distance
+    along the ray between consecutive surfaces, below -1e-9 mm): optiland intersects a surface
+    behind a ray and goes on, where tolray stops the ray as `backward@k`."""
+    sg = op.surface_group
+    pos = [np.asarray(be.to_numpy(a), float) for a in (sg.x, sg.y, sg.z)]
+    dirs = [np.asarray(be.to_numpy(a), float) for a in (sg.L, sg.M, sg.N)]
+    t = sum((p[2:] - p[1:-1]) * d[1:-1] for p, d in zip(pos, dirs))
+    bad = np.any(np.nan_to_num(t, nan=0.0) < -1e-9, axis=0)
+    return [int(i) for i in np.flatnonzero(bad)]
 
 
 def main():
@@ -115,11 +136,13 @@ def main():
             inten = np.asarray(be.to_numpy(rays.i), float)
             hits = [[float(a), float(b)] if (np.isfinite(a) and np.isfinite(b) and w > 0) else None
                     for a, b, w in zip(x, y, inten)]
+            backward = backward_rays(op)
             entry["fields"].append({
                 "x": xs[i], "y": ys[i],
                 "vignetting": {"vdx": vdx, "vdy": vdy, "vcx": vcx, "vcy": vcy},
                 "pupil": [[float(a), float(b)] for a, b in zip(Px, Py)],
                 "image_xy_mm": hits,
+                "optiland_backward": backward,
             })
             print(rel, i, sum(h is not None for h in hits), "rays", flush=True)
         out["files"].append(entry)

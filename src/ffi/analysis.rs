@@ -8,7 +8,7 @@ use crate::optim::{self, PsfLoss, SpotLoss, SpotMeasure};
 use crate::psf::{self, PsfCentre, PsfOptions};
 use crate::trace::{self, Bundles, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
 
-/// A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 2, `x` and `y` finite. How a
+/// A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 4, `x` and `y` finite. How a
 /// field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -32,6 +32,15 @@ pub const TOLRAY_FIELD_ANGLE_DEG: u32 = 1;
 /// `x`, `y` are object heights, mm: the object point is (x, y, -d) for an object at distance d
 /// (finite objects only; at infinity `TOLRAY_ERROR_ARGUMENT`).
 pub const TOLRAY_FIELD_HEIGHT_MM: u32 = 2;
+/// `x`, `y` are paraxial image heights, mm (OpticStudio's field type 2): the field whose
+/// paraxial chief ray meets the image plane at (x, y); positive values put the image above/right
+/// of the axis.
+pub const TOLRAY_FIELD_IMAGE_HEIGHT_MM: u32 = 3;
+/// `x`, `y` are real image heights, mm (OpticStudio's field type 3): the field whose real chief
+/// ray at the primary wavelength meets the image plane at (x, y), solved by Newton's method
+/// (`TOLRAY_ERROR_NUMERICAL` when no chief ray reaches it); positive values put the image
+/// above/right of the axis.
+pub const TOLRAY_FIELD_REAL_IMAGE_HEIGHT_MM: u32 = 4;
 
 /// Pupil sampling: points (px, py) in the unit disk times `scale`, normalized coordinates of the
 /// paraxial entrance pupil ("Ray bundles" at the top of tolray.h). Checked everywhere
@@ -216,9 +225,11 @@ impl tolray_field {
             TOLRAY_FIELD_FRACTION => Field::Fraction { x, y },
             TOLRAY_FIELD_ANGLE_DEG => Field::AngleDeg { x, y },
             TOLRAY_FIELD_HEIGHT_MM => Field::HeightMm { x, y },
+            TOLRAY_FIELD_IMAGE_HEIGHT_MM => Field::ImageHeightMm { x, y },
+            TOLRAY_FIELD_REAL_IMAGE_HEIGHT_MM => Field::RealImageHeightMm { x, y },
             k => {
                 return Err(FfiError::argument(format!(
-                    "unknown field kind {k} (expected TOLRAY_FIELD_*: 0 to 2)"
+                    "unknown field kind {k} (expected TOLRAY_FIELD_*: 0 to 4)"
                 )))
             }
         })

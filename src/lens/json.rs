@@ -36,7 +36,9 @@
 //! medium when it is not air (a .zmx `GLAS` on `SURF 0`, immersion optics).
 //!
 //! A top-level `"fields"` array keeps the field points of the lens' file (a .zmx file's, read
-//! and converted): `{"angle_deg": [x, y]}` or `{"height_mm": [x, y]}`, an optional `"weight"`,
+//! and converted): `{"angle_deg": [x, y]}`, `{"height_mm": [x, y]}` (object height),
+//! `{"image_height_mm": [x, y]}` (paraxial image height, OpticStudio's field type 2) or
+//! `{"real_image_height_mm": [x, y]}` (type 3), all of one kind, an optional `"weight"`,
 //! and optional vignetting factors `"vignetting": {"vdx": 0, "vdy": 0.06, "vcx": 0, "vcy": 0.16}`
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
@@ -252,20 +254,31 @@ fn fields(top: &Map<String, Value>) -> Result<Vec<FieldPoint>> {
         let Value::Object(m) = f else {
             return Err(parse(format!("must be an object, found {f}")));
         };
-        if let Some(e) = unknown_key(m, &["angle_deg", "height_mm", "weight", "vignetting"]) {
+        const KINDS: [&str; 4] = [
+            "angle_deg",
+            "height_mm",
+            "image_height_mm",
+            "real_image_height_mm",
+        ];
+        if let Some(e) = unknown_key(m, &[&KINDS[..], &["weight", "vignetting"]].concat()) {
             return Err(parse(e));
         }
-        let field = match (
-            num_array::<2>(m, "angle_deg", &at)?,
-            num_array::<2>(m, "height_mm", &at)?,
-        ) {
-            (Some([x, y]), None) => Field::AngleDeg { x, y },
-            (None, Some([x, y])) => Field::HeightMm { x, y },
-            _ => {
-                return Err(parse(
-                    "needs one of \"angle_deg\" [x, y] or \"height_mm\" [x, y]".into(),
-                ))
+        let mut given = Vec::new();
+        for (k, key) in KINDS.iter().enumerate() {
+            if let Some([x, y]) = num_array::<2>(m, key, &at)? {
+                given.push(match k {
+                    0 => Field::AngleDeg { x, y },
+                    1 => Field::HeightMm { x, y },
+                    2 => Field::ImageHeightMm { x, y },
+                    _ => Field::RealImageHeightMm { x, y },
+                });
             }
+        }
+        let [field] = given[..] else {
+            return Err(parse(format!(
+                "needs exactly one of {} (each [x, y])",
+                KINDS.map(|k| format!("\"{k}\"")).join(", ")
+            )));
         };
         let mut vignetting = Vignetting::default();
         match m.get("vignetting") {
@@ -310,6 +323,10 @@ fn fields_value(points: &[FieldPoint]) -> Option<Value> {
             match p.field {
                 Field::AngleDeg { x, y } => m.insert("angle_deg".into(), json!([x, y])),
                 Field::HeightMm { x, y } => m.insert("height_mm".into(), json!([x, y])),
+                Field::ImageHeightMm { x, y } => m.insert("image_height_mm".into(), json!([x, y])),
+                Field::RealImageHeightMm { x, y } => {
+                    m.insert("real_image_height_mm".into(), json!([x, y]))
+                }
                 // Validation keeps fractions out of a lens.
                 Field::Fraction { x, y } => m.insert("fraction".into(), json!([x, y])),
             };

@@ -1083,15 +1083,13 @@ impl Lens {
         }
         for (k, p) in self.fields.iter().enumerate() {
             let at = |m: String| Error::invalid(format!("field {}: {m}", k + 1));
-            let (x, y) = match p.field {
-                crate::trace::Field::AngleDeg { x, y } => (x, y),
-                crate::trace::Field::HeightMm { x, y } => (x, y),
-                crate::trace::Field::Fraction { .. } => {
-                    return Err(at(
-                        "a lens' field points are angles or object heights, not fractions".into(),
-                    ))
-                }
-            };
+            if let crate::trace::Field::Fraction { .. } = p.field {
+                return Err(at(
+                    "a lens' field points are angles, object heights or image heights, not fractions"
+                        .into(),
+                ));
+            }
+            let (x, y) = p.field.xy();
             if !(x.is_finite() && y.is_finite() && p.weight.is_finite() && p.weight >= 0.0) {
                 return Err(at(format!(
                     "({x}, {y}) with weight {} must be finite (the weight not negative)",
@@ -1101,10 +1099,10 @@ impl Lens {
             p.vignetting
                 .check()
                 .map_err(|e| at(e.message().to_string()))?;
-            let angle = |f: crate::trace::Field| matches!(f, crate::trace::Field::AngleDeg { .. });
-            if angle(p.field) != angle(self.fields[0].field) {
+            let kind = std::mem::discriminant(&p.field);
+            if kind != std::mem::discriminant(&self.fields[0].field) {
                 return Err(at(
-                    "a lens' field points are all angles or all object heights (as in a .zmx file)"
+                    "a lens' field points are all of one kind: angles, object heights, paraxial or real image heights (as in a .zmx file)"
                         .into(),
                 ));
             }

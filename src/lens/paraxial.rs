@@ -38,6 +38,12 @@ pub struct Paraxial {
     pub stop_surface: usize,
     /// First vertex to the image plane, mm.
     pub total_track_mm: f64,
+    /// The paraxial chief ray's height on the image plane for a unit field, at the primary
+    /// wavelength (whatever the analysis' wavelength, so that a field means the same rays at
+    /// every wavelength): a field angle of tangent 1 (object at infinity; the ray rising,
+    /// OpticStudio's sign) or an object height of 1 mm (finite object), in mm (mm per mm). Divides an image-height field
+    /// ([`crate::trace::Field::ImageHeightMm`]) into an angle or an object height.
+    pub chief_image_height_mm: f64,
 }
 
 /// Paraxial heights at every surface and the final height and slope after the last one.
@@ -159,6 +165,32 @@ impl<S: Real> Prescription<S> {
         let b = self.ynu(0, S::cst(0.0), S::cst(1.0)).heights[stop];
         (b / a, S::cst(r_stop) / a.abs())
     }
+
+    /// The paraxial chief ray of a unit field through the entrance-pupil centre at `z_ep`: slope
+    /// 1 from an object at infinity, or from an object height of 1 mm.
+    fn chief(&self, z_ep: S, object: Object) -> Ynu<S> {
+        match object {
+            Object::Infinite => self.ynu(0, S::cst(0.0) - z_ep, S::cst(1.0)),
+            Object::Finite { distance_mm } => {
+                let d = S::cst(distance_mm);
+                let u = S::cst(-1.0) / (d + z_ep);
+                self.ynu(0, S::cst(1.0) + u * d, u)
+            }
+        }
+    }
+
+    /// The image-plane height of the chief ray of a unit field for the stop at `stop`.
+    fn chief_image_height(&self, stop: usize, object: Object) -> S {
+        let (_, parallel) = self.efl();
+        // The pupil's position alone (its size does not enter).
+        let (z, _) = self.pupil(&parallel, stop, 0.0);
+        self.on_image(&self.chief(z, object))
+    }
+
+    /// A ray's height on the image plane (the last gap past the last surface).
+    fn on_image(&self, r: &Ynu<S>) -> S {
+        r.y_last + r.u_last * self.gap[self.gap.len() - 1]
+    }
 }
 
 /// The first-order numbers a ray launch depends on, in any number type: where the rays of a
@@ -173,6 +205,9 @@ pub struct LaunchOptics<S> {
     pub entrance_pupil_z_mm: S,
     /// Entrance pupil radius, mm.
     pub entrance_pupil_radius_mm: S,
+    /// The paraxial chief ray's image-plane height for a unit field
+    /// ([`Paraxial::chief_image_height_mm`]).
+    pub chief_image_height_mm: S,
 }
 
 impl LaunchOptics<f64> {
@@ -182,6 +217,7 @@ impl LaunchOptics<f64> {
             efl_mm: p.efl_mm,
             entrance_pupil_z_mm: p.entrance_pupil_z_mm,
             entrance_pupil_radius_mm: 0.5 * p.entrance_pupil_diameter_mm,
+            chief_image_height_mm: p.chief_image_height_mm,
         }
     }
 }
@@ -192,6 +228,7 @@ impl<S: Real> LaunchOptics<S> {
         self.efl_mm.is_constant()
             && self.entrance_pupil_z_mm.is_constant()
             && self.entrance_pupil_radius_mm.is_constant()
+            && self.chief_image_height_mm.is_constant()
     }
 }
 
@@ -229,6 +266,12 @@ pub fn launch_optics<S: Real>(
         efl_mm: efl,
         entrance_pupil_z_mm: z,
         entrance_pupil_radius_mm: r,
+        chief_image_height_mm: if wavelength_nm == lens.primary_wavelength_nm {
+            p.on_image(&p.chief(z, lens.object))
+        } else {
+            Prescription::lifted(lens, lens.primary_wavelength_nm, lift)
+                .chief_image_height(stop, lens.object)
+        },
     }
 }
 
@@ -341,6 +384,11 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         half_fov_deg: (lens.sensor.half_diagonal_mm() / efl).atan().to_degrees(),
         stop_surface: stop,
         total_track_mm: z[last + 1],
+        chief_image_height_mm: if wavelength_nm == lens.primary_wavelength_nm {
+            p.on_image(&p.chief(enp_z, lens.object))
+        } else {
+            Prescription::of(lens, lens.primary_wavelength_nm).chief_image_height(stop, lens.object)
+        },
     })
 }
 
@@ -385,21 +433,14 @@ pub fn beam_semi_diameters(
     };
     let r_ep = p.entrance_pupil_diameter_mm / 2.0;
     let z_ep = p.entrance_pupil_z_mm;
-    let (marginal, chief) = match lens.object {
-        Object::Infinite => (
-            with_image(pres.ynu(0, r_ep, 0.0)),
-            with_image(pres.ynu(0, -z_ep, 1.0)),
-        ),
+    let marginal = with_image(match lens.object {
+        Object::Infinite => pres.ynu(0, r_ep, 0.0),
         Object::Finite { distance_mm } => {
             let u = r_ep / (distance_mm + z_ep);
-            let uc = -1.0 / (distance_mm + z_ep);
-            (
-                with_image(pres.ynu(0, u * distance_mm, u)),
-                // The chief ray of unit object height.
-                with_image(pres.ynu(0, 1.0 + uc * distance_mm, uc)),
-            )
+            pres.ynu(0, u * distance_mm, u)
         }
-    };
+    });
+    let chief = with_image(pres.chief(z_ep, lens.object));
     let unit_image = *chief.last().unwrap_or(&0.0);
     let scale = match (field, lens.object) {
         (ParaxialField::AngleDeg(a), Object::Infinite) => a.to_radians().tan(),

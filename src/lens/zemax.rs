@@ -160,8 +160,9 @@ pub struct ZmxWavelength {
 
 impl ZmxExtras {
     /// The file's field points as tolray fields, for commands to use when the user names none:
-    /// angle fields as angles, object heights as heights (finite objects only). `None` for the
-    /// image-height and other field types (tolray has no such field), or a file without fields.
+    /// angle fields as angles, object heights as heights (finite objects only), paraxial and
+    /// real image heights as such. `None` for other field types (tolray has no such field), an
+    /// object height at an infinite object, or a file without fields.
     ///
     /// # Examples
     /// ```
@@ -212,6 +213,9 @@ fn field_points(
             ZmxFieldType::ObjectHeightMm if lens.object != crate::Object::Infinite => {
                 Field::HeightMm { x: f.x, y: f.y }
             }
+            // Image heights name the image's side in both.
+            ZmxFieldType::ParaxialImageHeightMm => Field::ImageHeightMm { x: f.x, y: f.y },
+            ZmxFieldType::RealImageHeightMm => Field::RealImageHeightMm { x: f.x, y: f.y },
             _ => return None,
         };
         Some(FieldPoint {
@@ -2280,12 +2284,13 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
     }
     // Fields.
     // The lens' own field points first (angles back in OpticStudio's sign; validation keeps
-    // them of one kind), then the file's (image heights, which a lens cannot hold), else the
-    // sensor's 0, 0.5, 0.7 and 1.
+    // them of one kind), then the file's (kinds a lens cannot hold), else paraxial image
+    // heights at 0, 0.5, 0.7 and 1 of the sensor's half-diagonal (read back, they are the
+    // lens' fields).
     let from_lens = |p: &FieldPoint| {
         let (x, y) = match p.field {
             Field::AngleDeg { x, y } => (0.0 - x, 0.0 - y),
-            Field::HeightMm { x, y } | Field::Fraction { x, y } => (x, y),
+            f => f.xy(),
         };
         ZmxField {
             x,
@@ -2298,6 +2303,8 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         (Some(p), _) => (
             match p.field {
                 Field::HeightMm { .. } => ZmxFieldType::ObjectHeightMm,
+                Field::ImageHeightMm { .. } => ZmxFieldType::ParaxialImageHeightMm,
+                Field::RealImageHeightMm { .. } => ZmxFieldType::RealImageHeightMm,
                 _ => ZmxFieldType::AngleDeg,
             },
             lens.fields.iter().map(from_lens).collect::<Vec<_>>(),

@@ -39,6 +39,26 @@ pub enum Field {
         /// Fraction along y.
         y: f64,
     },
+    /// Paraxial image height, mm (OpticStudio's field type 2): the field whose paraxial chief
+    /// ray (through the centre of the paraxial entrance pupil, primary wavelength) meets the
+    /// image plane at `(x, y)`. Unlike the other kinds its sign names the image's side.
+    ImageHeightMm {
+        /// Height along x.
+        x: f64,
+        /// Height along y.
+        y: f64,
+    },
+    /// Real image height, mm (OpticStudio's field type 3): the field whose real chief ray at
+    /// the primary wavelength meets the image plane at `(x, y)` (in the plane's own frame),
+    /// found by Newton's method from the paraxial image height's field. The chief ray goes
+    /// through the centre of the paraxial entrance pupil, or of the real stop when rays are
+    /// aimed. Its sign names the image's side.
+    RealImageHeightMm {
+        /// Height along x.
+        x: f64,
+        /// Height along y.
+        y: f64,
+    },
 }
 
 impl Field {
@@ -50,8 +70,19 @@ impl Field {
     pub fn fraction(y: f64) -> Field {
         Field::Fraction { x: 0.0, y }
     }
-    /// Parses `0.7` (fraction of the full field), `5deg` (angle) or `2.5mm` (object height);
-    /// `x,y` pairs are written `0.5:0.5`, `3deg:-2deg`.
+    /// Parses `0.7` (fraction of the full field), `5deg` (angle), `2.5mm` (object height),
+    /// `14mm@image` (paraxial image height) or `14mm@real-image` (real image height); `x,y`
+    /// pairs are written `0.5:0.5`, `3deg:-2deg`.
+    ///
+    /// ```
+    /// use tolray::trace::Field;
+    /// assert_eq!(Field::parse("5deg").unwrap(), Field::angle(5.0));
+    /// assert_eq!(
+    ///     Field::parse("0:14mm@image").unwrap(),
+    ///     Field::ImageHeightMm { x: 0.0, y: 14.0 }
+    /// );
+    /// assert!(Field::parse("1mm:2deg").is_err());
+    /// ```
     ///
     /// # Errors
     /// [`crate::ErrorKind::Argument`] naming the text.
@@ -65,6 +96,10 @@ impl Field {
             let v = v.trim();
             let (num, kind) = if let Some(n) = v.strip_suffix("deg") {
                 (n, 1)
+            } else if let Some(n) = v.strip_suffix("mm@image") {
+                (n, 3)
+            } else if let Some(n) = v.strip_suffix("mm@real-image") {
+                (n, 4)
             } else if let Some(n) = v.strip_suffix("mm") {
                 (n, 2)
             } else {
@@ -75,7 +110,7 @@ impl Field {
                 .ok()
                 .filter(|x| x.is_finite())
                 .map(|x| (x, kind))
-                .ok_or_else(|| Error::argument(format!("field \"{s}\": expected a fraction (0.7), an angle (5deg) or an object height (2.5mm)")))
+                .ok_or_else(|| Error::argument(format!("field \"{s}\": expected a fraction (0.7), an angle (5deg), an object height (2.5mm) or an image height (14mm@image paraxial, 14mm@real-image real)")))
         };
         let (x, kx) = unit(xs)?;
         let (y, ky) = unit(ys)?;
@@ -88,16 +123,32 @@ impl Field {
         Ok(match kind {
             1 => Field::AngleDeg { x, y },
             2 => Field::HeightMm { x, y },
+            3 => Field::ImageHeightMm { x, y },
+            4 => Field::RealImageHeightMm { x, y },
             _ => Field::Fraction { x, y },
         })
     }
 
-    /// Short label for tables (`0.70`, `5.00deg`, `2.50mm`).
+    /// The field's two values (x, y) in its own unit.
+    pub fn xy(&self) -> (f64, f64) {
+        match *self {
+            Field::AngleDeg { x, y }
+            | Field::HeightMm { x, y }
+            | Field::Fraction { x, y }
+            | Field::ImageHeightMm { x, y }
+            | Field::RealImageHeightMm { x, y } => (x, y),
+        }
+    }
+
+    /// Short label for tables (`0.700`, `5.000deg`, `2.500mm`, `14.000mm@image`), in the
+    /// syntax [`Field::parse`] reads.
     pub fn label(&self) -> String {
         let (x, y, u) = match *self {
             Field::AngleDeg { x, y } => (x, y, "deg"),
             Field::HeightMm { x, y } => (x, y, "mm"),
             Field::Fraction { x, y } => (x, y, ""),
+            Field::ImageHeightMm { x, y } => (x, y, "mm@image"),
+            Field::RealImageHeightMm { x, y } => (x, y, "mm@real-image"),
         };
         if x == 0.0 {
             format!("{y:.3}{u}")
@@ -106,9 +157,128 @@ impl Field {
         }
     }
 
-    /// Field angles (tan x, tan y) seen from the first vertex, for a lens of focal length
-    /// `efl_mm` (which turns a fraction of the field into an angle), in any number type.
-    fn tangents<S: Real>(&self, lens: &Lens, efl_mm: S) -> Result<(S, S)> {
+    /// The field to launch for this one: a [`Field::RealImageHeightMm`] becomes the angle
+    /// (object at infinity) or object height (finite object) whose real chief ray at the primary
+    /// wavelength meets the image plane at that height (in the plane's frame, to 1e-10 mm
+    /// relative), through the centre of the field's vignetted paraxial pupil, or with `aim` of
+    /// the real stop; other fields are returned as they are. Newton's method from the paraxial
+    /// image height's field, with a finite-difference Jacobian (x and y solved together, so a
+    /// decentred or tilted system is solved too).
+    ///
+    /// ```
+    /// use tolray::trace::Field;
+    /// let mut lens = tolray::Lens::load("cooke-triplet").unwrap();
+    /// lens.object = tolray::Object::Infinite;
+    /// let para = lens.paraxial(lens.primary_wavelength_nm).unwrap();
+    /// let f = Field::RealImageHeightMm { x: 0.0, y: 15.0 }.resolved(&lens, &para, false).unwrap();
+    /// let Field::AngleDeg { y, .. } = f else { panic!() };
+    /// assert!(y < -15.0 && y > -25.0); // the object below the axis, image above it
+    /// ```
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Numerical`] when no chief ray reaches the height.
+    pub fn resolved(self, lens: &Lens, para: &Paraxial, aim: bool) -> Result<Field> {
+        let Field::RealImageHeightMm { x, y } = self else {
+            return Ok(self);
+        };
+        let fail =
+            |why: &str| Error::numerical(format!("real image height field ({x}, {y}) mm: {why}"));
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(fail("not finite"));
+        }
+        let optics = LaunchOptics::of(para);
+        // Field parameters: the tangents of Field::tangents, as an angle or object height.
+        let field_of = |q: [f64; 2]| match lens.object {
+            Object::Infinite => Field::AngleDeg {
+                x: q[0].atan().to_degrees(),
+                y: q[1].atan().to_degrees(),
+            },
+            Object::Finite { distance_mm } => Field::HeightMm {
+                x: q[0] * distance_mm,
+                y: q[1] * distance_mm,
+            },
+        };
+        let sys = lens.compile();
+        let wl = lens.primary_wavelength_nm;
+        let n = sys.indices(wl);
+        let stop = para.stop_surface;
+        let r_stop = lens.surfaces[stop].semi_aperture_mm;
+        let centre = lens.vignetting_of(self).apply([0.0, 0.0]);
+        // The chief ray's point on the image plane, in the plane's frame.
+        let image_point = |q: [f64; 2]| -> Option<[f64; 2]> {
+            let beam = Beam::launch(lens, &optics, field_of(q)).ok()?;
+            let (o, d) = if aim {
+                let make = |px: f64, py: f64| beam.ray(px, py);
+                let c0 = [centre[0] * beam.r_ep, centre[1] * beam.r_ep];
+                let target = [centre[0] * r_stop, centre[1] * r_stop];
+                let e = aim_ray(&sys, &n, wl, stop, &make, target, c0).ok()?;
+                make(e[0], e[1])
+            } else {
+                beam.at_pupil(centre)
+            };
+            let r = trace_ray(&sys, &n, wl, o, d, false, None);
+            if !r.status.is_alive() {
+                return None;
+            }
+            let p = sys.image.point_to_local(r.o);
+            (p.x.is_finite() && p.y.is_finite()).then_some([p.x, p.y])
+        };
+        let (tx, ty) = Field::ImageHeightMm { x, y }.tangents(lens, &optics)?;
+        let mut q = [tx, ty];
+        let mut f = image_point(q).ok_or_else(|| {
+            fail("the chief ray of its paraxial field does not reach the image plane")
+        })?;
+        let tol = 1e-10 * x.abs().max(y.abs()).max(1.0);
+        for _ in 0..50 {
+            let r = [f[0] - x, f[1] - y];
+            if r[0].abs().max(r[1].abs()) < tol {
+                return Ok(field_of(q));
+            }
+            // Forward differences, stepping the other way when a ray misses.
+            let column = |i: usize| -> Option<[f64; 2]> {
+                let h = 1e-7 * (1.0 + q[i].abs());
+                for step in [h, -h] {
+                    let mut p = q;
+                    p[i] += step;
+                    if let Some(g) = image_point(p) {
+                        return Some([(g[0] - f[0]) / step, (g[1] - f[1]) / step]);
+                    }
+                }
+                None
+            };
+            let (Some(jx), Some(jy)) = (column(0), column(1)) else {
+                return Err(fail("the chief rays next to the solution miss a surface"));
+            };
+            let (a, b, c, d) = (jx[0], jy[0], jx[1], jy[1]);
+            let det = a * d - b * c;
+            if !(det.abs() > 1e-300) {
+                return Err(fail("the image height does not change with the field"));
+            }
+            let step = [(d * r[0] - b * r[1]) / det, (a * r[1] - c * r[0]) / det];
+            // Damped: halve the step while its chief ray misses.
+            let mut t = 1.0;
+            loop {
+                let p = [q[0] - t * step[0], q[1] - t * step[1]];
+                if let Some(g) = image_point(p) {
+                    (q, f) = (p, g);
+                    break;
+                }
+                t *= 0.5;
+                if t < 1e-9 {
+                    return Err(fail(
+                        "no chief ray reaches it (rays on the way miss a surface)",
+                    ));
+                }
+            }
+        }
+        Err(fail("Newton's method did not converge in 50 steps"))
+    }
+
+    /// Field angles (tan x, tan y) seen from the first vertex for a lens with the first-order
+    /// numbers `o` (the focal length turns a fraction of the field into an angle, the chief
+    /// ray's image height an image height), in any number type. A real image height must be
+    /// resolved first ([`Field::resolved`]).
+    fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
         Ok(match *self {
             Field::AngleDeg { x, y } => {
                 // tan flips sign past 90°: a field there is not a direction toward the lens.
@@ -121,7 +291,7 @@ impl Field {
                 (S::cst(x.to_radians().tan()), S::cst(y.to_radians().tan()))
             }
             Field::Fraction { x, y } => {
-                let t = S::cst(lens.sensor.half_diagonal_mm()) / efl_mm;
+                let t = S::cst(lens.sensor.half_diagonal_mm()) / o.efl_mm;
                 (S::cst(x) * t, S::cst(y) * t)
             }
             Field::HeightMm { x, y } => match lens.object {
@@ -134,6 +304,31 @@ impl Field {
                     ))
                 }
             },
+            Field::ImageHeightMm { x, y } => {
+                let k = o.chief_image_height_mm;
+                if !(k.value().abs() > 1e-300 && k.value().is_finite()) {
+                    return Err(Error::numerical(format!(
+                        "image height field ({x}, {y}) mm: the paraxial chief ray does not reach \
+                         the image plane at a finite height (an afocal or telecentric-in-object \
+                         space lens has no image height field)"
+                    )));
+                }
+                match lens.object {
+                    // Slope u = h / k rises; tolray's tangent names the object's side: -u.
+                    Object::Infinite => (S::cst(-x) / k, S::cst(-y) / k),
+                    // Object height h / k, at the object distance d.
+                    Object::Finite { distance_mm } => {
+                        let d = S::cst(distance_mm);
+                        (S::cst(x) / (k * d), S::cst(y) / (k * d))
+                    }
+                }
+            }
+            Field::RealImageHeightMm { x, y } => {
+                return Err(Error::argument(format!(
+                    "real image height field ({x}, {y}) mm has no launch of its own: it is solved \
+                     for the field that reaches it first"
+                )))
+            }
         })
     }
 }
@@ -419,7 +614,8 @@ impl RaySet {
         aim: bool,
         wavelength_nm: f64,
     ) -> Result<RaySet> {
-        let beam = Beam::new(lens, para, field)?;
+        let launched = field.resolved(lens, para, aim)?;
+        let beam = Beam::launch(lens, &LaunchOptics::of(para), launched)?;
         let make = |px: f64, py: f64| beam.ray(px, py);
         let r_ep = beam.r_ep;
         // The field point's vignetted pupil (the whole pupil for fields the lens does not list).
@@ -493,8 +689,9 @@ impl RaySet {
     /// with `chief`, the chief ray appended as [`RayBatch::push`] appends it. The numbers are
     /// those of [`RaySet::batch`] (and of the chief ray), bit for bit, now with the derivatives
     /// `optics` carries: the entrance pupil's position and size and the field angle of a
-    /// fraction of the field move with the design. `None`, and aimed rays (whose aim is not
-    /// differentiated), give the stored rays: the launch is then held.
+    /// fraction of the field or a paraxial image height move with the design. `None`, aimed
+    /// rays (whose aim is not differentiated) and a real image height (whose field solve is
+    /// not) give the stored rays: the launch is then held.
     pub fn launched_batch<S: Real>(
         &self,
         lens: &Lens,
@@ -589,11 +786,12 @@ enum Source<S> {
 }
 
 impl Beam {
-    /// The beam of `field`.
+    /// The beam of `field` (a real image height's chief ray through the paraxial pupil centre).
     ///
     /// # Errors
     /// As [`RaySet::generate`].
     pub(crate) fn new(lens: &Lens, para: &Paraxial, field: Field) -> Result<Beam> {
+        let field = field.resolved(lens, para, false)?;
         Beam::launch(lens, &LaunchOptics::of(para), field)
     }
 
@@ -615,7 +813,7 @@ impl<S: Real> Beam<S> {
     /// # Errors
     /// As [`RaySet::generate`].
     pub(crate) fn launch(lens: &Lens, o: &LaunchOptics<S>, field: Field) -> Result<Beam<S>> {
-        let (tx, ty) = field.tangents(lens, o.efl_mm)?;
+        let (tx, ty) = field.tangents(lens, o)?;
         let z_ep = o.entrance_pupil_z_mm;
         // Rays start on a plane in front of the lens when they do not start at an object point
         // (a constant: moving the start along the ray changes no intersection).

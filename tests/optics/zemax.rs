@@ -275,6 +275,19 @@ fn json_zmx_json_round_trip_is_exact() {
         let text = zemax::to_string(&l, None);
         let z = parse(&text).unwrap_or_else(|e| panic!("{name}: {e}\n{text}"));
         assert!(z.warnings.is_empty(), "{name}: {:?}", z.warnings);
+        // A lens without fields is written with paraxial image heights at 0, 0.5, 0.7 and 1 of
+        // the sensor's half-diagonal (OpticStudio needs fields): read back, they are its fields.
+        let mut l = l;
+        if l.fields.is_empty() {
+            let r = l.sensor.half_diagonal_mm();
+            l.fields = [0.0, 0.5, 0.7, 1.0]
+                .map(|f| tolray::trace::FieldPoint {
+                    field: Field::ImageHeightMm { x: 0.0, y: f * r },
+                    weight: 1.0,
+                    vignetting: Default::default(),
+                })
+                .to_vec();
+        }
         assert_eq!(z.lens, l, "{name}");
         assert_eq!(json::to_string(&z.lens), json::to_string(&l), "{name}");
         // Writing what was read gives the same file.
@@ -871,12 +884,28 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
     let t = replace_line(&base, "STOP", "  COMM no stop line");
     let z = warn(&t, "SURF 1", "no STOP line");
     assert_eq!(z.lens.stop_index(), Some(0));
-    // Vignetting factors of fields tolray has no type for: not applied, said once.
+    // Vignetting factors of fields tolray has no type for (OpticStudio's theodolite angles):
+    // not applied, said once.
     let t = base
-        .replace("FTYP 0 0 3", "FTYP 2 0 3")
+        .replace("FTYP 0 0 3", "FTYP 4 0 3")
         .replace("FWGN 1 1 1\n", "FWGN 1 1 1\nVDYN 0 0.1 0.2\n");
-    let z = warn(&t, "VDYN", "vignetting factors not applied: tolray has no field of this file's type (paraxial image heights)");
+    let z = warn(
+        &t,
+        "VDYN",
+        "vignetting factors not applied: tolray has no field of this file's type (FTYP 4)",
+    );
     assert!(z.lens.fields.is_empty());
+    // Image heights are fields of the lens, with their factors.
+    let z = parse(&t.replace("FTYP 4 0 3", "FTYP 2 0 3")).unwrap();
+    assert!(z.warnings.is_empty(), "{:?}", z.warnings);
+    let kinds: Vec<bool> = z
+        .lens
+        .fields
+        .iter()
+        .map(|p| matches!(p.field, Field::ImageHeightMm { .. }))
+        .collect();
+    assert_eq!(kinds, [true; 3]);
+    assert_eq!(z.lens.fields[2].vignetting.decenter_y, 0.2);
     let t = base.replace("WAVM 1 0.4861327 1", "WAVM 1 0.25 1");
     warn(
         &t,
@@ -2548,14 +2577,16 @@ fn q_type_surfaces_tolray_cannot_trace_are_refused() {
 /// sign: a positive angle is a positive ray slope, so the file's +17° is tolray's -17°), to
 /// 1e-9 mm; the rays optiland loses, tolray loses. Files: vignetting factors on two fields, a
 /// decentred and tilted system with fields off both axes (where the mirrored field that tolray
-/// traced before lands 280 mm away), and object-height fields (`field_reference.json`,
+/// traced before lands 280 mm away), object-height fields, paraxial image heights (FTYP 2, a
+/// catadioptric lens at infinity) and real image heights (FTYP 3, solved by Newton's method on
+/// the chief ray, at a finite object) (`field_reference.json`,
 /// scripts/zmxref/field_reference.py).
 #[test]
 fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
     let corpus = fixture("real");
     let text = std::fs::read_to_string(corpus.join("field_reference.json")).unwrap();
     let reference: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let mut vignetted = 0;
+    let (mut vignetted, mut backwards) = (0, 0);
     for file in reference["files"].as_array().unwrap() {
         let rel = file["path"].as_str().unwrap();
         let z = zemax::read_file(&corpus.join(rel), &GlassCatalogs::builtin()).unwrap();
@@ -2568,10 +2599,12 @@ fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
         for (k, (p, want)) in lens.fields.iter().zip(fields).enumerate() {
             let at = format!("{rel} field {}", k + 1);
             let (fx, fy) = (want["x"].as_f64().unwrap(), want["y"].as_f64().unwrap());
-            let expect = if file["field_type"] == "angle" {
-                Field::AngleDeg { x: -fx, y: -fy }
-            } else {
-                Field::HeightMm { x: fx, y: fy }
+            let expect = match file["field_type"].as_str().unwrap() {
+                "angle" => Field::AngleDeg { x: -fx, y: -fy },
+                "object_height" => Field::HeightMm { x: fx, y: fy },
+                "paraxial_image_height" => Field::ImageHeightMm { x: fx, y: fy },
+                "real_image_height" => Field::RealImageHeightMm { x: fx, y: fy },
+                t => panic!("{rel}: field type {t}"),
             };
             assert_eq!(p.field, expect, "{at}");
             let v = &want["vignetting"];
@@ -2599,8 +2632,25 @@ fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
             let mut b = set.batch::<f64>();
             trace(&sys, wl, &mut b, TraceOptions { apertures: false });
             let hits = want["image_xy_mm"].as_array().unwrap();
+            // Rays optiland moved backwards to a surface (a negative distance along the ray),
+            // which tolray stops as backward@k.
+            let backward: Vec<usize> = want["optiland_backward"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|i| i.as_u64().unwrap() as usize)
+                .collect();
+            backwards += backward.len();
             let mut alive = 0;
             for (i, (r, h)) in b.iter().zip(hits).enumerate() {
+                if backward.contains(&i) {
+                    assert!(
+                        matches!(r.status, tolray::trace::RayStatus::Backward(_)),
+                        "{at} ray {i}: optiland moved it backwards; tolray {:?}",
+                        r.status
+                    );
+                    continue;
+                }
                 match (r.status.is_alive(), h.as_array()) {
                     (true, Some(h)) => {
                         // In the image surface's own frame, as optiland reports it.
@@ -2625,6 +2675,64 @@ fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {
         }
     }
     assert_eq!(vignetted, 2);
+    assert_eq!(backwards, 72);
+}
+
+/// A real image height is where the chief ray lands: without aiming, the chief ray through the
+/// paraxial pupil centre meets the image plane at the asked height (1e-9 mm), also off both
+/// axes and at a finite object; with rays aimed, the one that crosses the real stop at its
+/// centre does (1e-8 mm: aiming meets the stop to 1e-10 mm). A height no chief ray reaches is an error that names it.
+#[test]
+fn real_image_heights_put_the_chief_ray_there() {
+    use tolray::trace::reference::trace_ray;
+    let mut far = Lens::load("cooke-triplet").unwrap();
+    far.object = Object::Infinite;
+    let mut near = far.clone();
+    near.object = Object::Finite { distance_mm: 400.0 };
+    for (lens, name) in [(far, "at infinity"), (near, "at 400 mm")] {
+        let wl = lens.primary_wavelength_nm;
+        let para = lens.paraxial(wl).unwrap();
+        let sys = lens.compile();
+        let n = sys.indices(wl);
+        let stop = para.stop_surface;
+        for aim in [false, true] {
+            for (x, y) in [(0.0, 0.0), (0.0, 12.0), (-3.0, 9.5)] {
+                let field = Field::RealImageHeightMm { x, y };
+                let mut pupil = Pupil::grid(4);
+                pupil.aim = aim;
+                let set = tolray::trace::RaySet::generate(&lens, &para, field, &pupil, wl).unwrap();
+                assert_eq!(set.field, field);
+                let (o, d) = set.chief;
+                let r = trace_ray(&sys, &n, wl, o, d, false, None);
+                let p = sys.image.point_to_local(r.o);
+                let at = format!("{name}, aim {aim}, ({x}, {y})");
+                // Aiming meets the stop point to 1e-10 mm, which the lens magnifies.
+                let tol = if aim { 1e-8 } else { 1e-9 };
+                assert!(
+                    (p.x - x).abs() < tol && (p.y - y).abs() < tol,
+                    "{at}: chief ray at ({}, {})",
+                    p.x,
+                    p.y
+                );
+                if aim {
+                    let s = trace_ray(&sys, &n, wl, o, d, false, Some(stop));
+                    let row = &sys.rows[stop];
+                    let q = row.rot.apply_t(s.o - row.pos);
+                    assert!(q.x.abs() < 1e-9 && q.y.abs() < 1e-9, "{at}: stop at {q:?}");
+                }
+            }
+        }
+    }
+    let lens = Lens::load("cooke-triplet").unwrap();
+    let para = lens.paraxial(lens.primary_wavelength_nm).unwrap();
+    let e = Field::RealImageHeightMm { x: 0.0, y: 1e4 }
+        .resolved(&lens, &para, false)
+        .unwrap_err();
+    assert!(
+        e.message()
+            .contains("real image height field (0, 10000) mm"),
+        "{e}"
+    );
 }
 
 /// Fields and vignetting factors survive .zmx -> JSON -> .zmx and .zmx -> .zmx: the same field
@@ -2685,10 +2793,7 @@ fn fields_and_vignetting_round_trip() {
     let mut v = json::to_value(&z.lens);
     v["fields"][0] = serde_json::json!({"height_mm": [0, 1]});
     let e = json::from_value(&v).unwrap_err();
-    assert!(
-        e.message().contains("all angles or all object heights"),
-        "{e}"
-    );
+    assert!(e.message().contains("all of one kind"), "{e}");
 }
 
 /// An object medium (a .zmx `GLAS` on `SURF 0`, JSON `"object_medium"`): a single spherical

@@ -107,8 +107,9 @@ pub fn load_catalogs(paths: &[PathBuf], fallback: &str) -> anyhow::Result<GlassC
 #[derive(Args)]
 pub struct RayArgs {
     /// Fields: fraction of the full field (0.7), angle (5deg: the object 5° above the axis,
-    /// OpticStudio's -5°) or object height (2.5mm); x:y pairs allowed [default: the lens file's
-    /// fields, else 0,0.5,0.7,1].
+    /// OpticStudio's -5°), object height (2.5mm), paraxial image height (14mm@image) or real
+    /// image height (14mm@real-image: the chief ray lands there); x:y pairs allowed [default:
+    /// the lens file's fields, else 0,0.5,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
     /// Wavelengths in nm, or d, F, C, rgb (the lens' RGB wavelengths).
@@ -216,8 +217,8 @@ pub fn perturbed_system(
 /// The rays of the Monte Carlo commands (`tolerance`, `sensitivity`, `validate`).
 #[derive(Args)]
 pub struct RaySampleArgs {
-    /// Fields (fractions, 5deg angles or 2.5mm heights) [default: the lens file's fields, else
-    /// 0,0.7,1].
+    /// Fields (fractions, 5deg angles, 2.5mm object heights, 14mm@image or 14mm@real-image image
+    /// heights) [default: the lens file's fields, else 0,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
     /// Wavelengths in nm, or d, F, C, rgb.
@@ -294,7 +295,8 @@ impl TolArgs {
     }
 }
 
-/// Parses fields: fractions of the full field, `5deg` angles or `2.5mm` heights.
+/// Parses fields: fractions of the full field, `5deg` angles, `2.5mm` object heights,
+/// `14mm@image` or `14mm@real-image` image heights ([`Field::parse`]).
 pub fn parse_fields(list: &[String]) -> tolray::Result<Vec<Field>> {
     list.iter().map(|f| Field::parse(f)).collect()
 }

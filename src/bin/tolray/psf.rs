@@ -14,7 +14,8 @@ use tolray::trace::{Field, TraceOptions};
 pub struct PsfCmdArgs {
     #[command(flatten)]
     pub lens: LensArgs,
-    /// Field (fraction, 5deg angle or 2.5mm height; x:y pairs allowed).
+    /// Field (fraction, 5deg angle, 2.5mm object height, 14mm@image or 14mm@real-image image
+    /// height; x:y pairs allowed).
     #[arg(long, default_value = "0")]
     pub field: String,
     /// Wavelengths in nm, or d, F, C, rgb (one PSF each).

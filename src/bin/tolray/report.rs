@@ -210,8 +210,13 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
 /// One row per spot result: field, wavelength, rays, RMS and geometric radii, vignetting,
 /// centroid.
 pub fn spot_table(results: &[SpotResult]) -> String {
+    // The field column fits its longest label (`12.000mm@real-image`).
+    let w = results
+        .iter()
+        .map(|r| r.field.label().chars().count())
+        .fold(14, usize::max);
     let mut s = format!(
-        "{:>14} {:>12} {:>8} {:>12} {:>12} {:>12} {:>10} {:>12} {:>12}\n",
+        "{:>w$} {:>12} {:>8} {:>12} {:>12} {:>12} {:>10} {:>12} {:>12}\n",
         "field",
         "wavelength",
         "rays",
@@ -231,7 +236,7 @@ pub fn spot_table(results: &[SpotResult]) -> String {
             .rms_chief_um
             .map_or("-".to_string(), |v| format!("{v:.4}"));
         s.push_str(&format!(
-            "{:>14} {:>12} {:>8} {:>12.4} {:>12} {:>12.4} {:>9.2}% {:>12.6} {:>12.6}\n",
+            "{:>w$} {:>12} {:>8} {:>12.4} {:>12} {:>12.4} {:>9.2}% {:>12.6} {:>12.6}\n",
             r.field.label(),
             wl,
             r.stats.n_valid,
