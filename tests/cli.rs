@@ -471,6 +471,23 @@ fn convert_between_zmx_and_json() {
         .find(|l| l.contains("-24.000deg"))
         .unwrap_or_else(|| panic!("{out}"));
     assert!(row.ends_with("0.0000   0.0547   0.0020   0.3648"), "{row}");
+    // A file's real image heights (FTYP 3) and its primary wavelength (248 nm, a UV
+    // lithography lens) are the defaults; the real chief ray lands on each height.
+    let uv = format!(
+        "{}/tests/data/zemax/real/rayoptics/US05831776-1.zmx",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let (code, out, err) = tolray(&["spot", &uv, "--pupil", "grid:8", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let rows: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let rows = rows.as_array().unwrap_or_else(|| panic!("{out}"));
+    assert_eq!(rows.len(), 3, "{out}");
+    for (r, h) in rows.iter().zip([0.0, 8.0, 12.0]) {
+        assert_eq!(r["wavelength_nm"], 248.0, "{r}");
+        assert_eq!(r["field"]["RealImageHeightMm"]["y"], h, "{r}");
+        let chief_y = r["chief_mm"][1].as_f64().unwrap();
+        assert!((chief_y - h).abs() < 1e-9, "{r}");
+    }
     let (code, out, _) = tolray(&["spot", &triplet, "--pupil", "grid:8", "--fields", "0.5"]);
     assert_eq!(code, 0);
     assert_eq!(

@@ -112,8 +112,9 @@ pub struct RayArgs {
     /// the lens file's fields, else 0,0.5,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
-    /// Wavelengths in nm, or d, F, C, rgb (the lens' RGB wavelengths).
-    #[arg(long, value_delimiter = ',', default_value = "d")]
+    /// Wavelengths in nm, or primary (the lens' primary wavelength: a .zmx file's PWAV, d for
+    /// the built-in lenses), d, F, C, rgb (the lens' RGB wavelengths).
+    #[arg(long, value_delimiter = ',', default_value = "primary")]
     pub wavelengths: Vec<String>,
     /// Pupil sampling over the paraxial entrance pupil: grid:N, hex:N or random:N.
     #[arg(long, default_value = "grid:64")]
@@ -221,8 +222,8 @@ pub struct RaySampleArgs {
     /// heights) [default: the lens file's fields, else 0,0.7,1].
     #[arg(long, value_delimiter = ',')]
     pub fields: Option<Vec<String>>,
-    /// Wavelengths in nm, or d, F, C, rgb.
-    #[arg(long, value_delimiter = ',', default_value = "d")]
+    /// Wavelengths in nm, or primary (the lens' primary wavelength), d, F, C, rgb.
+    #[arg(long, value_delimiter = ',', default_value = "primary")]
     pub wavelengths: Vec<String>,
     /// Pupil sampling: grid:N, hex:N or random:N (random points seeded by --seed).
     #[arg(long, default_value = "grid:32")]
@@ -301,11 +302,13 @@ pub fn parse_fields(list: &[String]) -> tolray::Result<Vec<Field>> {
     list.iter().map(|f| Field::parse(f)).collect()
 }
 
-/// Parses wavelengths: nanometres, or d, F, C, rgb (the lens' RGB wavelengths).
+/// Parses wavelengths: nanometres, or primary (the lens' primary wavelength), d, F, C, rgb (the
+/// lens' RGB wavelengths).
 pub fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64>> {
     let mut out = Vec::new();
     for w in list {
         match w.trim() {
+            "primary" => out.push(lens.primary_wavelength_nm),
             "d" => out.push(LAMBDA_D_NM),
             "F" => out.push(LAMBDA_F_NM),
             "C" => out.push(LAMBDA_C_NM),
@@ -315,7 +318,7 @@ pub fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64
                     material::check_wavelength_nm(v)
                         .with_context(|| format!("wavelength \"{s}\""))?,
                 ),
-                _ => usage!("wavelength \"{s}\": give nanometres (e.g. 587.56) or d, F, C, rgb"),
+                _ => usage!("wavelength \"{s}\": give nanometres (e.g. 587.56) or primary, d, F, C, rgb"),
             },
         }
     }

@@ -18,8 +18,8 @@ pub struct PsfCmdArgs {
     /// height; x:y pairs allowed).
     #[arg(long, default_value = "0")]
     pub field: String,
-    /// Wavelengths in nm, or d, F, C, rgb (one PSF each).
-    #[arg(long, value_delimiter = ',', default_value = "d")]
+    /// Wavelengths in nm, or primary (the lens' primary wavelength), d, F, C, rgb (one PSF each).
+    #[arg(long, value_delimiter = ',', default_value = "primary")]
     pub wavelengths: Vec<String>,
     #[command(flatten)]
     pub psf: PsfArgs,
@@ -106,8 +106,8 @@ pub struct PsfMapArgs {
     /// Fields per side of the grid.
     #[arg(long, default_value_t = 8)]
     pub grid: usize,
-    /// Wavelength, nm (or d, F, C).
-    #[arg(long, default_value = "d")]
+    /// Wavelength, nm (or primary, d, F, C).
+    #[arg(long, default_value = "primary")]
     pub wavelength: String,
     #[command(flatten)]
     pub psf: PsfArgs,
