@@ -318,7 +318,9 @@ pub fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64
                     material::check_wavelength_nm(v)
                         .with_context(|| format!("wavelength \"{s}\""))?,
                 ),
-                _ => usage!("wavelength \"{s}\": give nanometres (e.g. 587.56) or primary, d, F, C, rgb"),
+                _ => usage!(
+                    "wavelength \"{s}\": give nanometres (e.g. 587.56) or primary, d, F, C, rgb"
+                ),
             },
         }
     }
