@@ -1,23 +1,26 @@
 //! `trace`: ray-surfaces per second for lens2 at the d line, 1,000,000 rays, value-only f32 and
-//! f64, one thread and all threads. Throughput is reported in elements = ray-surfaces
-//! (rays x (surfaces + image plane)).
+//! f64, one thread and all threads; and, per surface kind that needs Newton's method on its sag
+//! (`trace/kinds/...`, all threads), Thorlabs' ASL5040-UV (a Qbfs asphere), the hand-made Qcon
+//! singlet of the tests and Thorlabs' LJ1598L1 cylinder lens (a toroid), each at its primary
+//! wavelength. Throughput is reported in elements = ray-surfaces (rays x (surfaces + image
+//! plane)).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use tolray::lens::material::LAMBDA_D_NM;
-use tolray::lens::System;
+use tolray::lens::{zemax, GlassCatalogs, System};
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, RaySet, TraceOptions, Traceable};
 use tolray::Lens;
 
 const RAYS: usize = 1_000_000;
 
-fn rays(lens: &Lens) -> RaySet {
-    let para = lens.paraxial(LAMBDA_D_NM).unwrap();
+fn rays(lens: &Lens, wl: f64) -> RaySet {
+    let para = lens.paraxial(wl).unwrap();
     let pupil = Pupil {
         pattern: PupilPattern::Random { n: RAYS, seed: 1 },
         scale: 1.0,
         aim: false,
     };
-    RaySet::generate(lens, &para, Field::fraction(0.7), &pupil, LAMBDA_D_NM).unwrap()
+    RaySet::generate(lens, &para, Field::fraction(0.7), &pupil, wl).unwrap()
 }
 
 fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
@@ -44,11 +47,51 @@ fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
     g.finish();
 }
 
+/// The kernel on surface kinds traced by Newton's method (Q-type aspheres, toroids), all threads.
+fn bench_kinds(c: &mut Criterion) {
+    let mut g = c.benchmark_group("trace/kinds");
+    g.sample_size(10);
+    for (name, file) in [
+        ("qbfs-asl5040", "real/rayoptics/ASL5040-UV-Zemax(ZMX).zmx"),
+        ("qcon-singlet", "qcon.zmx"),
+        ("toroid-lj1598l1", "real/optiland/thorlabs_lj1598l1.zmx"),
+    ] {
+        let path = format!("{}/tests/data/zemax/{file}", env!("CARGO_MANIFEST_DIR"));
+        let lens = zemax::read_file(std::path::Path::new(&path), &GlassCatalogs::builtin())
+            .unwrap()
+            .lens;
+        let wl = lens.primary_wavelength_nm;
+        let set = rays(&lens, wl);
+        g.throughput(Throughput::Elements(
+            RAYS as u64 * (lens.surfaces.len() as u64 + 1),
+        ));
+        let sys64: System<f64> = lens.compile();
+        let sys32: System<f32> = sys64.convert();
+        let (fresh64, fresh32) = (set.batch::<f64>(), set.batch::<f32>());
+        g.bench_function(format!("{name}/f32"), |b| {
+            let mut batch = fresh32.clone();
+            b.iter(|| {
+                batch.clone_from(&fresh32);
+                trace(&sys32, wl, &mut batch, TraceOptions::default());
+            });
+        });
+        g.bench_function(format!("{name}/f64"), |b| {
+            let mut batch = fresh64.clone();
+            b.iter(|| {
+                batch.clone_from(&fresh64);
+                trace(&sys64, wl, &mut batch, TraceOptions::default());
+            });
+        });
+    }
+    g.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let lens = Lens::load("lens2").unwrap();
-    let set = rays(&lens);
+    let set = rays(&lens, LAMBDA_D_NM);
     bench_type::<f32>(c, &lens, &set);
     bench_type::<f64>(c, &lens, &set);
+    bench_kinds(c);
 }
 
 criterion_group!(benches, bench);

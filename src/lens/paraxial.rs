@@ -41,8 +41,9 @@ pub struct Paraxial {
     /// The paraxial chief ray's height on the image plane for a unit field, at the primary
     /// wavelength (whatever the analysis' wavelength, so that a field means the same rays at
     /// every wavelength): a field angle of tangent 1 (object at infinity; the ray rising,
-    /// OpticStudio's sign) or an object height of 1 mm (finite object), in mm (mm per mm). Divides an image-height field
-    /// ([`crate::trace::Field::ImageHeightMm`]) into an angle or an object height.
+    /// OpticStudio's sign) or an object height of 1 mm (finite object), in mm (mm per mm).
+    /// Divides an image-height field ([`crate::trace::Field::ImageHeightMm`]) into an angle or
+    /// an object height.
     pub chief_image_height_mm: f64,
 }
 

@@ -242,12 +242,18 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
         t,
         "\nRMS spots, nominal lens (µm), and the worst difference over all cases:"
     );
+    let nf = r.cases[0].fields.len();
+    // The field column fits its longest label (`12.000mm@real-image`).
+    let w = r.cases[0]
+        .fields
+        .iter()
+        .map(|f| f.field.label().chars().count())
+        .fold(8, usize::max);
     let _ = writeln!(
         t,
-        "{:>8} {:>8} {:>11} {:>11} {:>10} {:>12} {:>12} {:>12}",
+        "{:>w$} {:>8} {:>11} {:>11} {:>10} {:>12} {:>12} {:>12}",
         "field", "nm", "analytic", "embree", "diff", "worst diff", "worst point", "mesh-normal"
     );
-    let nf = r.cases[0].fields.len();
     for f in 0..nf {
         let n = &r.cases[0].fields[f];
         let worst = |g: &dyn Fn(&tolray::embree::FieldCheck) -> f64| {
@@ -255,7 +261,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
         };
         let _ = writeln!(
             t,
-            "{:>8} {:>8.2} {:>11.4} {:>11.4} {:>10.2e} {:>12.2e} {:>12.2e} {:>12.2e}",
+            "{:>w$} {:>8.2} {:>11.4} {:>11.4} {:>10.2e} {:>12.2e} {:>12.2e} {:>12.2e}",
             n.field.label(),
             n.wavelength_nm,
             n.rms_analytic_um,
