@@ -180,12 +180,25 @@ impl<S: Real> Prescription<S> {
         }
     }
 
-    /// The image-plane height of the chief ray of a unit field for the stop at `stop`.
-    fn chief_image_height(&self, stop: usize, object: Object) -> S {
-        let (_, parallel) = self.efl();
+    /// [`Paraxial::chief_image_height_mm`] for the stop at `stop`, from this prescription (at
+    /// `wavelength_nm`, its entrance pupil at `z_ep`) when that is the primary wavelength, else
+    /// from the primary wavelength's, its parameters passed through `lift` as this one's.
+    fn primary_chief_image_height(
+        &self,
+        lens: &Lens,
+        wavelength_nm: f64,
+        z_ep: S,
+        stop: usize,
+        lift: &dyn Fn(Param, S) -> S,
+    ) -> S {
+        if wavelength_nm == lens.primary_wavelength_nm {
+            return self.on_image(&self.chief(z_ep, lens.object));
+        }
+        let p = Prescription::lifted(lens, lens.primary_wavelength_nm, lift);
+        let (_, parallel) = p.efl();
         // The pupil's position alone (its size does not enter).
-        let (z, _) = self.pupil(&parallel, stop, 0.0);
-        self.on_image(&self.chief(z, object))
+        let (z, _) = p.pupil(&parallel, stop, 0.0);
+        p.on_image(&p.chief(z, lens.object))
     }
 
     /// A ray's height on the image plane (the last gap past the last surface).
@@ -267,12 +280,7 @@ pub fn launch_optics<S: Real>(
         efl_mm: efl,
         entrance_pupil_z_mm: z,
         entrance_pupil_radius_mm: r,
-        chief_image_height_mm: if wavelength_nm == lens.primary_wavelength_nm {
-            p.on_image(&p.chief(z, lens.object))
-        } else {
-            Prescription::lifted(lens, lens.primary_wavelength_nm, lift)
-                .chief_image_height(stop, lens.object)
-        },
+        chief_image_height_mm: p.primary_chief_image_height(lens, wavelength_nm, z, stop, lift),
     }
 }
 
@@ -385,11 +393,13 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         half_fov_deg: (lens.sensor.half_diagonal_mm() / efl).atan().to_degrees(),
         stop_surface: stop,
         total_track_mm: z[last + 1],
-        chief_image_height_mm: if wavelength_nm == lens.primary_wavelength_nm {
-            p.on_image(&p.chief(enp_z, lens.object))
-        } else {
-            Prescription::of(lens, lens.primary_wavelength_nm).chief_image_height(stop, lens.object)
-        },
+        chief_image_height_mm: p.primary_chief_image_height(
+            lens,
+            wavelength_nm,
+            enp_z,
+            stop,
+            &|_, v| v,
+        ),
     })
 }
 

@@ -499,6 +499,17 @@ fn image_height_fields_carry_their_launch() {
     let vars = [Param::Curvature(0), Param::Gap(1), last];
     // The image distance's launch term is the smallest: 9.4e-5 of its derivative.
     assert_launch_in_gradient(&make, &lens, &vars, 1e-5);
+    // A field means the same rays at every wavelength: the unit chief ray is the primary's.
+    let at = |nm: f64| lens.paraxial(nm).unwrap().chief_image_height_mm;
+    assert_eq!(at(486.1327), at(lens.primary_wavelength_nm));
+    // At 2 m the unit is an object height of 1 mm: near the lateral magnification (the image
+    // plane lies near the paraxial image).
+    let m = lens
+        .paraxial(lens.primary_wavelength_nm)
+        .unwrap()
+        .magnification;
+    let k = at(lens.primary_wavelength_nm);
+    assert!((k - m).abs() < 0.05 * m.abs(), "{k} vs {m}");
     let real = [0.0, 0.7, 1.0].map(|f| Field::RealImageHeightMm { x: 0.0, y: f * r });
     let held = spot_loss(&lens, &real, 8, SpotMeasure::Mean);
     let (_, gr) = gradient::<_, 8>(&held, &lens, &adj, &vars).unwrap();
