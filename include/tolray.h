@@ -756,6 +756,28 @@ extern "C" {
 uint32_t tolray_abi_version(void);
 
 /**
+ * Adds a sensor's noise to the noise-free capture `data` (`len` floats, linear [0, 1] units, 1 a
+ * full well; e.g. the output of [`tolray_render`] with `noise_sigma` 0): white Gaussian noise of
+ * standard deviation `noise_sigma` and, when `full_well_electrons` is not 0, photon shot noise,
+ * so that a pixel of value `b` gets variance `max(b, 0) / full_well_electrons + noise_sigma²`
+ * (the Poisson–Gaussian sensor model in its Gaussian form, as `tolray render
+ * --full-well-electrons` and training use; read noise of `e` electrons is `noise_sigma = e /
+ * full_well_electrons`). Deterministic per `seed`; with `full_well_electrons` 0 it adds exactly
+ * the noise [`tolray_render`] adds for the same `noise_sigma` and `seed`. Not clipped.
+ *
+ * Checked: `noise_sigma` finite and 0 or more, `full_well_electrons` 0 or a finite number of at
+ * least 1 (`TOLRAY_ERROR_ARGUMENT`); `data` not NULL unless `len` is 0.
+ *
+ * # Safety
+ * `data` holds `len` readable and writable floats.
+ */
+tolray_status tolray_add_sensor_noise(float *data,
+                                      size_t len,
+                                      double noise_sigma,
+                                      double full_well_electrons,
+                                      uint64_t seed);
+
+/**
  * Copies the message of the last failed call on this thread into `buf` (`cap` bytes),
  * truncated if needed and always NUL-terminated when `cap` > 0, like `snprintf`. Returns the
  * message's full length in bytes, without the NUL (0 if no call has failed on this thread).

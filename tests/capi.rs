@@ -690,6 +690,53 @@ fn render_through_the_c_abi_matches_the_library() {
         assert_eq!(render(49, 0.01, x, n), TOLRAY_ERROR_ARGUMENT);
         assert_eq!(render(4, f64::NAN, x, n), TOLRAY_ERROR_ARGUMENT);
         assert_eq!(render(4, -0.1, x, n), TOLRAY_ERROR_ARGUMENT);
+        // The noise-free capture plus tolray_add_sensor_noise without a full well is exactly
+        // tolray_render's noisy capture; a full well adds the shot noise the library adds.
+        let mut clean = vec![0f32; n];
+        assert_eq!(render(4, 0.0, x, n), TOLRAY_OK);
+        clean.copy_from_slice(&out);
+        let mut noisy = clean.clone();
+        assert_eq!(
+            tolray_add_sensor_noise(noisy.as_mut_ptr(), n, 0.01, 0.0, 5),
+            TOLRAY_OK
+        );
+        assert_eq!(render(4, 0.01, x, n), TOLRAY_OK);
+        assert_eq!(noisy, out);
+        let mut shot = clean.clone();
+        assert_eq!(
+            tolray_add_sensor_noise(shot.as_mut_ptr(), n, 0.002, 5000.0, 9),
+            TOLRAY_OK
+        );
+        let mut want = clean.clone();
+        tolray::image::render::SensorNoise {
+            sigma: 0.002,
+            full_well_electrons: Some(5000.0),
+        }
+        .add(&mut want, 9, 0);
+        assert_eq!(shot, want);
+        assert_ne!(shot, clean);
+        let q = shot.as_mut_ptr();
+        assert_eq!(
+            tolray_add_sensor_noise(q, n, -0.01, 0.0, 1),
+            TOLRAY_ERROR_ARGUMENT
+        );
+        assert_eq!(
+            tolray_add_sensor_noise(q, n, 0.01, 0.5, 1),
+            TOLRAY_ERROR_ARGUMENT
+        );
+        assert_eq!(
+            tolray_add_sensor_noise(q, n, 0.01, f64::NAN, 1),
+            TOLRAY_ERROR_ARGUMENT
+        );
+        assert_eq!(
+            tolray_add_sensor_noise(std::ptr::null_mut(), n, 0.01, 0.0, 1),
+            TOLRAY_ERROR_NULL_ARGUMENT
+        );
+        assert_eq!(
+            tolray_add_sensor_noise(std::ptr::null_mut(), 0, 0.01, 0.0, 1),
+            TOLRAY_OK
+        );
+        assert_eq!(shot, want, "a refused call writes nothing");
         tolray_system_free(sys);
         tolray_lens_free(lens);
     }

@@ -17,9 +17,9 @@ use super::{psf_options, rgb_psf_map, Design};
 use crate::decoder::Crop;
 use crate::error::{Error, Result};
 use crate::image::metrics::{paired_bootstrap, pooled_paired_bootstrap, psnr, ssim, YieldTable};
-use crate::image::render::{add_gaussian_noise, blur_patch, pad_reflect};
+use crate::image::render::{blur_patch, pad_reflect, SensorNoise};
 use crate::image::Image;
-use crate::lens::System;
+use crate::lens::{Lens, System};
 use crate::tolerance::analysis::{perturbed_rms, McOptions};
 use crate::tolerance::ToleranceSpec;
 use rayon::prelude::*;
@@ -46,6 +46,10 @@ pub struct EvalConfig {
     pub spp: usize,
     /// Additive Gaussian noise, linear [0, 1] units.
     pub noise_sigma: f64,
+    /// Electrons of a full well for photon shot noise on top of `noise_sigma`
+    /// ([`SensorNoise`]); `None`: Gaussian noise alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_well_electrons: Option<f64>,
     /// Block side per PSF tile, pixels (the evaluation images are `grid · patch` square).
     pub patch_px: usize,
     /// Refocus each unit to its best RMS focus before imaging (the assembly's focus
@@ -65,9 +69,20 @@ impl Default for EvalConfig {
             ks: 51,
             spp: 8192,
             noise_sigma: 0.01,
+            full_well_electrons: None,
             patch_px: 48,
             compensate_focus: false,
             bootstrap: 2000,
+        }
+    }
+}
+
+impl EvalConfig {
+    /// The sensor noise of the captures: `noise_sigma` and `full_well_electrons`.
+    pub fn sensor(&self) -> SensorNoise {
+        SensorNoise {
+            sigma: self.noise_sigma,
+            full_well_electrons: self.full_well_electrons,
         }
     }
 }
@@ -155,9 +170,8 @@ fn image_scores(
                 let xpad = padded.crop(col * p, row * p, p + ks - 1, p + ks - 1)?;
                 let psf = &map[t * nc * ks2..(t + 1) * nc * ks2];
                 let mut y = blur_patch(&xpad.data, p, p, psf, ks)?;
-                add_gaussian_noise(
+                cfg.sensor().add(
                     &mut y,
-                    cfg.noise_sigma as f32,
                     cfg.seed ^ 0x6576_616c,
                     (noise_stream + i as u64) * 4096 + t as u64,
                 );
@@ -222,6 +236,34 @@ fn image_scores(
     Ok((psnr_sum / n, ssim_sum / n, kept))
 }
 
+/// The fabricated unit `k` of `cfg` (the nominal lens for `None`) as [`evaluate`] scores it:
+/// its pattern applied and, with `compensate_focus`, its sensor moved to its best RMS focus; with
+/// its RMS spot per field, µm.
+fn unit(
+    lens: &Lens,
+    cfg: &EvalConfig,
+    k: Option<usize>,
+) -> Result<(Lens, crate::lens::Adjustments, Vec<f64>)> {
+    let mc = McOptions {
+        compensate_focus: cfg.compensate_focus,
+        ..super::refocus_options(lens)
+    };
+    Ok(match k {
+        Some(k) => {
+            let pattern = cfg.spec.sample(lens, cfg.seed, k as u64)?;
+            let (rms, delta) = perturbed_rms(lens, &mc, &pattern)?;
+            let (plens, adj) = super::unit_lens(lens, &pattern, delta)?;
+            (plens, adj, rms)
+        }
+        None => {
+            let empty = crate::tolerance::Perturbation::default();
+            let (rms, _) = perturbed_rms(lens, &mc, &empty)?;
+            let (plens, adj) = empty.apply(lens)?;
+            (plens, adj, rms)
+        }
+    })
+}
+
 /// Scores `design` on the patterns `range` of `cfg` (all trials when `None`), in parallel over
 /// patterns, plus the nominal lens. Deterministic whatever the thread count.
 ///
@@ -240,29 +282,13 @@ pub fn evaluate(
     }
     let lens = &design.lens;
     cfg.spec.validate(lens)?;
+    cfg.sensor().validate()?;
     let wavelengths = lens.rgb_wavelengths_nm.to_vec();
     let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
     let nominal_map = rgb_psf_map(lens, &lens.compile(), cfg.grid, &wavelengths, &opts)?;
-    let mc = McOptions {
-        compensate_focus: cfg.compensate_focus,
-        ..super::refocus_options(lens)
-    };
     let ks2 = cfg.ks * cfg.ks;
     let score = |k: Option<usize>| -> Result<TrialScore> {
-        let (plens, adj, rms) = match k {
-            Some(k) => {
-                let pattern = cfg.spec.sample(lens, cfg.seed, k as u64)?;
-                let (rms, delta) = perturbed_rms(lens, &mc, &pattern)?;
-                let (plens, adj) = super::unit_lens(lens, &pattern, delta)?;
-                (plens, adj, rms)
-            }
-            None => {
-                let empty = crate::tolerance::Perturbation::default();
-                let (rms, _) = perturbed_rms(lens, &mc, &empty)?;
-                let (plens, adj) = empty.apply(lens)?;
-                (plens, adj, rms)
-            }
-        };
+        let (plens, adj, rms) = unit(lens, cfg, k)?;
         let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
         let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
         let sim = nominal_map
@@ -321,13 +347,7 @@ pub fn example_images(
     let lens = &design.lens;
     let wavelengths = lens.rgb_wavelengths_nm.to_vec();
     let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
-    let (plens, adj) = match pattern {
-        Some(k) => cfg.spec.sample(lens, cfg.seed, k as u64)?.apply(lens)?,
-        None => (
-            lens.clone(),
-            crate::lens::Adjustments::none(lens.surfaces.len()),
-        ),
-    };
+    let (plens, adj, _) = unit(lens, cfg, pattern)?;
     let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
     let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
     let stream = pattern.map_or(0, |k| k as u64 + 1) * 64;

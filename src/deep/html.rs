@@ -145,7 +145,7 @@ pub fn render(report: &Report, examples: &Examples) -> String {
     let c = &report.config;
     h.push_str(&format!(
         "<h1>Deep-optics evaluation</h1><p>{} random fabricated units per design (tolerance patterns of seed {}, the same for every design), \
-         RGB PSF maps of {}x{} kernels of {} px ({} rays each), Gaussian noise σ = {}, {}; images: {}. \
+         RGB PSF maps of {}x{} kernels of {} px ({} rays each), Gaussian noise σ = {}{}, {}; images: {}. \
          PSNR and SSIM on sRGB-encoded images; yield: the PSNR that 90/70/50/10 % of units exceed.</p>",
         c.trials,
         c.seed,
@@ -154,6 +154,8 @@ pub fn render(report: &Report, examples: &Examples) -> String {
         c.ks,
         c.spp,
         c.noise_sigma,
+        c.full_well_electrons
+            .map_or(String::new(), |f| format!(" and photon shot noise of a {f}-electron full well")),
         if c.compensate_focus { "each unit refocused (focus compensator)" } else { "no refocus" },
         esc(&report.images.join(", "))
     ));

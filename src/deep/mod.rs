@@ -20,7 +20,7 @@ pub mod study;
 use crate::analysis::SpotMoments;
 use crate::decoder::{Crop, Decoder, DecoderKind, ImageLossWeights};
 use crate::error::{Error, Result};
-use crate::image::render::{add_gaussian_noise, blur_patch, blur_patch_psf_adjoint};
+use crate::image::render::{blur_patch, blur_patch_psf_adjoint, standard_normals, SensorNoise};
 use crate::image::source::TrainImages;
 use crate::lens::{Adjustments, Lens, Param, System};
 use crate::optim::adam::{cosine_schedule, Adam};
@@ -76,6 +76,10 @@ pub struct DeepConfig {
     pub crop_px: usize,
     /// Standard deviation of the additive Gaussian noise, in linear [0, 1] units (paper: 0.01).
     pub noise_sigma: f64,
+    /// Electrons of a full well for photon shot noise on top of `noise_sigma`
+    /// ([`SensorNoise`]); `None` (the paper): Gaussian noise alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_well_electrons: Option<f64>,
     /// The decoder.
     pub decoder: DecoderKind,
     /// Base width (channels of the first level) of the U-Net.
@@ -116,6 +120,7 @@ impl DeepConfig {
             optics: TrainConfig::for_lens(lens),
             crop_px: 64,
             noise_sigma: 0.01,
+            full_well_electrons: None,
             decoder: DecoderKind::WienerUnet,
             unet_width: 8,
             lr_unet: 2e-3,
@@ -127,6 +132,14 @@ impl DeepConfig {
             lambda_psf: 0.01,
             train_images: TrainImages::default(),
             compensate_focus: false,
+        }
+    }
+
+    /// The sensor noise of the captures: `noise_sigma` and `full_well_electrons`.
+    pub fn sensor(&self) -> SensorNoise {
+        SensorNoise {
+            sigma: self.noise_sigma,
+            full_well_electrons: self.full_well_electrons,
         }
     }
 
@@ -142,8 +155,8 @@ impl DeepConfig {
                 self.crop_px
             )));
         }
+        self.sensor().validate()?;
         for (what, v) in [
-            ("noise sigma", self.noise_sigma),
             ("lambda_spot", self.lambda_spot),
             ("lambda_psf", self.lambda_psf),
         ] {
@@ -251,7 +264,7 @@ impl DeepState {
                     config.optics.psf_grid,
                     config.optics.psf_ks,
                     &psfs,
-                    config.noise_sigma,
+                    config.sensor().typical_std(),
                     config.unet_width,
                     config.optics.seed,
                 )?
@@ -519,7 +532,8 @@ pub struct BatchCrop {
     pub ideal: Vec<Vec<f64>>,
     /// Sharp image with a halo of (ks - 1) / 2 pixels, 3 planes of (crop + ks - 1)².
     pub xpad: Vec<f32>,
-    /// The noise added to its capture, 3 planes of crop².
+    /// Standard normal samples of the noise of its capture, 3 planes of crop²
+    /// ([`SensorNoise::apply`]).
     pub noise: Vec<f32>,
 }
 
@@ -598,13 +612,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 &Pupil::grid((o.spot_grid / 2).max(2)),
             )?;
             let xpad = cfg.train_images.crop(side, o.seed, stream)?.data;
-            let mut noise = vec![0f32; 3 * c * c];
-            add_gaussian_noise(
-                &mut noise,
-                cfg.noise_sigma as f32,
-                o.seed ^ 0x6e_6f69_7365,
-                stream,
-            );
+            let noise = standard_normals(3 * c * c, o.seed ^ 0x6e_6f69_7365, stream);
             Ok(BatchCrop {
                 tile,
                 pattern,
@@ -765,7 +773,9 @@ pub fn eval_batch(
     let n = batch.crops.len();
     let (psf, trace) = (batch.psf, batch.trace);
     // 1. Each crop's PSFs (values) and capture.
-    let rendered: Vec<(Vec<Vec<f64>>, Crop, f64, f64)> = batch
+    let sensor = cfg.sensor();
+    // Per crop: its capture, mean spot (mm), PSF similarity and the noise's dy/db.
+    let rendered: Vec<(Crop, f64, f64, Option<Vec<f32>>)> = batch
         .crops
         .par_iter()
         .enumerate()
@@ -786,9 +796,9 @@ pub fn eval_batch(
             }
             let psf32: Vec<f32> = psfs.iter().flatten().map(|&v| v as f32).collect();
             let mut y = blur_patch(&bc.xpad, c, c, &psf32, ks)?;
-            for (a, b) in y.iter_mut().zip(&bc.noise) {
-                *a += b;
-            }
+            // dy/db of the noise, for the lens gradient (shot noise only: else 1).
+            let slope = sensor.slope(&y, &bc.noise);
+            sensor.apply(&mut y, &bc.noise);
             let x = crop_centre(&bc.xpad, c + ks - 1, (ks - 1) / 2, c);
             let spot_mm = spot_sum(&bc.spot, &sys, &|_, v| v, SpotMeasure::Mean, trace)
                 / bc.spot.len().max(1) as f64;
@@ -809,15 +819,15 @@ pub fn eval_batch(
                 w: c,
                 h: c,
             };
-            Ok((psfs, crop, spot_mm, sim))
+            Ok((crop, spot_mm, sim, slope))
         })
         .collect::<Result<_>>()?;
-    let crops: Vec<Crop> = rendered.iter().map(|r| r.1.clone()).collect();
+    let crops: Vec<Crop> = rendered.iter().map(|r| r.0.clone()).collect();
     // 2. The decoder, forward and backward.
     let out = decoder.train_batch(&crops, &cfg.loss)?;
     let inv = 1.0 / n as f64;
-    let spot_mm: f64 = rendered.iter().map(|r| r.2).sum::<f64>() * inv;
-    let sim: f64 = rendered.iter().map(|r| r.3).sum::<f64>() * inv;
+    let spot_mm: f64 = rendered.iter().map(|r| r.1).sum::<f64>() * inv;
+    let sim: f64 = rendered.iter().map(|r| r.2).sum::<f64>() * inv;
     let tol = batch.crops.iter().any(|b| !b.ideal.is_empty());
     let loss = out.loss
         + cfg.lambda_spot * spot_mm
@@ -835,7 +845,17 @@ pub fn eval_batch(
                 .crops
                 .par_iter()
                 .zip(out.dy.par_iter())
-                .map(|(bc, dy)| -> Result<Vec<f64>> {
+                .zip(rendered.par_iter())
+                .map(|((bc, dy), r)| -> Result<Vec<f64>> {
+                    // Through the noise: dL/db = dL/dy · dy/db (shot noise scales with b).
+                    let dy_clean: Vec<f32>;
+                    let dy = match &r.3 {
+                        None => dy,
+                        Some(slope) => {
+                            dy_clean = dy.iter().zip(slope).map(|(a, b)| a * b).collect();
+                            &dy_clean
+                        }
+                    };
                     let g = blur_patch_psf_adjoint(&bc.xpad, c, c, ks, dy)?;
                     let obj = PatternObjective {
                         spot: bc.spot.clone(),

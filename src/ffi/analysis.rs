@@ -816,9 +816,49 @@ pub unsafe extern "C" fn tolray_render(
         )?;
         let map = crate::image::render::PsfMap::new(grid as usize, opts.ks, psfs)?;
         let mut y = crate::image::render::render_map(&img, &map)?;
-        crate::image::render::add_gaussian_noise(&mut y.data, noise_sigma as f32, seed, 0);
+        crate::image::render::SensorNoise::gaussian(noise_sigma).add(&mut y.data, seed, 0);
         // SAFETY: `out` holds `out_len` == y.data.len() writable floats.
         unsafe { std::ptr::copy_nonoverlapping(y.data.as_ptr(), out, n) };
+        Ok(())
+    })
+}
+
+/// Adds a sensor's noise to the noise-free capture `data` (`len` floats, linear [0, 1] units, 1 a
+/// full well; e.g. the output of [`tolray_render`] with `noise_sigma` 0): white Gaussian noise of
+/// standard deviation `noise_sigma` and, when `full_well_electrons` is not 0, photon shot noise,
+/// so that a pixel of value `b` gets variance `max(b, 0) / full_well_electrons + noise_sigma²`
+/// (the Poisson–Gaussian sensor model in its Gaussian form, as `tolray render
+/// --full-well-electrons` and training use; read noise of `e` electrons is `noise_sigma = e /
+/// full_well_electrons`). Deterministic per `seed`; with `full_well_electrons` 0 it adds exactly
+/// the noise [`tolray_render`] adds for the same `noise_sigma` and `seed`. Not clipped.
+///
+/// Checked: `noise_sigma` finite and 0 or more, `full_well_electrons` 0 or a finite number of at
+/// least 1 (`TOLRAY_ERROR_ARGUMENT`); `data` not NULL unless `len` is 0.
+///
+/// # Safety
+/// `data` holds `len` readable and writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn tolray_add_sensor_noise(
+    data: *mut f32,
+    len: usize,
+    noise_sigma: f64,
+    full_well_electrons: f64,
+    seed: u64,
+) -> tolray_status {
+    boundary("tolray_add_sensor_noise", || {
+        let noise = crate::image::render::SensorNoise {
+            sigma: noise_sigma,
+            full_well_electrons: (full_well_electrons != 0.0).then_some(full_well_electrons),
+        };
+        noise.validate()?;
+        // SAFETY: `data` is NULL or has `len` readable elements, as # Safety says; NULL is
+        // refused unless `len` is 0.
+        let mut v = unsafe { c_slice(data.cast_const(), len, "data") }?.to_vec();
+        noise.add(&mut v, seed, 0);
+        if len > 0 {
+            // SAFETY: `data` is not NULL (c_slice refused it) and holds `len` writable floats.
+            unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), data, len) };
+        }
         Ok(())
     })
 }

@@ -25,6 +25,21 @@ macro_rules! usage {
     };
 }
 
+/// Lets every option that takes a value take a negative number (`--fields -0.7`, `--noise
+/// -0.01`): clap reads a leading `-` as a flag otherwise, and the user got "unexpected argument
+/// '-0'" instead of a field below the axis or an error naming the flag.
+pub fn negative_numbers(cmd: clap::Command) -> clap::Command {
+    let allow = |a: clap::Arg| {
+        if a.get_action().takes_values() && !a.is_positional() {
+            a.allow_negative_numbers(true)
+        } else {
+            a
+        }
+    };
+    cmd.mut_args(allow)
+        .mut_subcommands(move |sc| sc.mut_args(allow))
+}
+
 /// The exit code of an error: 2 for usage errors (a bad flag value, or a library argument error,
 /// which every command raises only for values given on the command line), else 1.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
@@ -76,7 +91,8 @@ pub fn check_outputs(m: &clap::ArgMatches) -> anyhow::Result<()> {
         } else {
             format!("--{id}")
         };
-        if id == "out" && name != "trace" {
+        // `--out` is a directory for these; a file for `trace` and `render`.
+        if id == "out" && matches!(name, "train" | "deep" | "demo") {
             if p.exists() && !p.is_dir() {
                 bail!("{flag} {}: exists and is not a directory", p.display());
             }

@@ -10,7 +10,7 @@ use tolray::deep::eval::{evaluate, example_images, report, EvalConfig, EvalImage
 use tolray::deep::html::{render as render_html, Examples};
 use tolray::deep::study::{self, StudyConfig};
 use tolray::deep::{psf_options, rgb_psf_map, DeepConfig};
-use tolray::image::render::{add_gaussian_noise, render, Blend, PsfMap};
+use tolray::image::render::{render, Blend, PsfMap, SensorNoise};
 use tolray::image::source::TrainImages;
 use tolray::image::Image;
 use tolray::tolerance::{Perturbation, ToleranceSpec};
@@ -63,7 +63,7 @@ impl EvalArgs {
     pub(crate) fn config(
         &self,
         lens: &Lens,
-        noise: f64,
+        noise: SensorNoise,
         grid: usize,
         ks: usize,
     ) -> anyhow::Result<(EvalConfig, EvalImages)> {
@@ -88,7 +88,8 @@ impl EvalArgs {
             grid,
             ks,
             spp: self.eval_spp,
-            noise_sigma: noise,
+            noise_sigma: noise.sigma,
+            full_well_electrons: noise.full_well_electrons,
             patch_px: self.patch,
             compensate_focus: self.compensate.is_some(),
             bootstrap: 2000,
@@ -146,6 +147,11 @@ pub struct DeepArgs {
     /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01).
     #[arg(long, default_value_t = 0.01)]
     pub noise: f64,
+    /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
+    /// to the Gaussian noise (which is then the read noise: electrons / full well). Off: the
+    /// paper's Gaussian noise alone.
+    #[arg(long, value_name = "ELECTRONS")]
+    pub full_well_electrons: Option<f64>,
     /// Weight of the spot loss in the image stages (per mm).
     #[arg(long, default_value_t = 0.1)]
     pub lambda_spot: f64,
@@ -204,6 +210,22 @@ pub fn deep(a: &DeepArgs) -> anyhow::Result<()> {
     run_study(cfg, start, &images, &out, a.checkpoint_every, "tolray deep")
 }
 
+/// The sensor noise of `--noise` and `--full-well-electrons`, checked (usage errors name the flag).
+pub(crate) fn sensor_noise(noise: f64, full_well: Option<f64>) -> anyhow::Result<SensorNoise> {
+    if !(noise >= 0.0 && noise.is_finite()) {
+        usage!("--noise {noise}: must be zero or positive");
+    }
+    if let Some(f) = full_well {
+        if !(f >= 1.0 && f.is_finite()) {
+            usage!("--full-well-electrons {f}: give a finite number of at least 1");
+        }
+    }
+    Ok(SensorNoise {
+        sigma: noise,
+        full_well_electrons: full_well,
+    })
+}
+
 /// The study settings of the flags.
 fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
     let mut d = DeepConfig::for_lens(lens);
@@ -213,7 +235,9 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
     d.crop_px = a.crop;
     d.decoder = DecoderKind::parse(&a.decoder)?;
     d.unet_width = a.unet_width;
-    d.noise_sigma = a.noise;
+    let sensor = sensor_noise(a.noise, a.full_well_electrons)?;
+    d.noise_sigma = sensor.sigma;
+    d.full_well_electrons = sensor.full_well_electrons;
     d.lambda_spot = a.lambda_spot;
     d.lambda_psf = a.lambda_psf;
     d.compensate_focus = a.train_compensate.is_some();
@@ -226,7 +250,7 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
     }
     let (eval, _) = a
         .eval
-        .config(lens, a.noise, d.optics.psf_grid, d.optics.psf_ks)?;
+        .config(lens, sensor, d.optics.psf_grid, d.optics.psf_ks)?;
     Ok(StudyConfig {
         deep: d,
         spot_iters: a.spot_iters,
@@ -331,6 +355,11 @@ pub struct EvaluateArgs {
     /// Gaussian noise σ (linear [0, 1] units).
     #[arg(long, default_value_t = 0.01)]
     pub noise: f64,
+    /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
+    /// to the Gaussian noise (which is then the read noise: electrons / full well). Off: the
+    /// paper's Gaussian noise alone.
+    #[arg(long, value_name = "ELECTRONS")]
+    pub full_well_electrons: Option<f64>,
     /// Run only slice K of N of the trials (e.g. 0/4); `merge-eval` combines the slices.
     #[arg(long, value_name = "K/N")]
     pub shard: Option<String>,
@@ -372,9 +401,10 @@ pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
         .map(|p| Ok((design_name(p), study::load_design(p)?)))
         .collect::<anyhow::Result<_>>()?;
     let d0 = &designs[0].1;
+    let sensor = sensor_noise(a.noise, a.full_well_electrons)?;
     let (cfg, images) = a
         .eval
-        .config(&d0.lens, a.noise, d0.decoder.grid, d0.decoder.ks)?;
+        .config(&d0.lens, sensor, d0.decoder.grid, d0.decoder.ks)?;
     let range = match &a.shard {
         None => 0..cfg.trials,
         Some(s) => shard_range(s, cfg.trials)?,
@@ -590,6 +620,11 @@ pub struct RenderArgs {
     /// Gaussian noise σ (linear [0, 1] units).
     #[arg(long, default_value_t = 0.01)]
     pub noise: f64,
+    /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
+    /// to the Gaussian noise (which is then the read noise: electrons / full well). Off: the
+    /// paper's Gaussian noise alone.
+    #[arg(long, value_name = "ELECTRONS")]
+    pub full_well_electrons: Option<f64>,
     /// PSF grid per side.
     #[arg(long, default_value_t = 8)]
     pub grid: usize,
@@ -616,9 +651,7 @@ pub enum BlendArg {
 }
 
 pub fn render_cmd(a: &RenderArgs) -> anyhow::Result<()> {
-    if !(a.noise >= 0.0 && a.noise.is_finite()) {
-        usage!("--noise {}: must be zero or positive", a.noise);
-    }
+    let sensor = sensor_noise(a.noise, a.full_well_electrons)?;
     if a.grid == 0 || a.grid > 64 {
         usage!("--grid {}: give 1 to 64", a.grid);
     }
@@ -640,10 +673,13 @@ pub fn render_cmd(a: &RenderArgs) -> anyhow::Result<()> {
         BlendArg::Bilinear => Blend::Bilinear,
     };
     let mut y = render(&img, &map, blend)?;
-    add_gaussian_noise(&mut y.data, a.noise as f32, a.seed, 0);
+    sensor.add(&mut y.data, a.seed, 0);
     y.save_png(&a.out)?;
+    let shot = sensor.full_well_electrons.map_or(String::new(), |f| {
+        format!(" and shot noise of a {f}-electron full well")
+    });
     emit_line(&format!(
-        "rendered {} ({}x{} px) through {} with a {g}x{g} RGB PSF map of {k}x{k} px kernels, noise σ {}",
+        "rendered {} ({}x{} px) through {} with a {g}x{g} RGB PSF map of {k}x{k} px kernels, noise σ {}{shot}",
         a.image.display(), img.width, img.height, a.lens, a.noise, g = a.grid, k = a.ks
     ));
     eprintln!("wrote {}", a.out.display());

@@ -114,7 +114,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     use clap::{CommandFactory, FromArgMatches};
-    let m = Cli::command().get_matches();
+    let m = app::negative_numbers(Cli::command()).get_matches();
     let checked = app::check_outputs(&m).and_then(|()| Ok(Cli::from_arg_matches(&m)?));
     app::install_interrupt_handler();
     match checked.and_then(run) {

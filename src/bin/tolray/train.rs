@@ -114,6 +114,10 @@ pub struct ImageStageArgs {
     /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01) [default: 0.01].
     #[arg(long, help_heading = "Image stage")]
     pub noise: Option<f64>,
+    /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
+    /// to the Gaussian noise (then the read noise: electrons / full well) [default: off].
+    #[arg(long, value_name = "ELECTRONS", help_heading = "Image stage")]
+    pub full_well_electrons: Option<f64>,
     /// Train on random flipped blocks of the PNG/JPEG images of this folder instead of the
     /// built-in dead leaves.
     #[arg(long, value_name = "DIR", help_heading = "Image stage")]
@@ -142,6 +146,7 @@ impl ImageStageArgs {
             (self.crop.is_some(), "--crop"),
             (self.unet_width.is_some(), "--unet-width"),
             (self.noise.is_some(), "--noise"),
+            (self.full_well_electrons.is_some(), "--full-well-electrons"),
             (self.images.is_some(), "--images"),
             (self.train_compensate.is_some(), "--train-compensate"),
             (self.validate_every.is_some(), "--validate-every"),
@@ -322,7 +327,9 @@ fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
         .unet_width
         .or(design.as_ref().map(|d| d.decoder.unet_width))
         .unwrap_or(8);
-    d.noise_sigma = im.noise.unwrap_or(0.01);
+    let sensor = crate::deep::sensor_noise(im.noise.unwrap_or(0.01), im.full_well_electrons)?;
+    d.noise_sigma = sensor.sigma;
+    d.full_well_electrons = sensor.full_well_electrons;
     d.lambda_spot = a.lambda_spot.unwrap_or(0.1);
     d.lambda_psf = a.lambda_psf.unwrap_or(0.01);
     d.compensate_focus = im.train_compensate.is_some();
@@ -336,7 +343,7 @@ fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
     let mut ev = EvalArgs::defaults(a.eval_trials.unwrap_or(100), a.spec.clone());
     ev.eval_images = im.eval_images.clone();
     ev.compensate = im.compensate.clone();
-    let (eval, images) = ev.config(&lens, d.noise_sigma, d.optics.psf_grid, d.optics.psf_ks)?;
+    let (eval, images) = ev.config(&lens, sensor, d.optics.psf_grid, d.optics.psf_ks)?;
     let trains = im.stage2_trains.as_deref().unwrap_or("both");
     let stage2 = a.stage != "pretrain";
     let iters = a.iters.unwrap_or(100);
