@@ -1278,3 +1278,95 @@ fn render_simulates_the_library_s_capture_with_sensor_noise() {
         "{err}"
     );
 }
+
+/// `tolray evaluate` scores designs under the sensor they were trained under (their
+/// `sensor.json`) unless told otherwise, warns when told otherwise, refuses designs trained under
+/// different sensors without a flag, and keeps the paper's σ = 0.01 for designs without the file.
+#[test]
+fn evaluation_defaults_to_the_designs_training_sensor() {
+    use tolray::decoder::DecoderKind;
+    use tolray::deep::study::{save_design, save_sensor};
+    use tolray::deep::{DeepConfig, DeepState, Phase};
+    use tolray::image::render::SensorNoise;
+    let dir = tmp("eval-sensor");
+    std::fs::create_dir_all(&dir).unwrap();
+    let lens = tolray::Lens::load("lens1").unwrap();
+    let mut cfg = DeepConfig::for_lens(&lens);
+    cfg.decoder = DecoderKind::Wiener;
+    cfg.optics.psf_spp = 64;
+    let st = DeepState::new(cfg, lens, None, Phase::Nominal, 1, 0).unwrap();
+    let shot = SensorNoise {
+        sigma: 0.02,
+        full_well_electrons: Some(500.0),
+    };
+    for (name, sensor) in [
+        ("a", Some(shot)),
+        ("b", Some(shot)),
+        ("c", Some(SensorNoise::gaussian(0.03))),
+        ("old", None),
+    ] {
+        save_design(&st.design, &dir.join(name)).unwrap();
+        if let Some(s) = sensor {
+            save_sensor(&dir.join(name), &s).unwrap();
+        }
+    }
+    let d = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    let json = dir.join("r.json");
+    let run = |designs: &[&str], extra: &[&str]| {
+        let mut args = vec!["evaluate".to_string()];
+        args.extend(designs.iter().map(|n| d(n)));
+        for a in [
+            "--trials",
+            "2",
+            "--eval-spp",
+            "256",
+            "--patch",
+            "8",
+            "--photos",
+            "0",
+            "--json",
+        ] {
+            args.push(a.to_string());
+        }
+        args.push(json.to_str().unwrap().to_string());
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let refs: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+        let (code, _, err) = tolray(&refs);
+        let config = std::fs::read_to_string(&json)
+            .ok()
+            .map(|t| serde_json::from_str::<serde_json::Value>(&t).unwrap()["config"].clone());
+        let _ = std::fs::remove_file(&json);
+        (code, err, config)
+    };
+    let (code, err, config) = run(&["a", "b"], &[]);
+    assert_eq!(code, 0, "{err}");
+    let c = config.unwrap();
+    assert_eq!(c["noise_sigma"], 0.02);
+    assert_eq!(c["full_well_electrons"], 500.0);
+    assert!(!err.contains("warning"), "{err}");
+    let (code, err, config) = run(&["a", "old"], &["--noise", "0.01"]);
+    assert_eq!(code, 0, "{err}");
+    let c = config.unwrap();
+    assert_eq!(c["noise_sigma"], 0.01);
+    assert!(c.get("full_well_electrons").is_none(), "{c}");
+    assert!(
+        err.contains(
+            "warning: design a was trained with noise σ 0.02 and a 500-electron full well"
+        ),
+        "{err}"
+    );
+    let (code, err, config) = run(&["a", "c"], &[]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("designs a and c") && err.contains("--noise"),
+        "{err}"
+    );
+    assert!(config.is_none());
+    let (code, err, config) = run(&["old"], &[]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(config.unwrap()["noise_sigma"], 0.01);
+    std::fs::write(dir.join("old").join("sensor.json"), "{\"sigma\": -1}").unwrap();
+    let (code, err, _) = run(&["old"], &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("sensor.json"), "{err}");
+}

@@ -10,6 +10,7 @@ use super::{step, DeepConfig, DeepLog, DeepState, Design, Phase};
 use crate::decoder::Decoder;
 use crate::error::{Error, ErrorKind, Result};
 use crate::files::write_atomic;
+use crate::image::render::SensorNoise;
 use crate::lens::Lens;
 use crate::optim::train::{IterLog, TrainState};
 use serde::{Deserialize, Serialize};
@@ -304,6 +305,39 @@ pub fn save_design(d: &Design, dir: &Path) -> Result<()> {
     save_decoder(&d.decoder, &dir.join("decoder.bin"))
 }
 
+/// Writes `sensor.json` in a design's folder: the sensor noise it was trained under, which
+/// `tolray evaluate` takes as its default (so that a design is not scored under another sensor
+/// without a word).
+///
+/// # Errors
+/// I/O errors naming the path.
+pub fn save_sensor(dir: &Path, sensor: &SensorNoise) -> Result<()> {
+    let text = serde_json::to_string_pretty(sensor)
+        .map_err(|e| Error::numerical(format!("sensor settings: {e}")))?;
+    write_atomic(&dir.join(SENSOR_FILE), (text + "\n").as_bytes())
+}
+
+/// The sensor noise a design in `dir` was trained under ([`save_sensor`]), `None` for a folder
+/// without `sensor.json` (designs saved before it existed).
+///
+/// # Errors
+/// A `sensor.json` that does not parse or holds invalid settings, naming the file.
+pub fn load_sensor(dir: &Path) -> Result<Option<SensorNoise>> {
+    let path = dir.join(SENSOR_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let s: SensorNoise = serde_json::from_str(&text)
+        .map_err(|e| Error::new(ErrorKind::Parse, format!("{}: {e}", path.display())))?;
+    s.validate()
+        .map_err(|e| Error::invalid(format!("{}: {}", path.display(), e.message())))?;
+    Ok(Some(s))
+}
+
+/// The file of [`save_sensor`].
+pub const SENSOR_FILE: &str = "sensor.json";
+
 /// Loads a design saved by [`save_design`].
 ///
 /// # Errors
@@ -520,6 +554,7 @@ pub fn run_resumable(
     }
     ck.stage1 = Some(s1.to_saved());
     save_design(&s1.design, &out.join(STAGE1))?;
+    save_sensor(&out.join(STAGE1), &cfg.deep.sensor())?;
     if cfg.evaluate_stage1 {
         write_log(&out.join(STAGE1), &ck.stage1_logs)?;
     }
@@ -549,6 +584,7 @@ pub fn run_resumable(
         }
         let dir = out.join(name);
         save_design(&s.design, &dir)?;
+        save_sensor(&dir, &cfg.deep.sensor())?;
         write_log(&dir, &logs)?;
         ck.finished.push((name.to_string(), logs));
         if every > 0 {

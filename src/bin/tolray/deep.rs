@@ -352,12 +352,13 @@ pub struct EvaluateArgs {
     /// Design directories (each with lens.json and decoder.bin, as `deep` writes them).
     #[arg(required = true)]
     pub designs: Vec<PathBuf>,
-    /// Gaussian noise σ (linear [0, 1] units).
-    #[arg(long, default_value_t = 0.01)]
-    pub noise: f64,
+    /// Gaussian noise σ (linear [0, 1] units) [default: the designs' training sensor
+    /// (`sensor.json`), else 0.01].
+    #[arg(long)]
+    pub noise: Option<f64>,
     /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
-    /// to the Gaussian noise (which is then the read noise: electrons / full well). Off: the
-    /// paper's Gaussian noise alone.
+    /// to the Gaussian noise (which is then the read noise: electrons / full well) [default: the
+    /// designs' training sensor, else off].
     #[arg(long, value_name = "ELECTRONS")]
     pub full_well_electrons: Option<f64>,
     /// Run only slice K of N of the trials (e.g. 0/4); `merge-eval` combines the slices.
@@ -401,7 +402,7 @@ pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
         .map(|p| Ok((design_name(p), study::load_design(p)?)))
         .collect::<anyhow::Result<_>>()?;
     let d0 = &designs[0].1;
-    let sensor = sensor_noise(a.noise, a.full_well_electrons)?;
+    let sensor = evaluation_sensor(a)?;
     let (cfg, images) = a
         .eval
         .config(&d0.lens, sensor, d0.decoder.grid, d0.decoder.ks)?;
@@ -432,6 +433,54 @@ pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The sensor of `tolray evaluate`: the flags where given, else the sensor the designs were
+/// trained under (their `sensor.json`, which must agree), else the paper's σ = 0.01. A design
+/// trained under another sensor than the one evaluated is named on stderr.
+fn evaluation_sensor(a: &EvaluateArgs) -> anyhow::Result<SensorNoise> {
+    let trained: Vec<(String, Option<SensorNoise>)> = a
+        .designs
+        .iter()
+        .map(|p| Ok((design_name(p), study::load_sensor(p)?)))
+        .collect::<anyhow::Result<_>>()?;
+    let known: Vec<&(String, Option<SensorNoise>)> =
+        trained.iter().filter(|t| t.1.is_some()).collect();
+    let given = a.noise.is_some() || a.full_well_electrons.is_some();
+    let sensor = if given {
+        sensor_noise(a.noise.unwrap_or(0.01), a.full_well_electrons)?
+    } else {
+        match known.first().and_then(|t| t.1) {
+            None => SensorNoise::gaussian(0.01),
+            Some(s) => {
+                if let Some((n, _)) = known.iter().find(|t| t.1 != Some(s)) {
+                    usage!(
+                        "designs {} and {n} were trained under different sensors ({}): give --noise (and --full-well-electrons) to evaluate both under one",
+                        known[0].0,
+                        study::SENSOR_FILE
+                    );
+                }
+                s
+            }
+        }
+    };
+    for (n, s) in &known {
+        if *s != Some(sensor) {
+            eprintln!(
+                "warning: design {n} was trained with noise σ {}{}; evaluating with σ {}{}",
+                s.map_or(0.0, |s| s.sigma),
+                full_well(*s),
+                sensor.sigma,
+                full_well(Some(sensor))
+            );
+        }
+    }
+    Ok(sensor)
+}
+
+fn full_well(s: Option<SensorNoise>) -> String {
+    s.and_then(|s| s.full_well_electrons)
+        .map_or(String::new(), |f| format!(" and a {f}-electron full well"))
 }
 
 /// `tolray merge-eval`: combines evaluation shards into the single-run report.
