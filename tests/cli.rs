@@ -1104,6 +1104,46 @@ fn train_with_a_decoder_runs_the_image_stage_and_resumes_exactly() {
         std::fs::read(from.join("decoder-only/decoder.bin")).unwrap(),
         std::fs::read(whole.join("stage1/decoder.bin")).unwrap()
     );
+    // A design start keeps the sensor it was trained under (its sensor.json) for training and
+    // evaluation unless told otherwise.
+    let shot = dir.join("shot-start");
+    std::fs::create_dir_all(&shot).unwrap();
+    for f in ["lens.json", "decoder.bin"] {
+        std::fs::copy(whole.join("stage1").join(f), shot.join(f)).unwrap();
+    }
+    let sensor = "{\n  \"sigma\": 0.02,\n  \"full_well_electrons\": 500.0\n}\n";
+    std::fs::write(shot.join("sensor.json"), sensor).unwrap();
+    let from_shot = dir.join("from-shot");
+    let (code, _, err) = tolray(&[
+        "train",
+        shot.to_str().unwrap(),
+        "--decoder",
+        "wiener",
+        "--stage",
+        "tolerance",
+        "--stage2-trains",
+        "decoder",
+        "--iters",
+        "1",
+        "--samples",
+        "2",
+        "--crop",
+        "16",
+        "--eval-trials",
+        "1",
+        "--out",
+        from_shot.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(from_shot.join("decoder-only/sensor.json")).unwrap(),
+        sensor
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(from_shot.join("report.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["config"]["noise_sigma"], 0.02);
+    assert_eq!(report["config"]["full_well_electrons"], 500.0);
 
     let stage1 = whole.join("stage1");
     let stage1 = stage1.to_str().unwrap();

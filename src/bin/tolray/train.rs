@@ -111,11 +111,13 @@ pub struct ImageStageArgs {
     /// U-Net width (channels of its first level) [default: 8].
     #[arg(long, help_heading = "Image stage")]
     pub unet_width: Option<usize>,
-    /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01) [default: 0.01].
+    /// Gaussian noise σ (linear [0, 1] units; the paper: 0.01) [default: 0.01; from a design,
+    /// the sensor it was trained under (its sensor.json)].
     #[arg(long, help_heading = "Image stage")]
     pub noise: Option<f64>,
     /// Electrons of a full well (signal 1): adds photon shot noise, variance signal / full well,
-    /// to the Gaussian noise (then the read noise: electrons / full well) [default: off].
+    /// to the Gaussian noise (then the read noise: electrons / full well) [default: off; from a
+    /// design, its sensor.json].
     #[arg(long, value_name = "ELECTRONS", help_heading = "Image stage")]
     pub full_well_electrons: Option<f64>,
     /// Train on random flipped blocks of the PNG/JPEG images of this folder instead of the
@@ -327,7 +329,17 @@ fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
         .unet_width
         .or(design.as_ref().map(|d| d.decoder.unet_width))
         .unwrap_or(8);
-    let sensor = crate::deep::sensor_noise(im.noise.unwrap_or(0.01), im.full_well_electrons)?;
+    // A design start keeps the sensor it was trained under (its sensor.json) unless told
+    // otherwise, as `tolray evaluate` does.
+    let trained = if from_design {
+        study::load_sensor(Path::new(name))?
+    } else {
+        None
+    };
+    let sensor = match trained {
+        Some(s) if im.noise.is_none() && im.full_well_electrons.is_none() => s,
+        _ => crate::deep::sensor_noise(im.noise.unwrap_or(0.01), im.full_well_electrons)?,
+    };
     d.noise_sigma = sensor.sigma;
     d.full_well_electrons = sensor.full_well_electrons;
     d.lambda_spot = a.lambda_spot.unwrap_or(0.1);
