@@ -508,26 +508,16 @@ impl SensorNoise {
     /// `b += s(b) z`. With Gaussian noise alone this is `b += sigma · z` in f32, as
     /// [`add_gaussian_noise`] computes it.
     pub fn apply(&self, b: &mut [f32], z: &[f32]) {
-        match self.full_well_electrons {
-            None => {
-                let s = self.sigma as f32;
-                for (v, z) in b.iter_mut().zip(z) {
-                    *v += s * z;
-                }
-            }
-            Some(_) => {
-                for (v, z) in b.iter_mut().zip(z) {
-                    *v += self.std(*v as f64) as f32 * z;
-                }
-            }
+        for (v, z) in b.iter_mut().zip(z) {
+            *v += self.std(*v as f64) as f32 * z;
         }
     }
 
     /// The derivative of the noisy capture with respect to the noise-free one, pixel by pixel,
     /// for the samples `z`: `1 + z s'(b)`, `s'(b) = 1 / (2 full_well s(b))` for `b > 0` and 0
-    /// below (the variance stops at zero signal); `None` when it is 1 everywhere (no shot noise).
-    /// At `b > 0` with no Gaussian noise `s'` is finite because `b > 0`; at exactly `b = 0` and
-    /// `sigma = 0` the one-sided derivative from above is infinite and 0 is used.
+    /// below (the variance stops at zero signal; at exactly `b = 0` with `sigma = 0` the
+    /// derivative from above is infinite, and 0 is used); `None` when it is 1 everywhere (no shot
+    /// noise).
     pub fn slope(&self, b: &[f32], z: &[f32]) -> Option<Vec<f32>> {
         let f = self.full_well_electrons?;
         Some(

@@ -439,47 +439,47 @@ pub fn evaluate_cmd(a: &EvaluateArgs) -> anyhow::Result<()> {
 /// trained under (their `sensor.json`, which must agree), else the paper's σ = 0.01. A design
 /// trained under another sensor than the one evaluated is named on stderr.
 fn evaluation_sensor(a: &EvaluateArgs) -> anyhow::Result<SensorNoise> {
-    let trained: Vec<(String, Option<SensorNoise>)> = a
+    // The designs that record their training sensor, with it.
+    let known: Vec<(String, SensorNoise)> = a
         .designs
         .iter()
-        .map(|p| Ok((design_name(p), study::load_sensor(p)?)))
-        .collect::<anyhow::Result<_>>()?;
-    let known: Vec<&(String, Option<SensorNoise>)> =
-        trained.iter().filter(|t| t.1.is_some()).collect();
-    let given = a.noise.is_some() || a.full_well_electrons.is_some();
-    let sensor = if given {
+        .map(|p| Ok(study::load_sensor(p)?.map(|s| (design_name(p), s))))
+        .collect::<anyhow::Result<Vec<_>>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    let sensor = if a.noise.is_some() || a.full_well_electrons.is_some() {
         sensor_noise(a.noise.unwrap_or(0.01), a.full_well_electrons)?
     } else {
-        match known.first().and_then(|t| t.1) {
+        match known.first() {
             None => SensorNoise::gaussian(0.01),
-            Some(s) => {
-                if let Some((n, _)) = known.iter().find(|t| t.1 != Some(s)) {
+            Some((first, s)) => {
+                if let Some((n, _)) = known.iter().find(|t| t.1 != *s) {
                     usage!(
-                        "designs {} and {n} were trained under different sensors ({}): give --noise (and --full-well-electrons) to evaluate both under one",
-                        known[0].0,
+                        "designs {first} and {n} were trained under different sensors ({}): give --noise (and --full-well-electrons) to evaluate both under one",
                         study::SENSOR_FILE
                     );
                 }
-                s
+                *s
             }
         }
     };
     for (n, s) in &known {
-        if *s != Some(sensor) {
+        if *s != sensor {
             eprintln!(
                 "warning: design {n} was trained with noise σ {}{}; evaluating with σ {}{}",
-                s.map_or(0.0, |s| s.sigma),
-                full_well(*s),
+                s.sigma,
+                full_well(s),
                 sensor.sigma,
-                full_well(Some(sensor))
+                full_well(&sensor)
             );
         }
     }
     Ok(sensor)
 }
 
-fn full_well(s: Option<SensorNoise>) -> String {
-    s.and_then(|s| s.full_well_electrons)
+fn full_well(s: &SensorNoise) -> String {
+    s.full_well_electrons
         .map_or(String::new(), |f| format!(" and a {f}-electron full well"))
 }
 
