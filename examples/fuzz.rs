@@ -724,19 +724,31 @@ fn lens_work(l: &Lens, round_trips: bool) -> Verdict {
     for &wl in &wavelengths {
         let Ok(p) = l.paraxial(wl) else { continue };
         any_paraxial = true;
+        // (None: an afocal lens' focal numbers, an image at infinity.)
+        let (efl, bfd, image, fnum, working_fnum, half_fov, angular) = (
+            p.efl_mm.unwrap_or(0.0),
+            p.bfd_mm.unwrap_or(0.0),
+            p.image_distance_mm.unwrap_or(0.0),
+            p.fnum.unwrap_or(0.0),
+            p.working_fnum.unwrap_or(0.0),
+            p.half_fov_deg.unwrap_or(0.0),
+            p.angular_magnification.unwrap_or(0.0),
+        );
         finite!(
             "paraxial",
-            p.efl_mm,
-            p.bfd_mm,
-            p.image_distance_mm,
+            efl,
+            bfd,
+            image,
+            p.power_per_mm,
             p.entrance_pupil_z_mm,
             p.entrance_pupil_diameter_mm,
             p.exit_pupil_z_mm,
             p.exit_pupil_diameter_mm,
-            p.fnum,
-            p.working_fnum,
+            fnum,
+            working_fnum,
             p.magnification,
-            p.half_fov_deg,
+            half_fov,
+            angular,
             p.total_track_mm
         );
     }

@@ -196,7 +196,7 @@
 /**
  * Version of the C ABI: raised whenever a declaration in `tolray.h` changes incompatibly.
  */
-#define TOLRAY_ABI_VERSION 1
+#define TOLRAY_ABI_VERSION 2
 
 /**
  * `x`, `y` are fractions of the full field: the tangent of the field angle is the fraction
@@ -399,7 +399,7 @@ enum tolray_status
      */
     TOLRAY_ERROR_INVALID_INPUT = 5,
     /**
-     * The computation failed (no ray reached the image, an afocal system).
+     * The computation failed (no ray reached the image, an entrance pupil at infinity).
      */
     TOLRAY_ERROR_NUMERICAL = 6,
     /**
@@ -465,7 +465,10 @@ typedef struct tolray_param {
 
 /**
  * First-order properties of a lens at one wavelength; lengths in mm, axial positions are
- * global z (first vertex at 0, light toward +z).
+ * global z (first vertex at 0, light toward +z). An afocal lens (`afocal` = 1) has no focal
+ * length: its `efl_mm`, `bfd_mm`, `fnum` and `half_fov_deg` are 0 and `angular_magnification`
+ * is set; `image_distance_mm` and `working_fnum` are 0 when the image is at infinity
+ * (`image_at_infinity` = 1).
  */
 typedef struct tolray_paraxial {
     /**
@@ -473,15 +476,16 @@ typedef struct tolray_paraxial {
      */
     double wavelength_nm;
     /**
-     * Effective focal length, mm.
+     * Effective focal length, mm (0 when `afocal`).
      */
     double efl_mm;
     /**
-     * Back focal distance (last vertex to the infinity focus), mm.
+     * Back focal distance (last vertex to the infinity focus), mm (0 when `afocal`).
      */
     double bfd_mm;
     /**
-     * Last vertex to the paraxial image of the stated object, mm.
+     * Last vertex to the paraxial image of the stated object, mm (0 when
+     * `image_at_infinity`).
      */
     double image_distance_mm;
     /**
@@ -501,11 +505,12 @@ typedef struct tolray_paraxial {
      */
     double exit_pupil_diameter_mm;
     /**
-     * F-number for an object at infinity, EFL / EPD.
+     * F-number for an object at infinity, EFL / EPD (0 when `afocal`).
      */
     double fnum;
     /**
-     * Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray.
+     * Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray (0
+     * when `image_at_infinity`).
      */
     double working_fnum;
     /**
@@ -513,9 +518,18 @@ typedef struct tolray_paraxial {
      */
     double magnification;
     /**
-     * Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees.
+     * Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees (0
+     * when `afocal`).
      */
     double half_fov_deg;
+    /**
+     * Optical power 1 / EFL, 1/mm (0 for an afocal lens).
+     */
+    double power_per_mm;
+    /**
+     * Angular magnification u' / u of an afocal lens (0 for a lens with a focal length).
+     */
+    double angular_magnification;
     /**
      * Total track: first vertex to the image plane, mm.
      */
@@ -529,6 +543,14 @@ typedef struct tolray_paraxial {
      * Number of surfaces of the lens (the image plane not counted).
      */
     uint32_t num_surfaces;
+    /**
+     * 1 for an afocal lens (no focal length), else 0.
+     */
+    uint32_t afocal;
+    /**
+     * 1 when the paraxial image of the stated object is at infinity, else 0.
+     */
+    uint32_t image_at_infinity;
 } tolray_paraxial;
 
 /**
@@ -833,7 +855,8 @@ tolray_status tolray_lens_param_get(const struct tolray_lens *lens,
 /**
  * Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
  * `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 0.9 and 5;
- * `TOLRAY_ERROR_NUMERICAL` for an afocal lens or one without a finite first-order image.
+ * `TOLRAY_ERROR_NUMERICAL` for a lens whose entrance pupil is at infinity or whose first-order
+ * numbers are not finite. An afocal lens is an answer (`afocal` = 1), not an error.
  *
  * # Safety
  * `lens` is a live handle; `out` points to a writable `tolray_paraxial`.

@@ -97,6 +97,8 @@ enum Kind {
         cols: usize,
         half_um: f64,
         panels: Vec<SpotPanel>,
+        /// "µm", or "µrad" for an afocal image space spot.
+        unit: &'static str,
     },
     Layout {
         x: Range<f64>,
@@ -215,7 +217,8 @@ impl Figure {
                 cols,
                 half_um,
                 panels,
-            } => draw_spots(&body, s, *cols, *half_um, panels),
+                unit,
+            } => draw_spots(&body, s, *cols, *half_um, panels, unit),
             Kind::Layout {
                 x,
                 y,
@@ -581,6 +584,12 @@ fn mark<'a, 'b, DB: DrawingBackend + 'a, Y: Ranged<ValueType = f64>>(
 /// the field's RMS radius in its caption and the wavelengths in a legend.
 #[must_use]
 pub fn spot_figure(results: &[SpotResult], title: &str) -> Figure {
+    // Afocal image space spots are angles: mrad positions, µrad sizes.
+    let unit = if results.iter().any(|r| r.angular) {
+        "µrad"
+    } else {
+        "µm"
+    };
     let mut fields: Vec<Field> = Vec::new();
     for r in results {
         if !fields.contains(&r.field) {
@@ -623,7 +632,7 @@ pub fn spot_figure(results: &[SpotResult], title: &str) -> Figure {
             ));
         }
         panels.push(SpotPanel {
-            label: format!("field {} · RMS {:.2} µm", f.label(), rms),
+            label: format!("field {} · RMS {:.2} {unit}", f.label(), rms),
             series,
         });
     }
@@ -637,6 +646,7 @@ pub fn spot_figure(results: &[SpotResult], title: &str) -> Figure {
             cols,
             half_um: half * 1.08,
             panels,
+            unit,
         },
     }
 }
@@ -695,6 +705,7 @@ fn draw_spots<DB: DrawingBackend>(
     cols: usize,
     half: f64,
     panels: &[SpotPanel],
+    unit: &str,
 ) -> DrawResult<DB> {
     let rows = panels.len().div_ceil(cols).max(1);
     let cells = body
@@ -709,7 +720,7 @@ fn draw_spots<DB: DrawingBackend>(
             .x_label_area_size(labels.0)
             .y_label_area_size(labels.1)
             .build_cartesian_2d(xr, yr)?;
-        house_mesh!(chart, s, "x (µm)", "y (µm)").draw()?;
+        house_mesh!(chart, s, format!("x ({unit})"), format!("y ({unit})")).draw()?;
         let r = (1.1 * s).max(1.0);
         for (name, c, pts) in &panel.series {
             let colour = rgb(*c);
@@ -926,7 +937,13 @@ pub fn layout_figure(
             } else {
                 format!("{name} · ")
             };
-            format!("{first}EFL {:.2} mm · F/{:.2}", para.efl_mm, para.fnum)
+            match (para.efl_mm, para.fnum, para.angular_magnification) {
+                (Some(f), Some(n), _) => format!("{first}EFL {f:.2} mm · F/{n:.2}"),
+                (_, _, m) => format!(
+                    "{first}afocal · angular magnification {:.3}×",
+                    m.unwrap_or(0.0)
+                ),
+            }
         },
         kind: Kind::Layout {
             x: zmin..zmax,
@@ -939,8 +956,16 @@ pub fn layout_figure(
     })
 }
 
-fn short(s: &str) -> &str {
-    s.split(':').next().unwrap_or(s).trim()
+/// A lens name for a title: up to its first colon, and at most 72 characters (a longer name,
+/// as a .zmx NAME line can be, is cut at a word with an ellipsis so the title fits the page).
+fn short(s: &str) -> String {
+    let s = s.split(':').next().unwrap_or(s).trim();
+    if s.chars().count() <= 72 {
+        return s.to_string();
+    }
+    let head: String = s.chars().take(72).collect();
+    let cut = head.rfind(' ').filter(|&i| i > 40).unwrap_or(head.len());
+    format!("{}…", head[..cut].trim_end_matches([',', ';', ' ']))
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -36,7 +36,7 @@
 //! # fn main() -> tolray::Result<()> {
 //! let lens = Lens::load("cooke-triplet")?; // a built-in lens, a .json or a .zmx file
 //! let p = lens.paraxial(587.5618)?;
-//! assert!(p.efl_mm.is_finite());
+//! assert!(p.efl_mm.is_some_and(f64::is_finite)); // None for an afocal lens
 //! let opts = SpotOptions {
 //!     fields: vec![Field::fraction(0.0), Field::fraction(1.0)],
 //!     wavelengths_nm: vec![587.5618],

@@ -83,7 +83,7 @@ fn lib_dir() -> PathBuf {
     );
 }
 
-/// A directory holding `libtolray.so.1` (the SONAME a program linked against the build's
+/// A directory holding `libtolray.so.2` (the SONAME a program linked against the build's
 /// library records, as an installed library is named) and `libtolray.so`, both links to the
 /// build's library.
 fn soname_dir() -> PathBuf {
@@ -349,7 +349,7 @@ fn check_c_program(link: Link) {
     let got = run(&build("capi_test.c", link, ""));
     let lens = rust_side::triplet();
     let para = lens.paraxial(rust_side::D).unwrap();
-    assert_close("efl_mm", &got["efl_mm"], &[para.efl_mm]);
+    assert_close("efl_mm", &got["efl_mm"], &[para.efl_mm.unwrap()]);
     assert_close(
         "num_surfaces",
         &got["num_surfaces"],
@@ -974,4 +974,40 @@ fn last_error() -> String {
     unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }
         .to_string_lossy()
         .into_owned()
+}
+
+/// An afocal lens is an answer of `tolray_lens_paraxial`, not an error: `afocal` = 1, the
+/// angular magnification set (a 2x Keplerian reducer of two ideal thin lenses: -2), the focal
+/// numbers 0 as documented, and the image of an object at infinity at infinity.
+#[test]
+fn an_afocal_lens_has_paraxial_data_through_the_c_abi() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    let text = std::ffi::CString::new(
+        r#"{"surfaces": [
+            {"type": "ThinLens", "f": 100, "r": 10, "mat2": "air", "d_next": 150, "is_aperture": true},
+            {"type": "ThinLens", "f": 50, "r": 10, "mat2": "air", "d_next": 30}], "r_sensor": 5}"#,
+    )
+    .unwrap();
+    let mut lens = null_mut();
+    let mut p = tolray_paraxial::default();
+    // SAFETY: valid pointers; the handle is freed below.
+    unsafe {
+        assert_eq!(
+            tolray_lens_from_json(text.as_ptr(), &mut lens),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_lens_paraxial(lens, 587.5618, &mut p),
+            tolray_status::TOLRAY_OK
+        );
+        tolray_lens_free(lens);
+    }
+    assert_eq!((p.afocal, p.image_at_infinity), (1, 1));
+    assert!((p.angular_magnification + 2.0).abs() < 1e-12, "{p:?}");
+    assert_eq!(
+        (p.efl_mm, p.bfd_mm, p.fnum, p.power_per_mm),
+        (0.0, 0.0, 0.0, 0.0)
+    );
+    assert!((p.entrance_pupil_diameter_mm - 20.0).abs() < 1e-12, "{p:?}");
 }

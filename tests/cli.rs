@@ -57,6 +57,35 @@ fn info_prints_the_reference_first_order_data() {
         err.contains("a virtual object needs a distance in mm"),
         "{err}"
     );
+    // An afocal lens (optiland's all-flat fold mirror): no focal length, said so, in the text
+    // and as JSON nulls; its spot at its file's field; a fraction field exits 1 saying why.
+    let file = format!("{data}real/optiland/simple_fold_mirror_up.zmx");
+    let (code, out, _) = tolray(&["info", &file]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("effective focal length                                 afocal")
+            && out.contains("angular magnification (afocal)                       1.000000"),
+        "{out}"
+    );
+    let (code, out, _) = tolray(&["info", &file, "--json"]);
+    assert_eq!(code, 0);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(v["paraxial"]["efl_mm"].is_null(), "{out}");
+    assert_eq!(v["paraxial"]["angular_magnification"].as_f64(), Some(1.0));
+    let (code, out, err) = tolray(&["spot", &file]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("7083.1013"), "optiland's RMS\n{out}");
+    let (code, _, err) = tolray(&["spot", &file, "--fields", "0.7"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the lens is afocal"), "{err}");
+    // Afocal image space: angular spots (optiland's 207.712 µrad for this Keplerian).
+    let file = format!("{data}keplerian.zmx");
+    let (code, out, err) = tolray(&["spot", &file, "--afocal"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("RMS (µrad)") && out.contains("cy (mrad)") && out.contains("207.7121"),
+        "{out}"
+    );
 }
 
 #[test]

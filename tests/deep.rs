@@ -18,7 +18,7 @@ fn focused_lens1() -> Lens {
     let mut l = Lens::load("lens1").unwrap();
     let p = l.paraxial(l.primary_wavelength_nm).unwrap();
     let last = l.surfaces.len() - 1;
-    l.surfaces[last].d_next_mm = p.image_distance_mm;
+    l.surfaces[last].d_next_mm = p.image_distance_mm.unwrap();
     l
 }
 

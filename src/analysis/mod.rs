@@ -4,6 +4,6 @@
 pub mod spot;
 
 pub use spot::{
-    spot_diagram, spot_diagram_rows, spot_stats, SpotFailure, SpotMoments, SpotOptions, SpotResult,
-    SpotStats,
+    afocal_spot_diagram_rows, spot_diagram, spot_diagram_rows, spot_stats, SpotFailure,
+    SpotMoments, SpotOptions, SpotResult, SpotStats,
 };

@@ -213,6 +213,10 @@ pub struct SpotResult {
     /// Ray positions on the sensor, mm.
     #[serde(skip)]
     pub points: Vec<[f64; 2]>,
+    /// True for an afocal image space spot ([`afocal_spot_diagram_rows`]): the "positions"
+    /// are the rays' angles in mrad and the "µm" sizes are µrad.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub angular: bool,
 }
 
 /// A row of a spot analysis that has no result: no ray of that field and wavelength reached the
@@ -277,6 +281,56 @@ pub fn spot_diagram_rows(
     sys: &System<f64>,
     opts: &SpotOptions,
 ) -> Result<(Vec<SpotResult>, Vec<SpotFailure>)> {
+    rows(lens, sys, opts, false)
+}
+
+/// As [`spot_diagram_rows`] in OpticStudio's afocal image space: each ray's "position" is its
+/// direction after the last surface as two angles in the image plane's frame, (atan(dx/|dz|),
+/// atan(dy/|dz|)) in mrad, so a spot's sizes (the `_um` fields of [`SpotStats`]) are angular
+/// spreads in µrad, about the centroid and about the chief ray's direction (OpticStudio's
+/// reference in afocal mode). For an afocal lens, whose beams leave collimated, this is the
+/// measure of its aberration that the image plane's position does not change; results carry
+/// [`SpotResult::angular`].
+///
+/// # Errors
+/// As [`spot_diagram_rows`].
+///
+/// # Examples
+/// ```
+/// use tolray::analysis::{afocal_spot_diagram_rows, SpotOptions};
+/// use tolray::trace::{Field, Pupil, TraceOptions};
+/// // A 2x Keplerian reducer of ideal thin lenses: every beam leaves collimated.
+/// let lens = tolray::lens::json::from_str(r#"{"surfaces": [
+///     {"type": "ThinLens", "f": 100, "r": 10, "mat2": "air", "d_next": 150, "is_aperture": true},
+///     {"type": "ThinLens", "f": 50, "r": 30, "mat2": "air", "d_next": 30}], "r_sensor": 5}"#)?;
+/// let opts = SpotOptions {
+///     fields: vec![Field::angle(2.0)],
+///     wavelengths_nm: vec![587.5618],
+///     pupil: Pupil::grid(16),
+///     trace: TraceOptions { apertures: true },
+/// };
+/// let (rows, _) = afocal_spot_diagram_rows(&lens, &lens.compile(), &opts)?;
+/// assert!(rows[0].angular && rows[0].stats.rms_um < 1e-6); // µrad
+/// // The beam leaves at atan(2 tan 2°), rising (tolray's object above the axis: rays descend).
+/// let want = (2.0 * 2f64.to_radians().tan()).atan() * 1e3;
+/// assert!((rows[0].stats.centroid_mm[1] - want).abs() < 1e-9); // mrad
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn afocal_spot_diagram_rows(
+    lens: &Lens,
+    sys: &System<f64>,
+    opts: &SpotOptions,
+) -> Result<(Vec<SpotResult>, Vec<SpotFailure>)> {
+    rows(lens, sys, opts, true)
+}
+
+/// [`spot_diagram_rows`] or, with `angular`, [`afocal_spot_diagram_rows`].
+fn rows(
+    lens: &Lens,
+    sys: &System<f64>,
+    opts: &SpotOptions,
+    angular: bool,
+) -> Result<(Vec<SpotResult>, Vec<SpotFailure>)> {
     if opts.wavelengths_nm.is_empty() || opts.fields.is_empty() {
         return Err(Error::argument(
             "spot analysis needs at least one field and one wavelength",
@@ -310,18 +364,23 @@ pub fn spot_diagram_rows(
             let (co, cd) = set.chief;
             batch.push(co, cd);
             trace::trace(sys, wl, &mut batch, opts.trace);
-            let to_sensor = |o| {
-                let p = sys.image.point_to_local(o);
-                [p.x, p.y]
+            let to_sensor = |r: crate::trace::Ray<f64>| {
+                if angular {
+                    let d = sys.image.rotation.apply_t(r.d);
+                    [d.x.atan2(d.z.abs()) * 1e3, d.y.atan2(d.z.abs()) * 1e3]
+                } else {
+                    let p = sys.image.point_to_local(r.o);
+                    [p.x, p.y]
+                }
             };
             let n = set.origins.len();
             let points: Vec<[f64; 2]> = (0..n)
                 .map(|i| batch.get(i))
                 .filter(|r| r.status.is_alive())
-                .map(|r| to_sensor(r.o))
+                .map(to_sensor)
                 .collect();
             let chief_ray = batch.get(n);
-            let chief = chief_ray.status.is_alive().then(|| to_sensor(chief_ray.o));
+            let chief = chief_ray.status.is_alive().then(|| to_sensor(chief_ray));
             if w == 0 {
                 chief0 = chief;
             }
@@ -341,6 +400,7 @@ pub fn spot_diagram_rows(
                 stats,
                 chief_mm: chief,
                 points,
+                angular,
             });
         }
         if opts.wavelengths_nm.len() > 1 {
@@ -362,6 +422,7 @@ pub fn spot_diagram_rows(
                 stats,
                 chief_mm: chief0,
                 points: all,
+                angular,
             });
         }
     }

@@ -86,17 +86,21 @@ impl tolray_param {
 }
 
 /// First-order properties of a lens at one wavelength; lengths in mm, axial positions are
-/// global z (first vertex at 0, light toward +z).
+/// global z (first vertex at 0, light toward +z). An afocal lens (`afocal` = 1) has no focal
+/// length: its `efl_mm`, `bfd_mm`, `fnum` and `half_fov_deg` are 0 and `angular_magnification`
+/// is set; `image_distance_mm` and `working_fnum` are 0 when the image is at infinity
+/// (`image_at_infinity` = 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct tolray_paraxial {
     /// Wavelength of the analysis, nm.
     pub wavelength_nm: f64,
-    /// Effective focal length, mm.
+    /// Effective focal length, mm (0 when `afocal`).
     pub efl_mm: f64,
-    /// Back focal distance (last vertex to the infinity focus), mm.
+    /// Back focal distance (last vertex to the infinity focus), mm (0 when `afocal`).
     pub bfd_mm: f64,
-    /// Last vertex to the paraxial image of the stated object, mm.
+    /// Last vertex to the paraxial image of the stated object, mm (0 when
+    /// `image_at_infinity`).
     pub image_distance_mm: f64,
     /// Axial position of the entrance pupil, mm.
     pub entrance_pupil_z_mm: f64,
@@ -106,14 +110,20 @@ pub struct tolray_paraxial {
     pub exit_pupil_z_mm: f64,
     /// Exit pupil diameter, mm.
     pub exit_pupil_diameter_mm: f64,
-    /// F-number for an object at infinity, EFL / EPD.
+    /// F-number for an object at infinity, EFL / EPD (0 when `afocal`).
     pub fnum: f64,
-    /// Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray.
+    /// Working F-number for the stated object, 1 / (2 |u'|) of the paraxial marginal ray (0
+    /// when `image_at_infinity`).
     pub working_fnum: f64,
     /// Lateral magnification for the stated object (0 at infinity).
     pub magnification: f64,
-    /// Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees.
+    /// Half field of view from the sensor's half-diagonal, atan(r_sensor / EFL), degrees (0
+    /// when `afocal`).
     pub half_fov_deg: f64,
+    /// Optical power 1 / EFL, 1/mm (0 for an afocal lens).
+    pub power_per_mm: f64,
+    /// Angular magnification u' / u of an afocal lens (0 for a lens with a focal length).
+    pub angular_magnification: f64,
     /// Total track: first vertex to the image plane, mm.
     pub total_track_mm: f64,
     /// Index of the aperture-stop surface: the marked one, else the surface that limits the axial
@@ -121,6 +131,10 @@ pub struct tolray_paraxial {
     pub stop_surface: u32,
     /// Number of surfaces of the lens (the image plane not counted).
     pub num_surfaces: u32,
+    /// 1 for an afocal lens (no focal length), else 0.
+    pub afocal: u32,
+    /// 1 when the paraxial image of the stated object is at infinity, else 0.
+    pub image_at_infinity: u32,
 }
 
 /// Boxes `value` and writes the new handle to `*out`.
@@ -230,7 +244,8 @@ pub unsafe extern "C" fn tolray_lens_free(lens: *mut tolray_lens) {
 
 /// Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
 /// `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 0.9 and 5;
-/// `TOLRAY_ERROR_NUMERICAL` for an afocal lens or one without a finite first-order image.
+/// `TOLRAY_ERROR_NUMERICAL` for a lens whose entrance pupil is at infinity or whose first-order
+/// numbers are not finite. An afocal lens is an answer (`afocal` = 1), not an error.
 ///
 /// # Safety
 /// `lens` is a live handle; `out` points to a writable `tolray_paraxial`.
@@ -250,20 +265,24 @@ pub unsafe extern "C" fn tolray_lens_paraxial(
         let p = lens.lens.paraxial(wavelength_nm)?;
         let value = tolray_paraxial {
             wavelength_nm: p.wavelength_nm,
-            efl_mm: p.efl_mm,
-            bfd_mm: p.bfd_mm,
-            image_distance_mm: p.image_distance_mm,
+            efl_mm: p.efl_mm.unwrap_or(0.0),
+            bfd_mm: p.bfd_mm.unwrap_or(0.0),
+            image_distance_mm: p.image_distance_mm.unwrap_or(0.0),
             entrance_pupil_z_mm: p.entrance_pupil_z_mm,
             entrance_pupil_diameter_mm: p.entrance_pupil_diameter_mm,
             exit_pupil_z_mm: p.exit_pupil_z_mm,
             exit_pupil_diameter_mm: p.exit_pupil_diameter_mm,
-            fnum: p.fnum,
-            working_fnum: p.working_fnum,
+            fnum: p.fnum.unwrap_or(0.0),
+            working_fnum: p.working_fnum.unwrap_or(0.0),
             magnification: p.magnification,
-            half_fov_deg: p.half_fov_deg,
+            half_fov_deg: p.half_fov_deg.unwrap_or(0.0),
+            power_per_mm: p.power_per_mm,
+            angular_magnification: p.angular_magnification.unwrap_or(0.0),
             total_track_mm: p.total_track_mm,
             stop_surface: p.stop_surface as u32,
             num_surfaces: lens.lens.surfaces.len() as u32,
+            afocal: u32::from(p.is_afocal()),
+            image_at_infinity: u32::from(p.image_distance_mm.is_none()),
         };
         // SAFETY: checked non-NULL; the caller promises it is writable.
         unsafe { *out = value };

@@ -40,7 +40,7 @@ pub const TOLRAY_VERSION_MINOR: u32 = 1;
 /// Patch version of the library.
 pub const TOLRAY_VERSION_PATCH: u32 = 0;
 /// Version of the C ABI: raised whenever a declaration in `tolray.h` changes incompatibly.
-pub const TOLRAY_ABI_VERSION: u32 = 1;
+pub const TOLRAY_ABI_VERSION: u32 = 2;
 
 /// Outcome of a C ABI call. The numeric values are fixed and will never be reused.
 #[repr(u32)]
@@ -58,7 +58,7 @@ pub enum tolray_status {
     TOLRAY_ERROR_PARSE = 4,
     /// Input is well-formed but invalid (an impossible lens, an unknown glass or built-in name).
     TOLRAY_ERROR_INVALID_INPUT = 5,
-    /// The computation failed (no ray reached the image, an afocal system).
+    /// The computation failed (no ray reached the image, an entrance pupil at infinity).
     TOLRAY_ERROR_NUMERICAL = 6,
     /// An argument is out of its domain (an unknown enum value, a surface that does not exist).
     TOLRAY_ERROR_ARGUMENT = 7,

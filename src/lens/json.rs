@@ -789,8 +789,11 @@ pub fn to_value(lens: &Lens) -> Value {
     let mut top = Map::new();
     top.insert("info".into(), json!(lens.info));
     if let Ok(p) = lens.paraxial(lens.primary_wavelength_nm) {
-        top.insert("foclen".into(), json!(p.efl_mm));
-        top.insert("fnum".into(), json!(p.fnum));
+        // An afocal lens has neither (DeepLens' keys are informative; tolray ignores them).
+        if let (Some(f), Some(n)) = (p.efl_mm, p.fnum) {
+            top.insert("foclen".into(), json!(f));
+            top.insert("fnum".into(), json!(n));
+        }
     }
     // µm values that read back to the same nm (exact round trips).
     let um = super::material::um_from_nm;

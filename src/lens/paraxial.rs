@@ -12,28 +12,39 @@ use serde::Serialize;
 pub struct Paraxial {
     /// Wavelength of the analysis, nm.
     pub wavelength_nm: f64,
-    /// Effective focal length, mm.
-    pub efl_mm: f64,
-    /// Back focal distance: last vertex to the paraxial infinity focus, mm.
-    pub bfd_mm: f64,
-    /// Last vertex to the paraxial image of the stated object, mm (= BFD for an object at infinity).
-    pub image_distance_mm: f64,
+    /// Optical power Φ = 1 / EFL, 1/mm: 0 for an afocal lens.
+    pub power_per_mm: f64,
+    /// Effective focal length, mm; `None` for an afocal lens (no focal length).
+    pub efl_mm: Option<f64>,
+    /// Back focal distance: last vertex to the paraxial infinity focus, mm; `None` for an
+    /// afocal lens.
+    pub bfd_mm: Option<f64>,
+    /// Last vertex to the paraxial image of the stated object, mm (= BFD for an object at
+    /// infinity); `None` when that image is at infinity (an afocal lens and an object at
+    /// infinity, or a finite object in the front focal plane).
+    pub image_distance_mm: Option<f64>,
     /// Axial position of the entrance pupil, mm.
     pub entrance_pupil_z_mm: f64,
     /// Entrance pupil diameter, mm.
     pub entrance_pupil_diameter_mm: f64,
-    /// Axial position of the exit pupil, mm.
+    /// Axial position of the exit pupil, mm (infinite for a lens telecentric in image space).
     pub exit_pupil_z_mm: f64,
-    /// Exit pupil diameter, mm.
+    /// Exit pupil diameter, mm (infinite for a lens telecentric in image space).
     pub exit_pupil_diameter_mm: f64,
-    /// Image-space F-number for an object at infinity, EFL / EPD.
-    pub fnum: f64,
-    /// Working (paraxial) F-number for the stated object, 1 / (2 |u'|).
-    pub working_fnum: f64,
+    /// Image-space F-number for an object at infinity, EFL / EPD; `None` for an afocal lens.
+    pub fnum: Option<f64>,
+    /// Working (paraxial) F-number for the stated object, 1 / (2 |u'|); `None` when the image
+    /// is at infinity.
+    pub working_fnum: Option<f64>,
     /// Paraxial lateral magnification for the stated object (0 at infinity).
     pub magnification: f64,
-    /// Half field of view from the sensor's half-diagonal, degrees: atan(r_sensor / EFL).
-    pub half_fov_deg: f64,
+    /// Angular magnification of an afocal lens, the ratio u' / u of a paraxial ray's slopes
+    /// leaving and entering it (negative for an image turned over, as a Keplerian telescope's);
+    /// `None` for a lens with a focal length.
+    pub angular_magnification: Option<f64>,
+    /// Half field of view from the sensor's half-diagonal, degrees: atan(r_sensor / EFL);
+    /// `None` for an afocal lens.
+    pub half_fov_deg: Option<f64>,
     /// Index of the aperture-stop surface (the marked stop, or the limiting aperture).
     pub stop_surface: usize,
     /// First vertex to the image plane, mm.
@@ -45,6 +56,33 @@ pub struct Paraxial {
     /// Divides an image-height field ([`crate::trace::Field::ImageHeightMm`]) into an angle or
     /// an object height.
     pub chief_image_height_mm: f64,
+}
+
+impl Paraxial {
+    /// True for an afocal lens (no optical power: a parallel beam leaves parallel).
+    ///
+    /// ```
+    /// let p = tolray::Lens::load("lens1").unwrap().paraxial(587.5618).unwrap();
+    /// assert!(!p.is_afocal() && p.efl_mm.is_some());
+    /// ```
+    pub fn is_afocal(&self) -> bool {
+        self.angular_magnification.is_some()
+    }
+
+    /// The effective focal length, or an error saying the lens is afocal (for what needs one:
+    /// `what`, e.g. "a field given as a fraction of the sensor").
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Numerical`] for an afocal lens.
+    pub fn focal_length_for(&self, what: &str) -> Result<f64> {
+        self.efl_mm.ok_or_else(|| {
+            Error::numerical(format!(
+                "the lens is afocal (no focal length; angular magnification {:.6}), so {what} \
+                 is not defined",
+                self.angular_magnification.unwrap_or(0.0)
+            ))
+        })
+    }
 }
 
 /// Paraxial heights at every surface and the final height and slope after the last one.
@@ -207,14 +245,25 @@ impl<S: Real> Prescription<S> {
     }
 }
 
+/// A unit-height parallel ray leaving with a slope below this is leaving parallel: the lens is
+/// afocal.
+const AFOCAL_SLOPE: f64 = 1e-14;
+
+/// True when the unit-height parallel ray `parallel` leaves the lens parallel to the axis.
+fn is_afocal<S: Real>(parallel: &Ynu<S>) -> bool {
+    parallel.u_last.value().abs() < AFOCAL_SLOPE
+}
+
 /// The first-order numbers a ray launch depends on, in any number type: where the rays of a
 /// field are aimed (the paraxial entrance pupil) and the focal length that turns a fraction of
 /// the field into an angle. [`launch_optics`] computes them with dual numbers so that a
 /// gradient includes a design variable's effect on the launch.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LaunchOptics<S> {
-    /// Effective focal length, mm.
+    /// Effective focal length, mm (0 for an afocal lens, which has none: see `afocal`).
     pub efl_mm: S,
+    /// True for an afocal lens: no fraction of the field is an angle.
+    pub afocal: bool,
     /// Axial position of the entrance pupil, mm.
     pub entrance_pupil_z_mm: S,
     /// Entrance pupil radius, mm.
@@ -228,7 +277,8 @@ impl LaunchOptics<f64> {
     /// The launch numbers of a paraxial analysis.
     pub fn of(p: &Paraxial) -> Self {
         LaunchOptics {
-            efl_mm: p.efl_mm,
+            efl_mm: p.efl_mm.unwrap_or(0.0),
+            afocal: p.is_afocal(),
             entrance_pupil_z_mm: p.entrance_pupil_z_mm,
             entrance_pupil_radius_mm: 0.5 * p.entrance_pupil_diameter_mm,
             chief_image_height_mm: p.chief_image_height_mm,
@@ -263,7 +313,7 @@ impl<S: Real> LaunchOptics<S> {
 /// // d EFL / d c0 by a dual number.
 /// let lift = |q: Param, v: Dual<f64, 1>| if q == Param::Curvature(0) { Dual::var(v.re, 0) } else { v };
 /// let d = launch_optics(&lens, p.wavelength_nm, p.stop_surface, &lift);
-/// assert_eq!(d.efl_mm.re, p.efl_mm);
+/// assert_eq!(Some(d.efl_mm.re), p.efl_mm);
 /// assert!(d.efl_mm.eps[0] < 0.0); // a stronger front surface shortens the focal length
 /// ```
 pub fn launch_optics<S: Real>(
@@ -275,9 +325,11 @@ pub fn launch_optics<S: Real>(
     let p = Prescription::lifted(lens, wavelength_nm, lift);
     let r_stop = lens.surfaces[stop].semi_aperture_mm;
     let (efl, parallel) = p.efl();
+    let afocal = is_afocal(&parallel);
     let (z, r) = p.pupil(&parallel, stop, r_stop);
     LaunchOptics {
-        efl_mm: efl,
+        efl_mm: if afocal { S::cst(0.0) } else { efl },
+        afocal,
         entrance_pupil_z_mm: z,
         entrance_pupil_radius_mm: r,
         chief_image_height_mm: p.primary_chief_image_height(lens, wavelength_nm, z, stop, lift),
@@ -292,10 +344,26 @@ pub fn efl_lifted<S: Real>(lens: &Lens, wavelength_nm: f64, lift: &dyn Fn(Param,
 
 /// Paraxial analysis of `lens` at `wavelength_nm`.
 ///
+/// An afocal lens (a parallel beam leaves parallel: a beam expander, a telescope) has no focal
+/// length: its [`Paraxial::efl_mm`], BFD and F-number are `None` and its
+/// [`Paraxial::angular_magnification`] is given; pupils, magnification of a finite object
+/// and the chief ray's image height are as for any lens.
+///
+/// ```
+/// // A 2x Keplerian beam reducer of two ideal thin lenses, 100 mm and 50 mm, 150 mm apart.
+/// let lens = tolray::lens::json::from_str(r#"{"surfaces": [
+///     {"type": "ThinLens", "f": 100, "r": 10, "mat2": "air", "d_next": 150, "is_aperture": true},
+///     {"type": "ThinLens", "f": 50, "r": 10, "mat2": "air", "d_next": 30}],
+///   "r_sensor": 5}"#).unwrap();
+/// let p = lens.paraxial(587.5618).unwrap();
+/// assert!(p.is_afocal() && p.efl_mm.is_none() && p.fnum.is_none());
+/// assert!((p.angular_magnification.unwrap() + 2.0).abs() < 1e-12);
+/// ```
+///
 /// # Errors
-/// [`crate::ErrorKind::Numerical`] if the system is afocal, the stop's image is at infinity, or
-/// a first-order quantity is not finite; [`crate::ErrorKind::Invalid`] for a lens that does not
-/// validate or a medium without a usable index at `wavelength_nm`.
+/// [`crate::ErrorKind::Numerical`] if the stop's image is at infinity or a first-order quantity
+/// is not finite; [`crate::ErrorKind::Invalid`] for a lens that does not validate or a medium
+/// without a usable index at `wavelength_nm`.
 pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     lens.validate()?;
     lens.check_indices(wavelength_nm)?;
@@ -303,15 +371,28 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     let n_last = p.n.last().copied().unwrap_or(1.0);
     let last = lens.surfaces.len() - 1;
     let (efl, parallel) = p.efl();
-    if parallel.u_last.abs() < 1e-14 {
-        return Err(Error::numerical("the lens is afocal (no focal length)"));
-    }
-    let bfd = -parallel.y_last / parallel.u_last;
+    let afocal = is_afocal(&parallel);
+    // Φ = -n' u' of the unit-height parallel ray (n' signed: -1 after an odd number of mirrors).
+    let power = if afocal {
+        0.0
+    } else {
+        -(n_last * parallel.u_last)
+    };
+    let (efl, bfd) = if afocal {
+        (None, None)
+    } else {
+        (Some(efl), Some(-parallel.y_last / parallel.u_last))
+    };
     let axial = match lens.object {
         Object::Infinite => None,
         Object::Finite { distance_mm } => Some(p.ynu(0, distance_mm, 1.0)),
     };
-    let image_distance = axial.as_ref().map_or(bfd, |r| -r.y_last / r.u_last);
+    // The image of the stated object, unless it is at infinity.
+    let image_distance = match &axial {
+        None => bfd,
+        Some(r) if r.u_last.abs() < AFOCAL_SLOPE => None,
+        Some(r) => Some(-r.y_last / r.u_last),
+    };
 
     // The stop: the marked one, else the surface that limits the axial beam.
     let marginal = axial.as_ref().unwrap_or(&parallel);
@@ -348,31 +429,45 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     };
 
     let (working_fnum, magnification) = match lens.object {
-        Object::Infinite => (efl / (2.0 * enp_r), 0.0),
+        Object::Infinite => (efl.map(|f| f / (2.0 * enp_r)), 0.0),
         Object::Finite { distance_mm } => {
             let u0 = enp_r / (enp_z + distance_mm);
             let r = p.ynu(0, u0 * distance_mm, u0);
             (
-                1.0 / (2.0 * r.u_last.abs()),
+                image_distance.map(|_| 1.0 / (2.0 * r.u_last.abs())),
                 p.n_object * u0 / (n_last * r.u_last),
             )
         }
     };
+    // A unit-slope ray through the entrance pupil's centre leaves an afocal lens with the slope
+    // of the angular magnification (its height there does not matter: every ray of a field
+    // leaves parallel).
+    // (Signed indices: after an odd number of mirrors the slope's sign is flipped back, so a
+    // flat mirror's is +1.)
+    let angular_magnification =
+        afocal.then(|| p.chief(enp_z, Object::Infinite).u_last * n_last.signum());
     // An exit pupil at infinity (telecentric in image space) is an answer; NaN is not.
     if xp_z.is_nan() || xp_r.is_nan() {
         return Err(Error::numerical(format!(
             "paraxial exit pupil is NaN at {wavelength_nm} nm: the lens has no finite first-order image"
         )));
     }
+    let magnification = if axial.is_some() && image_distance.is_none() {
+        0.0
+    } else {
+        magnification
+    };
     for (what, v) in [
         ("effective focal length", efl),
         ("back focal distance", bfd),
         ("image distance", image_distance),
-        ("entrance pupil position", enp_z),
-        ("entrance pupil diameter", enp_r),
+        ("entrance pupil position", Some(enp_z)),
+        ("entrance pupil diameter", Some(enp_r)),
         ("working F-number", working_fnum),
+        ("magnification", Some(magnification)),
+        ("angular magnification", angular_magnification),
     ] {
-        if !v.is_finite() {
+        if let Some(v) = v.filter(|v| !v.is_finite()) {
             return Err(Error::numerical(format!(
                 "paraxial {what} is {v} at {wavelength_nm} nm: the lens has no finite first-order image"
             )));
@@ -380,6 +475,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     }
     Ok(Paraxial {
         wavelength_nm,
+        power_per_mm: power,
         efl_mm: efl,
         bfd_mm: bfd,
         image_distance_mm: image_distance,
@@ -387,10 +483,11 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         entrance_pupil_diameter_mm: 2.0 * enp_r,
         exit_pupil_z_mm: xp_z,
         exit_pupil_diameter_mm: 2.0 * xp_r,
-        fnum: efl / (2.0 * enp_r),
+        fnum: efl.map(|f| f / (2.0 * enp_r)),
         working_fnum,
         magnification,
-        half_fov_deg: (lens.sensor.half_diagonal_mm() / efl).atan().to_degrees(),
+        angular_magnification,
+        half_fov_deg: efl.map(|f| (lens.sensor.half_diagonal_mm() / f).atan().to_degrees()),
         stop_surface: stop,
         total_track_mm: z[last + 1],
         chief_image_height_mm: p.primary_chief_image_height(

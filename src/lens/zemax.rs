@@ -1945,7 +1945,9 @@ fn stop_semi_aperture(
             if !(f > 0.0) {
                 return Err(Error::invalid(format!("FNUM {f} must be positive")));
             }
-            p.efl_mm.abs() / f
+            p.focal_length_for("FNUM (EFL / entrance pupil diameter)")?
+                .abs()
+                / f
         }
         ZmxAperture::ObjectSpaceNa(na) => {
             let Object::Finite { distance_mm } = lens.object else {
@@ -2252,9 +2254,9 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         .and_then(|e| e.aperture)
         .unwrap_or(ZmxAperture::EntrancePupilDiameter(0.0));
     match (para, kind) {
-        (Some(p), ZmxAperture::ImageSpaceFnum(_)) => w(format!(
+        (Some(p), ZmxAperture::ImageSpaceFnum(_)) if p.efl_mm.is_some() => w(format!(
             "FNUM {} 0",
-            fmt(p.efl_mm.abs() / p.entrance_pupil_diameter_mm)
+            fmt(p.efl_mm.unwrap_or(0.0).abs() / p.entrance_pupil_diameter_mm)
         )),
         (Some(p), ZmxAperture::ObjectSpaceNa(_))
             if matches!(lens.object, Object::Finite { .. }) =>
@@ -2266,9 +2268,8 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             let u = 0.5 * p.entrance_pupil_diameter_mm / (p.entrance_pupil_z_mm + d);
             w(format!("OBNA {} 0", fmt(u.atan().sin())))
         }
-        (Some(p), ZmxAperture::EntrancePupilDiameter(_) | ZmxAperture::ObjectSpaceNa(_)) => {
-            w(format!("ENPD {}", fmt(p.entrance_pupil_diameter_mm)))
-        }
+        // (An afocal lens has no F-number: its aperture is written as the pupil.)
+        (Some(p), _) => w(format!("ENPD {}", fmt(p.entrance_pupil_diameter_mm))),
         _ => w("FLOA".into()),
     }
     w(format!(

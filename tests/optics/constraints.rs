@@ -34,7 +34,7 @@ fn gaps(lens: &Lens) -> Vec<(f64, f64, bool)> {
 }
 
 fn efl(lens: &Lens) -> f64 {
-    lens.paraxial(LAMBDA_D_NM).unwrap().efl_mm
+    lens.paraxial(LAMBDA_D_NM).unwrap().efl_mm.unwrap()
 }
 
 fn track(lens: &Lens) -> f64 {

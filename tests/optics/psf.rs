@@ -15,7 +15,7 @@ fn stopped_down_lens_focuses_into_the_centre_pixel() {
     l.object = Object::Infinite;
     l.surfaces[4].semi_aperture_mm = 0.1;
     // ... with the sensor at the paraxial focus.
-    let bfd = l.paraxial(LAMBDA_D_NM).unwrap().bfd_mm;
+    let bfd = l.paraxial(LAMBDA_D_NM).unwrap().bfd_mm.unwrap();
     l.surfaces.last_mut().unwrap().d_next_mm = bfd;
     let opts = PsfOptions::for_lens(&l);
     let rays = Bundles::pairs(&l, &[(Field::fraction(0.0), LAMBDA_D_NM)], &opts.pupil).unwrap();

@@ -46,13 +46,13 @@ fn first_order_data() {
         }
         let p = l.paraxial(LAMBDA_D_NM).unwrap();
         assert_rel(
-            p.efl_mm,
+            p.efl_mm.unwrap(),
             r["efl_mm"].as_f64().unwrap(),
             1e-9,
             &format!("{key} EFL"),
         );
         assert_rel(
-            p.bfd_mm,
+            p.bfd_mm.unwrap(),
             r["bfd_mm"].as_f64().unwrap(),
             1e-9,
             &format!("{key} BFD"),
@@ -71,7 +71,7 @@ fn first_order_data() {
         );
         if let Some(d) = r.get("paraxial_image_distance_mm_for_stated_object") {
             assert_rel(
-                p.image_distance_mm,
+                p.image_distance_mm.unwrap(),
                 d.as_f64().unwrap(),
                 1e-9,
                 &format!("{key} image distance"),

@@ -50,6 +50,7 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
         json,
     } = a;
     let l = lens.load()?;
+    warn_afocal(&l);
     let opts = psf.options(&l)?;
     let field = Field::parse(&field)?;
     let wls = parse_wavelengths(&wavelengths, &l)?;
@@ -131,6 +132,7 @@ pub fn run_map(a: PsfMapArgs) -> anyhow::Result<()> {
         exr,
     } = a;
     let l = lens.load()?;
+    warn_afocal(&l);
     let opts = psf.options(&l)?;
     if grid == 0 || grid > 64 {
         usage!("--grid {grid}: give 1 to 64 fields per side");
@@ -175,4 +177,18 @@ pub fn run_map(a: PsfMapArgs) -> anyhow::Result<()> {
         eprintln!("wrote {}", p.display());
     }
     Ok(())
+}
+
+/// Says on stderr that an afocal lens' PSF is its collimated beams' footprint on the image
+/// plane, cropped to the PSF window (no focus forms there).
+fn warn_afocal(l: &tolray::Lens) {
+    if l.paraxial(l.primary_wavelength_nm)
+        .is_ok_and(|p| p.is_afocal())
+    {
+        eprintln!(
+            "warning: the lens is afocal: its beams leave collimated, so a PSF on the image \
+             plane is each beam's footprint cropped to the PSF window; `tolray spot --afocal` \
+             gives its angular spread"
+        );
+    }
 }

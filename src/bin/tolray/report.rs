@@ -31,7 +31,13 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         "{}\n\nParaxial data at {:.4} nm (object at {obj}{medium})\n",
         lens.info, p.wavelength_nm
     );
-    let rows = [
+    // None: an afocal lens' focal quantities, or an image at infinity.
+    let afocal = if p.is_afocal() {
+        "afocal"
+    } else {
+        "at infinity"
+    };
+    let rows: [(&str, Option<f64>, &str); 14] = [
         ("effective focal length", p.efl_mm, "mm"),
         ("back focal distance", p.bfd_mm, "mm"),
         (
@@ -41,25 +47,39 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         ),
         (
             "prescribed image distance (from last vertex)",
-            lens.image_distance_mm(),
+            Some(lens.image_distance_mm()),
             "mm",
         ),
-        ("entrance pupil position (z)", p.entrance_pupil_z_mm, "mm"),
+        (
+            "entrance pupil position (z)",
+            Some(p.entrance_pupil_z_mm),
+            "mm",
+        ),
         (
             "entrance pupil diameter",
-            p.entrance_pupil_diameter_mm,
+            Some(p.entrance_pupil_diameter_mm),
             "mm",
         ),
-        ("exit pupil position (z)", p.exit_pupil_z_mm, "mm"),
-        ("exit pupil diameter", p.exit_pupil_diameter_mm, "mm"),
+        ("exit pupil position (z)", Some(p.exit_pupil_z_mm), "mm"),
+        ("exit pupil diameter", Some(p.exit_pupil_diameter_mm), "mm"),
         ("F-number (infinity)", p.fnum, ""),
         ("working F-number", p.working_fnum, ""),
-        ("paraxial magnification", p.magnification, ""),
+        ("paraxial magnification", Some(p.magnification), ""),
+        (
+            "angular magnification (afocal)",
+            p.angular_magnification,
+            "",
+        ),
         ("half field of view (sensor)", p.half_fov_deg, "deg"),
-        ("total track", p.total_track_mm, "mm"),
+        ("total track", Some(p.total_track_mm), "mm"),
     ];
     for (name, v, unit) in rows {
-        s.push_str(&format!("  {name:<46} {v:>14.6} {unit}\n"));
+        match v {
+            Some(v) => s.push_str(&format!("  {name:<46} {v:>14.6} {unit}\n")),
+            // A focal lens has no angular magnification row.
+            None if name.starts_with("angular") => {}
+            None => s.push_str(&format!("  {name:<46} {afocal:>14}\n")),
+        }
     }
     s.push_str(&format!(
         "  {:<46} {:>14}\n",
@@ -215,17 +235,24 @@ pub fn spot_table(results: &[SpotResult]) -> String {
         .iter()
         .map(|r| r.field.label().chars().count())
         .fold(14, usize::max);
+    // Afocal image space: angles, µrad sizes and mrad centroids.
+    let angular = results.iter().any(|r| r.angular);
+    let (size, cx, cy) = if angular {
+        ("µrad", "cx (mrad)", "cy (mrad)")
+    } else {
+        ("µm", "centroid x", "centroid y")
+    };
     let mut s = format!(
         "{:>w$} {:>12} {:>8} {:>12} {:>12} {:>12} {:>10} {:>12} {:>12}\n",
         "field",
         "wavelength",
         "rays",
-        "RMS (µm)",
+        format!("RMS ({size})"),
         "RMS/chief",
-        "geo (µm)",
+        format!("geo ({size})"),
         "vignetted",
-        "centroid x",
-        "centroid y"
+        cx,
+        cy
     );
     for r in results {
         let wl = r

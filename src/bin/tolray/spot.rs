@@ -4,7 +4,7 @@ use crate::args::{perturbed_system, LensArgs, RayArgs};
 use crate::report::{emit, emit_line, spot_table};
 use clap::Args;
 use std::path::PathBuf;
-use tolray::analysis::spot_diagram_rows;
+use tolray::analysis::{afocal_spot_diagram_rows, spot_diagram_rows};
 use tolray::figures;
 
 /// Arguments of `tolray spot`.
@@ -20,6 +20,11 @@ pub struct SpotArgs {
     /// Write a spot-diagram picture (PNG at 2 pixels per point, or SVG if FILE ends in .svg).
     #[arg(long, value_name = "FILE.png")]
     pub png: Option<PathBuf>,
+    /// Afocal image space (OpticStudio's mode for afocal lenses): spots are the rays' angles
+    /// after the lens in the image plane's frame, sizes in µrad and centroids in mrad, instead
+    /// of where they land.
+    #[arg(long)]
+    pub afocal: bool,
     /// Trace the lens perturbed by this tolerance pattern (JSON, as written by `tolerance --json`).
     #[arg(long, value_name = "PATTERN.json")]
     pub perturb: Option<PathBuf>,
@@ -32,7 +37,12 @@ pub fn run(a: SpotArgs) -> anyhow::Result<()> {
     let sys = perturbed_system(&l, a.perturb.as_deref())?;
     // A field with no ray at the image is a row of its own (reported, and the command fails at
     // the end), not a reason to hide the fields that have spots.
-    let (results, failures) = spot_diagram_rows(&l, &sys, &opts)?;
+    let rows = if a.afocal {
+        afocal_spot_diagram_rows
+    } else {
+        spot_diagram_rows
+    };
+    let (results, failures) = rows(&l, &sys, &opts)?;
     if results.is_empty() {
         anyhow::bail!(
             "no field has a spot: {}",
