@@ -567,7 +567,7 @@ impl GlassCatalogs {
         let mut scored: Vec<(usize, String)> = names
             .map(|n| {
                 let bare = n.split(" (").next().unwrap_or(&n).to_ascii_uppercase();
-                (edit_distance(&q, &bare), n)
+                (name_distance(&q, &bare), n)
             })
             .filter(|(d, _)| *d <= 3.max(q.len() / 3))
             .collect();
@@ -653,11 +653,22 @@ pub fn suggest_glasses(name: &str, max: usize) -> Vec<&'static str> {
     let q = name.to_ascii_uppercase();
     let mut scored: Vec<(usize, &'static str)> = catalog()
         .iter()
-        .map(|g| (edit_distance(&q, &g.name.to_ascii_uppercase()), g.name))
+        .map(|g| (name_distance(&q, &g.name.to_ascii_uppercase()), g.name))
         .filter(|(d, _)| *d <= 3.max(q.len() / 3))
         .collect();
     scored.sort();
     scored.into_iter().take(max).map(|(_, n)| n).collect()
+}
+
+/// How far apart a glass name `q` asked for and a catalog name `name` are (both upper case):
+/// their edit distance, but 1 when `q` is `name` with a variant suffix after `_` or a space
+/// (Ohara's `L-TIM28_MOLD`, a moulded variant of `L-TIM28`), which is its nearest relative.
+fn name_distance(q: &str, name: &str) -> usize {
+    let d = edit_distance(q, name);
+    match q.strip_prefix(name) {
+        Some(rest) if rest.starts_with(['_', ' ']) => d.min(1),
+        _ => d,
+    }
 }
 
 fn edit_distance(a: &str, b: &str) -> usize {

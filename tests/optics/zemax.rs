@@ -1455,6 +1455,10 @@ fn glasses_resolve_by_gcat_and_never_silently_fall_back() {
     let t2 = replace_line(&base, "GLAS N-BK7", "  GLAS S-LAH99");
     let e = err(&t2);
     assert!(e.contains("(Ohara)") && !e.contains("(Schott)"), "{e}");
+    // A variant suffix (a moulded glass, as Ohara's L-TIM28_MOLD) names its base glass first.
+    let t2 = replace_line(&base, "GLAS N-BK7", "  GLAS L-TIM28_MOLD");
+    let e = err(&t2);
+    assert!(e.contains("(closest: L-TIM28 (Ohara)"), "{e}");
     // Opted in: the line's values as a model glass, with a warning on that line.
     let fallback = GlassCatalogs {
         file_values_fallback: true,
