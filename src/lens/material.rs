@@ -138,6 +138,33 @@ pub enum Dispersion {
         /// `[A, B, C, D, E]`.
         a: [f64; 5],
     },
+    /// Measured indices, (λ µm, n) in increasing λ, without a formula (refractiveindex.info's
+    /// "tabulated n", as the vendor's data sheet gives them: Schott B 270): linear in λ between
+    /// points, the end values held beyond them (as optiland reads such pages; the range check
+    /// warns there).
+    Tabulated {
+        /// The points, (λ µm, n), λ increasing.
+        points: &'static [(f64, f64)],
+    },
+}
+
+/// The index at `lambda_um` of a table of (λ, n) points, λ increasing: linear between points,
+/// the end values beyond them (NaN for an empty table).
+fn tabulated(points: &[(f64, f64)], lambda_um: f64) -> f64 {
+    let (Some(&(l0, n0)), Some(&(l1, n1))) = (points.first(), points.last()) else {
+        return f64::NAN;
+    };
+    if !(lambda_um > l0) {
+        return if lambda_um.is_nan() { f64::NAN } else { n0 };
+    }
+    if lambda_um >= l1 {
+        return n1;
+    }
+    // The first point beyond λ (exists: λ < l1) and the one before it (at or below λ: λ > l0),
+    // so a tabulated wavelength gives its own index exactly.
+    let k = points.partition_point(|p| p.0 <= lambda_um);
+    let ((xa, ya), (xb, yb)) = (points[k - 1], points[k]);
+    ya + (yb - ya) * (lambda_um - xa) / (xb - xa)
 }
 
 fn sellmeier(l2: f64, b: &[f64], c: &[f64]) -> f64 {
@@ -183,6 +210,7 @@ impl Dispersion {
             Dispersion::ZemaxSellmeier4 { a } => {
                 a[0] + a[1] * l2 / (l2 - a[2]) + a[3] * l2 / (l2 - a[4])
             }
+            Dispersion::Tabulated { points } => return tabulated(points, lambda_um),
         };
         n2.sqrt()
     }
@@ -699,6 +727,30 @@ mod tests {
         );
         assert!((nd - 1.62041).abs() < 1e-15);
         assert!(((nd - 1.0) / (nf - nc) - 60.323649).abs() < 1e-9);
+    }
+
+    #[test]
+    fn tabulated_indices_are_linear_between_points_and_held_beyond() {
+        let b270 = find_glass("B270").unwrap();
+        let Dispersion::Tabulated { points } = b270.dispersion else {
+            panic!("{b270:?}")
+        };
+        // Each tabulated wavelength gives its own index, bit for bit.
+        for &(l, n) in points {
+            assert_eq!(b270.dispersion.index(l), n);
+        }
+        // Halfway between 0.54607 (1.5251) and 0.58756 (1.5230) µm.
+        let mid = b270.dispersion.index(0.5 * (0.54607 + 0.58756));
+        assert!((mid - 1.52405).abs() < 1e-12, "{mid}");
+        // The d line sits 1.8e-6 µm past 0.58756: 1.5230 + 1.8e-6 (1.5229 - 1.5230) / 1.73e-3.
+        let d = Material::Catalog(b270).index(LAMBDA_D_NM);
+        let want = 1.523 + (0.5875618 - 0.58756) * (1.5229 - 1.523) / (0.58929 - 0.58756);
+        assert!((d - want).abs() < 1e-15, "{d} vs {want}");
+        // Beyond the table: the end values (the C line is 2.5e-6 µm past the last point).
+        assert_eq!(b270.dispersion.index(0.40), 1.5341);
+        assert_eq!(b270.dispersion.index(LAMBDA_C_NM * 1e-3), 1.5203);
+        assert!(b270.dispersion.index(f64::NAN).is_nan());
+        assert!(tabulated(&[], 0.5).is_nan());
     }
 
     #[test]
