@@ -689,13 +689,24 @@ pub fn suggest_glasses(name: &str, max: usize) -> Vec<&'static str> {
 }
 
 /// How far apart a glass name `q` asked for and a catalog name `name` are (both upper case):
-/// their edit distance, but 1 when `q` is `name` with a variant suffix after `_` or a space
-/// (Ohara's `L-TIM28_MOLD`, a moulded variant of `L-TIM28`), which is its nearest relative.
+/// their edit distance, but 0 (first among the suggestions) for its nearest relatives: `q` with a variant suffix after `_` or
+/// a space (Ohara's `L-TIM28_MOLD`, a moulded `L-TIM28`), and Schott's lead-free successor of
+/// a legacy glass, `N-` or `P-` before its name and at most one letter after it (`LAK33` ->
+/// `N-LAK33A`, `N-LAK33B`; `BAK1` -> `N-BAK1`).
 fn name_distance(q: &str, name: &str) -> usize {
     let d = edit_distance(q, name);
-    match q.strip_prefix(name) {
-        Some(rest) if rest.starts_with(['_', ' ']) => d.min(1),
-        _ => d,
+    let variant = q
+        .strip_prefix(name)
+        .is_some_and(|rest| rest.starts_with(['_', ' ']));
+    let successor = ["N-", "P-"].iter().any(|p| {
+        name.strip_prefix(p)
+            .and_then(|rest| rest.strip_prefix(q))
+            .is_some_and(|tail| tail.len() <= 1 && tail.chars().all(|c| c.is_ascii_alphabetic()))
+    });
+    if variant || successor {
+        0
+    } else {
+        d
     }
 }
 

@@ -21,7 +21,7 @@ pub struct Paraxial {
     pub bfd_mm: Option<f64>,
     /// Last vertex to the paraxial image of the stated object, mm (= BFD for an object at
     /// infinity); `None` when that image is at infinity (an afocal lens and an object at
-    /// infinity, or a finite object in the front focal plane).
+    /// infinity).
     pub image_distance_mm: Option<f64>,
     /// Axial position of the entrance pupil, mm.
     pub entrance_pupil_z_mm: f64,
@@ -34,7 +34,7 @@ pub struct Paraxial {
     /// Image-space F-number for an object at infinity, EFL / EPD; `None` for an afocal lens.
     pub fnum: Option<f64>,
     /// Working (paraxial) F-number for the stated object, 1 / (2 |u'|); `None` when the image
-    /// is at infinity.
+    /// is at infinity (an afocal lens and an object at infinity).
     pub working_fnum: Option<f64>,
     /// Paraxial lateral magnification for the stated object (0 at infinity).
     pub magnification: f64,
@@ -387,10 +387,17 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         Object::Infinite => None,
         Object::Finite { distance_mm } => Some(p.ynu(0, distance_mm, 1.0)),
     };
-    // The image of the stated object, unless it is at infinity.
+    // The image of the stated object: at infinity for an object at infinity seen through an
+    // afocal lens; a finite object in the front focal plane has no finite image and no
+    // magnification (an error, as before afocal lenses were answers).
     let image_distance = match &axial {
         None => bfd,
-        Some(r) if r.u_last.abs() < AFOCAL_SLOPE => None,
+        Some(r) if r.u_last.abs() < AFOCAL_SLOPE => {
+            return Err(Error::numerical(format!(
+                "the paraxial image of the object is at infinity at {wavelength_nm} nm (the \
+                 object is in the front focal plane): the lens has no finite first-order image"
+            )))
+        }
         Some(r) => Some(-r.y_last / r.u_last),
     };
 
@@ -434,7 +441,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             let u0 = enp_r / (enp_z + distance_mm);
             let r = p.ynu(0, u0 * distance_mm, u0);
             (
-                image_distance.map(|_| 1.0 / (2.0 * r.u_last.abs())),
+                Some(1.0 / (2.0 * r.u_last.abs())),
                 p.n_object * u0 / (n_last * r.u_last),
             )
         }
@@ -452,11 +459,6 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             "paraxial exit pupil is NaN at {wavelength_nm} nm: the lens has no finite first-order image"
         )));
     }
-    let magnification = if axial.is_some() && image_distance.is_none() {
-        0.0
-    } else {
-        magnification
-    };
     for (what, v) in [
         ("effective focal length", efl),
         ("back focal distance", bfd),

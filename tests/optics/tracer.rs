@@ -685,6 +685,14 @@ fn an_afocal_telescope_has_an_angular_magnification_and_parallel_beams() {
     assert!((q.magnification + 0.5).abs() < 1e-12, "{q:?}");
     assert!(q.image_distance_mm.unwrap().is_finite() && q.efl_mm.is_none());
 
+    // A finite object in a focal lens' front focal plane has no finite image: an error, not
+    // an image distance at infinity (the first lens alone, the object 100 mm before it).
+    let mut single = lens.clone();
+    single.surfaces.truncate(1);
+    single.object = Object::Finite { distance_mm: 100.0 };
+    let e = single.paraxial(LAMBDA_D_NM).unwrap_err();
+    assert!(e.message().contains("front focal plane"), "{}", e.message());
+
     for f in ["simple_fold_mirror_up.zmx", "one_mirror_up_45deg.zmx"] {
         let l = zmx(&format!("real/optiland/{f}"));
         let p = l.paraxial(l.primary_wavelength_nm).unwrap();

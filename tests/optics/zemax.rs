@@ -1459,6 +1459,14 @@ fn glasses_resolve_by_gcat_and_never_silently_fall_back() {
     let t2 = replace_line(&base, "GLAS N-BK7", "  GLAS L-TIM28_MOLD");
     let e = err(&t2);
     assert!(e.contains("(closest: L-TIM28 (Ohara)"), "{e}");
+    // A legacy Schott glass names its lead-free successors first.
+    let e = err(&replace_line(&base, "GLAS N-BK7", "  GLAS BAK1"));
+    assert!(e.contains("(closest: N-BAK1 (Schott)"), "{e}");
+    let e = err(&replace_line(&base, "GLAS N-BK7", "  GLAS LAK33"));
+    assert!(
+        e.contains("(closest: N-LAK33A (Schott), N-LAK33B (Schott)"),
+        "{e}"
+    );
     // Opted in: the line's values as a model glass, with a warning on that line.
     let fallback = GlassCatalogs {
         file_values_fallback: true,
