@@ -240,8 +240,10 @@ fn small_options() -> CheckOptions {
 /// Nominal and five perturbed patterns of each built-in lens, a two-mirror telescope
 /// (reflections, negative gaps), a singlet folded by two fold mirrors (tilted mirrors, turned
 /// legs of the axis), an odd asphere and Q-type aspheres (hand-made Qbfs and Qcon singlets and
-/// Thorlabs' ASL5040-UV, NA 0.65): every Embree hit within its bound, no leaks, RMS spots within 0.1 µm
-/// at a 1e-4 mm chord bound.
+/// Thorlabs' ASL5040-UV, NA 0.65), an ideal thin lens before a meniscus, and optiland's curved
+/// transmission and reflection gratings (the ray turned as the reference tracer turns it):
+/// every Embree hit within its bound, no leaks, RMS spots within 0.1 µm at a 1e-4 mm chord
+/// bound.
 #[test]
 fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
     let opts = small_options();
@@ -257,6 +259,9 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
         "qbfs.zmx",
         "qcon.zmx",
         ASL5040,
+        "thinlens.zmx",
+        "real/optiland/curved_transmission_grating.zmx",
+        "real/optiland/curved_reflective_grating.zmx",
     ] {
         let lens = match name {
             "odd asphere" => odd_asphere(),

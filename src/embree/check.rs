@@ -45,7 +45,7 @@ use crate::lens::material::LAMBDA_D_NM;
 use crate::lens::{Lens, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::tolerance::{Perturbation, ToleranceSpec};
-use crate::trace::reference::{intersect_local, refract, surface_sag_xy, trace_ray, unit_normal};
+use crate::trace::reference::{bend, intersect_local, surface_sag_xy, trace_ray, unit_normal};
 use crate::trace::{
     trace_serial, Bundle, Bundles, Field, Pupil, RayBatch, RayStatus, TraceOptions,
 };
@@ -368,8 +368,16 @@ impl Stepper<'_> {
         q
     }
 
-    /// Advances `s` through this surface using the Embree hit of `q`.
-    fn advance(&self, s: &mut RayState, q: &Query, mode: NormalMode, n1: f64, n2: f64) {
+    /// Advances `s` (of `wavelength_nm`) through this surface using the Embree hit of `q`.
+    fn advance(
+        &self,
+        s: &mut RayState,
+        q: &Query,
+        mode: NormalMode,
+        n1: f64,
+        n2: f64,
+        wavelength_nm: f64,
+    ) {
         let (row, i) = (self.row, self.index as u32);
         let Some(hit) = q.hit else {
             // The mesh covers the clear aperture with a spacing to spare: a miss is outside it.
@@ -387,7 +395,9 @@ impl Stepper<'_> {
             return;
         }
         let mut dn = q.dl;
-        if row.refract {
+        let mut phase = 0.0;
+        // Whatever turns the ray: refraction, reflection, a grating, an ideal thin lens.
+        if row.refract || row.reflect || row.grating.is_some() || row.power != 0.0 {
             let nrm = match mode {
                 NormalMode::Analytic => match surface_sag_xy(row, h.x, h.y) {
                     Some((_, zx, zy)) => unit_normal([zx, zy]),
@@ -411,19 +421,15 @@ impl Stepper<'_> {
                     n.normalized()
                 }
             };
-            let bent = if row.reflect {
-                Some(q.dl - nrm * (2.0 * q.dl.dot(nrm)))
-            } else {
-                refract(q.dl, nrm, n1, n2)
-            };
-            match bent {
-                Some(v) => dn = v,
+            match bend(row, q.dl, h, nrm, n1, n2, wavelength_nm) {
+                Some((v, p)) => (dn, phase) = (v, p),
                 None => {
                     s.status = RayStatus::Tir(i);
                     return;
                 }
             }
         }
+        s.opl += phase;
         s.opl += n1 * t;
         s.o = row.rot.apply(h) + row.pos;
         s.d = row.rot.apply(dn);
@@ -517,23 +523,26 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
     (1.02 * used + 0.05).min(row.clip.reach_mm)
 }
 
-/// Refuses surfaces the check cannot mesh or trace: it tessellates rotationally symmetric
-/// surfaces of bounded curvature (rings of equal sag) and refracts with Snell's law, so
-/// toroids, odd aspheres with a cone term, ideal thin lenses and gratings are refused by name.
+/// Refuses surfaces the check cannot mesh: it tessellates rotationally symmetric surfaces of
+/// bounded curvature (rings of equal sag), so toroids and odd aspheres with a cone term are
+/// refused by name. (Gratings and ideal thin lenses are meshed as their substrate, a plane for
+/// the thin lens, and turn the rays as the reference tracer does: [`bend`].)
 fn supported(sys: &System<f64>) -> Result<()> {
     use crate::lens::Shape;
     for (i, row) in sys.rows.iter().enumerate() {
         let what = match row.shape {
-            _ if row.grating.is_some() => "a diffraction grating",
             Shape::Odd if row.asph[0] != 0.0 => {
                 "an odd asphere with a cone term (r^1: a point at the vertex)"
             }
-            Shape::Even | Shape::Odd | Shape::Qbfs { .. } | Shape::Qcon { .. } => continue,
+            Shape::Even
+            | Shape::Odd
+            | Shape::Qbfs { .. }
+            | Shape::Qcon { .. }
+            | Shape::Paraxial { .. } => continue,
             Shape::Toroidal { .. } => "a toroid",
-            Shape::Paraxial { .. } => "an ideal thin lens",
         };
         return Err(Error::invalid(format!(
-            "surface {i} is {what}; the Embree check covers even, odd (without r^1) and Q-type aspheres, conics, spheres, planes and mirrors"
+            "surface {i} is {what}; the Embree check covers even, odd (without r^1) and Q-type aspheres, conics, spheres, planes, mirrors, gratings on them and ideal thin lenses"
         )));
     }
     Ok(())
@@ -581,19 +590,11 @@ fn used_radii(sys: &System<f64>, rays: &Bundles, indices: &[Vec<f64>]) -> Vec<f6
                 if row.clip.stops(h.x, h.y) {
                     break;
                 }
-                let mut dn = dl;
-                if row.refract {
-                    let nrm = unit_normal(grad);
-                    let bent = if row.reflect {
-                        Some(dl - nrm * (2.0 * dl.dot(nrm)))
-                    } else {
-                        refract(dl, nrm, n[i], n[i + 1])
-                    };
-                    match bent {
-                        Some(v) => dn = v,
-                        None => break,
-                    }
-                }
+                let nrm = unit_normal(grad);
+                let Some((dn, _)) = bend(row, dl, h, nrm, n[i], n[i + 1], bundle.wavelength_nm)
+                else {
+                    break;
+                };
                 o = row.rot.apply(h) + row.pos;
                 d = row.rot.apply(dn);
             }
@@ -697,7 +698,7 @@ pub fn check_system(
                 let n = &indices[b];
                 for s in rs.iter_mut().filter(|s| s.status.is_alive()) {
                     let q = st.query(s.o, s.d);
-                    st.advance(s, &q, mode, n[i], n[i + 1]);
+                    st.advance(s, &q, mode, n[i], n[i + 1], rays.sets[b].wavelength_nm);
                     queries.push(q);
                 }
             }

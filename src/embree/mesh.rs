@@ -518,16 +518,20 @@ impl Mesh {
         footprint: Option<&[(Vec3<f64>, Vec3<f64>)]>,
     ) -> Result<Mesh> {
         let cone = row.shape == Shape::Odd && row.asph[0] != 0.0;
+        // (An ideal thin lens is a plane: its row's sag is 0.)
         if !matches!(
             row.shape,
-            Shape::Even | Shape::Odd | Shape::Qbfs { .. } | Shape::Qcon { .. }
+            Shape::Even
+                | Shape::Odd
+                | Shape::Qbfs { .. }
+                | Shape::Qcon { .. }
+                | Shape::Paraxial { .. }
         ) || cone
         {
             return Err(Error::invalid(format!(
                 "surface {surface}: the Embree check tessellates rotationally symmetric surfaces with a bounded curvature (rings of equal sag); this surface is {}",
                 match row.shape {
                     Shape::Odd => "an odd asphere with a cone term (r^1): a point at the vertex",
-                    Shape::Paraxial { .. } => "an ideal thin lens",
                     _ => "a toroid",
                 }
             )));

@@ -203,6 +203,44 @@ pub fn diffract(
     Some(tang + nrm * ((1.0 - s2).sqrt() * side))
 }
 
+/// The direction in which a ray of direction `dl` (surface frame) leaves surface `row` where it
+/// meets it at `h` with unit normal `nrm`, from index `n1` into `n2` (the index after the
+/// surface; a mirror keeps `n1`), and the path length the surface adds (a grating's phase
+/// m λ T y, else 0): a grating diffracts, an ideal thin lens turns the slopes by minus the
+/// height over its focal length, a mirror reflects, a refracting surface obeys Snell's law, a
+/// bare aperture passes the ray. `None` for total internal reflection or an order that does not
+/// propagate. The one rule of the reference tracer and of the Embree check.
+pub fn bend(
+    row: &SurfaceRow<f64>,
+    dl: Vec3<f64>,
+    h: Vec3<f64>,
+    nrm: Vec3<f64>,
+    n1: f64,
+    n2: f64,
+    wavelength_nm: f64,
+) -> Option<(Vec3<f64>, f64)> {
+    if let Some(g) = row.grating {
+        let n2 = if row.reflect { n1 } else { n2 };
+        let m_lambda_t = g.deflection(wavelength_nm);
+        // The grating's phase, as path length: m λ T y at the crossing.
+        return diffract(dl, nrm, n1, n2, m_lambda_t, row.reflect).map(|v| (v, m_lambda_t * h.y));
+    }
+    let dn = if let Shape::Paraxial { focal_mm } = row.shape {
+        // The ideal thin lens: slopes change by minus the height over the focal length.
+        let (mx, my) = (dl.x / dl.z - h.x / focal_mm, dl.y / dl.z - h.y / focal_mm);
+        Vec3::new(mx, my, 1.0).normalized() * dl.z.signum()
+    } else if row.reflect {
+        // The law of reflection: the normal component reverses.
+        dl - nrm * (2.0 * dl.dot(nrm))
+    } else if row.refract {
+        // Snell on the tangential component.
+        refract(dl, nrm, n1, n2)?
+    } else {
+        dl
+    };
+    Some((dn, 0.0))
+}
+
 /// Traces one ray of `wavelength_nm` through `sys` with indices `n` (as [`System::indices`]
 /// gives them at that wavelength: the object medium's, then the one after each surface), up to
 /// and including surface `upto` (or to the image plane when `upto` is `None`). Returns the state
@@ -234,33 +272,11 @@ pub fn trace_ray(
         if clip && row.clip.stops(h.x, h.y) {
             return fail(RayStatus::Vignetted(i as u32));
         }
-        let mut dn = dl;
-        if let Some(g) = row.grating {
-            let nrm = unit_normal(grad);
-            let n2 = if row.reflect { n[i] } else { n[i + 1] };
-            let m_lambda_t = g.deflection(wavelength_nm);
-            match diffract(dl, nrm, n[i], n2, m_lambda_t, row.reflect) {
-                Some(v) => dn = v,
-                None => return fail(RayStatus::Tir(i as u32)),
-            }
-            // The grating's phase, as path length: m λ T y at the crossing.
-            opl += m_lambda_t * h.y;
-        } else if let Shape::Paraxial { focal_mm } = row.shape {
-            // The ideal thin lens: slopes change by minus the height over the focal length.
-            let (mx, my) = (dl.x / dl.z - h.x / focal_mm, dl.y / dl.z - h.y / focal_mm);
-            dn = Vec3::new(mx, my, 1.0).normalized() * dl.z.signum();
-        } else if row.reflect {
-            // The law of reflection: the normal component reverses.
-            let nrm = unit_normal(grad);
-            dn = dl - nrm * (2.0 * dl.dot(nrm));
-        } else if row.refract {
-            // Unit normal along +z-ish, then Snell on the tangential component.
-            let nrm = unit_normal(grad);
-            match refract(dl, nrm, n[i], n[i + 1]) {
-                Some(v) => dn = v,
-                None => return fail(RayStatus::Tir(i as u32)),
-            }
-        }
+        let Some((dn, phase)) = bend(row, dl, h, unit_normal(grad), n[i], n[i + 1], wavelength_nm)
+        else {
+            return fail(RayStatus::Tir(i as u32));
+        };
+        opl += phase;
         opl += n[i] * t;
         o = row.rot.apply(h) + row.pos;
         d = row.rot.apply(dn);

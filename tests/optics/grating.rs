@@ -45,8 +45,9 @@ fn final_direction(sys: &System<f64>, wl: f64, o: Vec3<f64>, d: Vec3<f64>) -> Ve
 /// get full match with zemax", with "small discrepancies wrt zemax for curved gratings" left in
 /// optiland's own model; optiland 0.6.3 misses the curved numbers by 3.5e-7, tolray meets all
 /// of them to 1e-10). The grooves are equally spaced as projected on the surface's x-y plane.
-/// The flat file's lens is afocal (tolray refuses it for that), so its grating is the curved
-/// transmission file's with the curvature and conic set to 0, which is what the flat file holds.
+/// The flat file's lens is afocal (no focal length; tolray opens it since afocal lenses are
+/// answers): it is the curved transmission file with the curvature and conic 0, which the test
+/// checks before tracing it.
 /// Rays: field (Hx, Hy) of the files' 10° (the direction (tan Hx·10°, tan Hy·10°, 1)), pupil
 /// (Px, Py) on the paraxial entrance pupil (diameter 15 mm, no ray aiming, as the files).
 #[test]
@@ -56,9 +57,12 @@ fn gratings_send_rays_where_opticstudio_does() {
     assert_eq!(transmission.primary_wavelength_nm, wl);
     let g = transmission.surfaces[1].grating.expect("DGRATING read");
     assert_eq!((g.lines_per_um, g.order), (0.2, -1.0));
-    let mut flat = transmission.clone();
-    flat.surfaces[1].c = 0.0;
-    flat.surfaces[1].k = 0.0;
+    let flat = read(&corpus("flat_transmission_grating.zmx"));
+    assert!(flat.paraxial(wl).unwrap().is_afocal());
+    let mut flattened = transmission.clone();
+    flattened.surfaces[1].c = 0.0;
+    flattened.surfaces[1].k = 0.0;
+    assert_eq!(flat.surfaces, flattened.surfaces);
     let reflective = read(&corpus("curved_reflective_grating.zmx"));
     assert!(reflective.reflects(0));
     // (lens, Hx, Hy, Px, Py, direction after the grating; reversed for the mirror, as the
