@@ -105,8 +105,15 @@ def compare(ref, got, u_ref, u_got, fr_ref, fr_got):
         # have none of the written file either; the rays are compared below.
         c.exact("no paraxial model", got["efl_mm"] is None, True)
     else:
-        c.rel("EFL", got["efl_mm"] * u_got, ref["efl_mm"] * u_ref)
-        c.rel("BFD", got["bfd_mm"] * u_got, ref["bfd_mm"] * u_ref)
+        if isinstance(ref["efl_mm"], str):
+            # An afocal lens: gen_reference.py records optiland's infinite f2 and BFD as "inf" /
+            # "-inf"; the written file must be afocal too (the sign follows the mirrors).
+            afocal = isinstance(got["efl_mm"], str) or not math.isfinite(got["efl_mm"])
+            c.exact("EFL (afocal)", afocal, True)
+        else:
+            c.rel("EFL", got["efl_mm"] * u_got, ref["efl_mm"] * u_ref)
+        if not isinstance(ref["bfd_mm"], str):
+            c.rel("BFD", got["bfd_mm"] * u_got, ref["bfd_mm"] * u_ref)
         c.rel("EPD", got["epd_mm"] * u_got, ref["epd_mm"] * u_ref)
         want_ep = ref["ep_z_mm"] * u_ref - dz
         c.absol("EP z", got["ep_z_mm"] * u_got, want_ep, 1e-9 * (1.0 + abs(want_ep)),

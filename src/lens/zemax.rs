@@ -2265,8 +2265,10 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 Object::Finite { distance_mm } => distance_mm,
                 Object::Infinite => 0.0,
             };
+            // NA = n sin θ in the object medium, as the reader takes it.
             let u = 0.5 * p.entrance_pupil_diameter_mm / (p.entrance_pupil_z_mm + d);
-            w(format!("OBNA {} 0", fmt(u.atan().sin())))
+            let n0 = lens.object_medium.index(lens.primary_wavelength_nm);
+            w(format!("OBNA {} 0", fmt(n0 * u.atan().sin())))
         }
         // (An afocal lens has no F-number: its aperture is written as the pupil.)
         (Some(p), _) => w(format!("ENPD {}", fmt(p.entrance_pupil_diameter_mm))),

@@ -2894,6 +2894,28 @@ fn an_object_medium_refracts_at_the_first_surface() {
     assert_eq!(again.object_medium, lens.object_medium);
     let j = json::from_str(&json::to_string(lens)).unwrap();
     assert_eq!(j.object_medium, lens.object_medium);
+    // An object-space NA is n sin θ in the medium, read and written so: the same lens with an
+    // OBNA aperture, written back with it, keeps its entrance pupil (the writer once wrote
+    // sin θ alone, and a file in water came back with a pupil 1.333 times too large; the
+    // lithography lens of the corpus, in a gas of index 0.999982, by 1.9e-5).
+    let obna = text.replace("ENPD 2\n", "OBNA 0.02 0\n");
+    let z = parse(&obna).unwrap();
+    let p = z.lens.paraxial(LAMBDA_D_NM).unwrap();
+    let u = 0.5 * p.entrance_pupil_diameter_mm / (p.entrance_pupil_z_mm + 60.0);
+    assert!(
+        rel(1.333 * u.atan().sin(), 0.02) < 1e-12,
+        "NA {}",
+        1.333 * u.atan().sin()
+    );
+    let written = zemax::to_string(&z.lens, Some(&z.extras));
+    assert!(written.contains("OBNA 0.02"), "{written}");
+    let back = parse(&written).unwrap().lens.paraxial(LAMBDA_D_NM).unwrap();
+    assert!(
+        rel(
+            back.entrance_pupil_diameter_mm,
+            p.entrance_pupil_diameter_mm
+        ) < 1e-12
+    );
 }
 
 /// A high-order term so large that the sag's slope overflows within the traced beam gives
