@@ -394,41 +394,35 @@ impl Stepper<'_> {
             s.status = RayStatus::Vignetted(i);
             return;
         }
-        let mut dn = q.dl;
-        let mut phase = 0.0;
-        // Whatever turns the ray: refraction, reflection, a grating, an ideal thin lens.
-        if row.refract || row.reflect || row.grating.is_some() || row.power != 0.0 {
-            let nrm = match mode {
-                NormalMode::Analytic => match surface_sag_xy(row, h.x, h.y) {
-                    Some((_, zx, zy)) => unit_normal([zx, zy]),
-                    None => {
-                        s.status = RayStatus::Missed(i);
-                        return;
-                    }
-                },
-                NormalMode::Mesh => {
-                    let Some(&tri) = self.mesh.triangles.get(hit.prim as usize) else {
-                        s.status = RayStatus::Missed(i);
-                        return;
-                    };
-                    let (u, v) = (hit.u as f64, hit.v as f64);
-                    let nv = |k: usize| self.mesh.normals[tri[k] as usize];
-                    let n = nv(0) * (1.0 - u - v) + nv(1) * u + nv(2) * v;
-                    let n = match self.mesh.frame {
-                        Frame::Local => n,
-                        Frame::Global => row.rot.apply_t(n),
-                    };
-                    n.normalized()
-                }
-            };
-            match bend(row, q.dl, h, nrm, n1, n2, wavelength_nm) {
-                Some((v, p)) => (dn, phase) = (v, p),
+        let nrm = match mode {
+            NormalMode::Analytic => match surface_sag_xy(row, h.x, h.y) {
+                Some((_, zx, zy)) => unit_normal([zx, zy]),
                 None => {
-                    s.status = RayStatus::Tir(i);
+                    s.status = RayStatus::Missed(i);
                     return;
                 }
+            },
+            NormalMode::Mesh => {
+                let Some(&tri) = self.mesh.triangles.get(hit.prim as usize) else {
+                    s.status = RayStatus::Missed(i);
+                    return;
+                };
+                let (u, v) = (hit.u as f64, hit.v as f64);
+                let nv = |k: usize| self.mesh.normals[tri[k] as usize];
+                let n = nv(0) * (1.0 - u - v) + nv(1) * u + nv(2) * v;
+                let n = match self.mesh.frame {
+                    Frame::Local => n,
+                    Frame::Global => row.rot.apply_t(n),
+                };
+                n.normalized()
             }
-        }
+        };
+        // Whatever turns the ray (refraction, reflection, a grating, an ideal thin lens), as the
+        // reference tracer turns it; a bare aperture passes it.
+        let Some((dn, phase)) = bend(row, q.dl, h, nrm, n1, n2, wavelength_nm) else {
+            s.status = RayStatus::Tir(i);
+            return;
+        };
         s.opl += phase;
         s.opl += n1 * t;
         s.o = row.rot.apply(h) + row.pos;

@@ -293,15 +293,15 @@ impl Field {
             Field::Fraction { x, y } => {
                 // An afocal lens' image is at infinity: no sensor height but the centre is a
                 // field angle.
-                if o.afocal && (x != 0.0 || y != 0.0) {
+                if o.afocal {
+                    if x == 0.0 && y == 0.0 {
+                        return Ok((S::cst(0.0), S::cst(0.0)));
+                    }
                     return Err(Error::numerical(format!(
                         "field {x},{y} (a fraction of the sensor's half-diagonal): the lens is \
                          afocal (no focal length turns a height on the sensor into a field \
                          angle); give the field as an angle (5deg) or an object height"
                     )));
-                }
-                if o.afocal {
-                    return Ok((S::cst(0.0), S::cst(0.0)));
                 }
                 let t = S::cst(lens.sensor.half_diagonal_mm()) / o.efl_mm;
                 (S::cst(x) * t, S::cst(y) * t)

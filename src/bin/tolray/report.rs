@@ -31,13 +31,8 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         "{}\n\nParaxial data at {:.4} nm (object at {obj}{medium})\n",
         lens.info, p.wavelength_nm
     );
-    // None: an afocal lens' focal quantities, or an image at infinity.
-    let afocal = if p.is_afocal() {
-        "afocal"
-    } else {
-        "at infinity"
-    };
-    let rows: [(&str, Option<f64>, &str); 14] = [
+    // None: an afocal lens' focal quantities (and its image of an object at infinity).
+    let rows: [(&str, Option<f64>, &str); 13] = [
         ("effective focal length", p.efl_mm, "mm"),
         ("back focal distance", p.bfd_mm, "mm"),
         (
@@ -65,20 +60,19 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         ("F-number (infinity)", p.fnum, ""),
         ("working F-number", p.working_fnum, ""),
         ("paraxial magnification", Some(p.magnification), ""),
-        (
-            "angular magnification (afocal)",
-            p.angular_magnification,
-            "",
-        ),
         ("half field of view (sensor)", p.half_fov_deg, "deg"),
         ("total track", Some(p.total_track_mm), "mm"),
     ];
     for (name, v, unit) in rows {
         match v {
             Some(v) => s.push_str(&format!("  {name:<46} {v:>14.6} {unit}\n")),
-            // A focal lens has no angular magnification row.
-            None if name.starts_with("angular") => {}
-            None => s.push_str(&format!("  {name:<46} {afocal:>14}\n")),
+            None => s.push_str(&format!("  {name:<46} {:>14}\n", "afocal")),
+        }
+        if name == "paraxial magnification" {
+            if let Some(m) = p.angular_magnification {
+                let name = "angular magnification (afocal)";
+                s.push_str(&format!("  {name:<46} {m:>14.6} \n"));
+            }
         }
     }
     s.push_str(&format!(
