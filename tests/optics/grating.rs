@@ -45,9 +45,8 @@ fn final_direction(sys: &System<f64>, wl: f64, o: Vec3<f64>, d: Vec3<f64>) -> Ve
 /// get full match with zemax", with "small discrepancies wrt zemax for curved gratings" left in
 /// optiland's own model; optiland 0.6.3 misses the curved numbers by 3.5e-7, tolray meets all
 /// of them to 1e-10). The grooves are equally spaced as projected on the surface's x-y plane.
-/// The flat file's lens is afocal (no focal length; tolray opens it since afocal lenses are
-/// answers): it is the curved transmission file with the curvature and conic 0, which the test
-/// checks before tracing it.
+/// The flat file's lens is afocal (no focal length): it is the curved transmission file with
+/// the curvature and conic 0, which the test checks before tracing it.
 /// Rays: field (Hx, Hy) of the files' 10° (the direction (tan Hx·10°, tan Hy·10°, 1)), pupil
 /// (Px, Py) on the paraxial entrance pupil (diameter 15 mm, no ray aiming, as the files).
 #[test]

@@ -32,7 +32,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         lens.info, p.wavelength_nm
     );
     // None: an afocal lens' focal quantities (and its image of an object at infinity).
-    let rows: [(&str, Option<f64>, &str); 13] = [
+    let mut rows: Vec<(&str, Option<f64>, &str)> = vec![
         ("effective focal length", p.efl_mm, "mm"),
         ("back focal distance", p.bfd_mm, "mm"),
         (
@@ -60,19 +60,19 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         ("F-number (infinity)", p.fnum, ""),
         ("working F-number", p.working_fnum, ""),
         ("paraxial magnification", Some(p.magnification), ""),
+    ];
+    // Only an afocal lens has an angular magnification.
+    if let Some(m) = p.angular_magnification {
+        rows.push(("angular magnification (afocal)", Some(m), ""));
+    }
+    rows.extend([
         ("half field of view (sensor)", p.half_fov_deg, "deg"),
         ("total track", Some(p.total_track_mm), "mm"),
-    ];
+    ]);
     for (name, v, unit) in rows {
         match v {
             Some(v) => s.push_str(&format!("  {name:<46} {v:>14.6} {unit}\n")),
             None => s.push_str(&format!("  {name:<46} {:>14}\n", "afocal")),
-        }
-        if name == "paraxial magnification" {
-            if let Some(m) = p.angular_magnification {
-                let name = "angular magnification (afocal)";
-                s.push_str(&format!("  {name:<46} {m:>14.6} \n"));
-            }
         }
     }
     s.push_str(&format!(
