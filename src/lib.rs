@@ -22,6 +22,8 @@
 //! - [`decoder`]: the jointly trained decoder (per-tile Wiener + U-Net) with exact backward
 //!   passes.
 //! - [`deep`]: deep-optics training (lens and decoder), the study and its yield evaluation.
+//! - [`wave`]: wave optics: OPD against the reference sphere, RMS/PV wavefront error, Zernike
+//!   fits (Standard and Fringe), Strehl ratios, FFT and Huygens diffraction PSFs, MTFs.
 //! - [`figures`]: the pictures the CLI writes (plotters, PNG or SVG).
 //! - [`ffi`]: the C ABI (`include/tolray.h`).
 //! - [`error`], [`files`], [`math`]: errors with their kind and I/O source; JSON reading and atomic
@@ -79,6 +81,7 @@ pub mod psf;
 pub mod real;
 pub mod tolerance;
 pub mod trace;
+pub mod wave;
 
 pub use error::{Error, ErrorKind, Result};
 pub use lens::{Lens, Object};

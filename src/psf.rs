@@ -332,7 +332,13 @@ pub fn best_shift(a: &[f64], b: &[f64], ks: usize) -> (isize, isize) {
     best
 }
 
-fn transform2(m: &mut [Complex<f64>], n: usize, f: &std::sync::Arc<dyn rustfft::Fft<f64>>) {
+/// The 2-D transform of the `n x n` row-major `m` in place, by `f` (a forward or inverse plan of
+/// length `n`): rows, then columns.
+pub(crate) fn transform2(
+    m: &mut [Complex<f64>],
+    n: usize,
+    f: &std::sync::Arc<dyn rustfft::Fft<f64>>,
+) {
     for row in m.chunks_exact_mut(n) {
         f.process(row);
     }

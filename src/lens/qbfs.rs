@@ -216,8 +216,7 @@ pub(crate) fn sag(c: f64, k: f64, a: &[f64; N_ASPH], norm_radius_mm: f64, u: f64
 }
 
 /// `n`-point Gauss-Legendre nodes and weights on [-1, 1], by Newton on the Legendre polynomial
-/// (for the Q polynomials' orthogonality tests).
-#[cfg(test)]
+/// (the Q polynomials' orthogonality tests; the wave module's pupil quadrature).
 pub(crate) fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
     let mut nodes = Vec::new();
     for i in 1..=n {

@@ -11,4 +11,6 @@ mod reference;
 mod tolerance;
 mod tracer;
 mod training;
+mod wave;
+mod wave_reference;
 mod zemax;

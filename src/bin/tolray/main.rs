@@ -24,6 +24,7 @@ mod tolerance;
 mod trace;
 mod train;
 mod validate;
+mod wave;
 
 #[derive(Parser)]
 #[command(
@@ -46,8 +47,16 @@ enum Command {
     Tolerance(tolerance::ToleranceArgs),
     /// Sensitivity: each tolerance operand alone at -max and +max, worst first.
     Sensitivity(tolerance::SensitivityArgs),
-    /// Geometric PSF of one field (bilinear splat at the sensor pixel pitch, unit sum).
+    /// PSF of one field: geometric (bilinear splat at the sensor pixel pitch, unit sum; the
+    /// default), or diffraction (--method fft|huygens, relative to the unaberrated peak, with the
+    /// Strehl ratio).
     Psf(psf::PsfCmdArgs),
+    /// Wavefront error per field and wavelength: OPD against the reference sphere (waves), RMS
+    /// and PV to chief and centroid, Maréchal Strehl, Zernike Standard (Noll) and Fringe fits.
+    Wavefront(wave::WavefrontArgs),
+    /// MTF per field and wavelength, tangential and sagittal: diffraction (FFT) or geometric,
+    /// with the diffraction limit, optionally through focus.
+    Mtf(wave::MtfArgs),
     /// PSF map: PSFs over a grid of fields covering the sensor.
     PsfMap(psf::PsfMapArgs),
     /// Two-stage optimization: stage 1 (pretrain) minimizes the RMS spot without tolerances;
@@ -96,6 +105,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sensitivity(a) => tolerance::run_sensitivity(a),
         Command::Psf(a) => psf::run(a),
         Command::PsfMap(a) => psf::run_map(a),
+        Command::Wavefront(a) => wave::run_wavefront(a),
+        Command::Mtf(a) => wave::run_mtf(a),
         Command::Train(a) => train::run(a),
         Command::Merge(a) => tolerance::run_merge(a),
         Command::Trace(a) => trace::run(a),

@@ -35,6 +35,18 @@ pub struct PsfCmdArgs {
     /// Print the PSF values as JSON.
     #[arg(long)]
     pub json: bool,
+    /// geometric: rays splatted at the pixel pitch (unit sum); fft: the pupil function's FFT;
+    /// huygens: the direct sum of wavelets from the reference sphere (any pitch, tilted planes,
+    /// wide fields). Diffraction PSFs are relative to the unaberrated peak.
+    #[arg(long, default_value = "geometric", value_parser = ["geometric", "fft", "huygens"])]
+    pub method: String,
+    /// Pupil samples across the diameter (fft, huygens).
+    #[arg(long, default_value_t = 64)]
+    pub pupil_samples: usize,
+    /// FFT grid side, at least twice the pupil samples (fft; the PSF is grid x grid pixels of
+    /// λ N_w pupil-samples / grid).
+    #[arg(long, default_value_t = 256)]
+    pub grid: usize,
 }
 
 /// Runs `tolray psf`.
@@ -48,7 +60,26 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
         png,
         exr,
         json,
+        method: a_method,
+        pupil_samples,
+        grid,
     } = a;
+    if a_method != "geometric" {
+        return run_diffraction(DiffractionArgs {
+            lens: &lens,
+            field: &field,
+            wavelengths: &wavelengths,
+            perturb: perturb.as_deref(),
+            png: png.as_deref(),
+            exr: exr.as_deref(),
+            json,
+            method: &a_method,
+            pupil_samples,
+            grid,
+            pitch_um: psf.pitch_um,
+            image_samples: psf.ks,
+        });
+    }
     let l = lens.load()?;
     warn_afocal(&l);
     let opts = psf.options(&l)?;
@@ -191,4 +222,118 @@ fn warn_afocal(l: &tolray::Lens) {
              gives its angular spread"
         );
     }
+}
+
+/// What `tolray psf --method fft|huygens` needs.
+struct DiffractionArgs<'a> {
+    lens: &'a LensArgs,
+    field: &'a str,
+    wavelengths: &'a [String],
+    perturb: Option<&'a std::path::Path>,
+    png: Option<&'a std::path::Path>,
+    exr: Option<&'a std::path::Path>,
+    json: bool,
+    method: &'a str,
+    pupil_samples: usize,
+    grid: usize,
+    pitch_um: Option<f64>,
+    image_samples: usize,
+}
+
+/// `tolray psf --method fft|huygens`: one diffraction PSF per wavelength.
+fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
+    use tolray::wave::psf::{fft_psf, huygens_psf, FftOptions, HuygensOptions};
+    use tolray::wave::{wavefront, Sampling, WaveOptions};
+    let l = a.lens.load()?;
+    let field = Field::parse(a.field)?;
+    let wls = parse_wavelengths(a.wavelengths, &l)?;
+    let sys = perturbed_system(&l, a.perturb)?;
+    let fft = FftOptions {
+        pupil_samples: a.pupil_samples,
+        grid: a.grid,
+    };
+    if let Err(e) = fft.check() {
+        usage!(
+            "--pupil-samples {} --grid {}: {}",
+            a.pupil_samples,
+            a.grid,
+            e.message()
+        );
+    }
+    let opts = WaveOptions {
+        sampling: Sampling::Grid(a.pupil_samples),
+        aim: l.ray_aiming,
+        ..WaveOptions::default()
+    };
+    let mut psfs = Vec::new();
+    for &wl in &wls {
+        let w = wavefront(&l, &sys, field, wl, &opts)?;
+        let p = if a.method == "fft" {
+            fft_psf(&w, &fft)?
+        } else {
+            // The FFT PSF's pitch unless given, so that the two compare pixel for pixel.
+            let pitch = match a.pitch_um {
+                Some(p) => p,
+                None => fft_psf(&w, &fft)?.pitch_um[0],
+            };
+            if a.image_samples == 0 || a.image_samples > tolray::wave::psf::MAX_HUYGENS_SIDE {
+                usage!(
+                    "--ks {}: give 1 to {} image points per side",
+                    a.image_samples,
+                    tolray::wave::psf::MAX_HUYGENS_SIDE
+                );
+            }
+            huygens_psf(
+                &w,
+                &HuygensOptions {
+                    image_samples: a.image_samples,
+                    pitch_um: pitch,
+                },
+            )?
+        };
+        emit_line(&format!(
+            "{} PSF at field {}, {wl:.2} nm: {}x{} px of {:.4} x {:.4} µm, Strehl {:.5}, peak pixel {:.5}",
+            a.method,
+            field.label(),
+            p.n,
+            p.n,
+            p.pitch_um[0],
+            p.pitch_um[1],
+            p.strehl,
+            p.values.iter().copied().fold(0.0, f64::max)
+        ));
+        psfs.push(p);
+    }
+    if a.json {
+        emit_line(&serde_json::to_string(&serde_json::json!({
+            "method": a.method,
+            "field": a.field,
+            "wavelengths_nm": wls,
+            "n": psfs[0].n,
+            "pitch_um": psfs.iter().map(|p| p.pitch_um).collect::<Vec<_>>(),
+            "strehl": psfs[0].strehl,
+            "strehl_per_wavelength": psfs.iter().map(|p| p.strehl).collect::<Vec<_>>(),
+            "psf": psfs.iter().map(|p| &p.values).collect::<Vec<_>>(),
+        }))?);
+    }
+    let tiles: Vec<Vec<f64>> = psfs.iter().map(|p| p.values.clone()).collect();
+    let n = psfs[0].n;
+    if let Some(p) = a.png {
+        figures::save(
+            &figures::psf_figure(
+                &tiles,
+                n,
+                tiles.len(),
+                &format!("{} PSF {} field {}", a.method, a.lens.lens, field.label()),
+            ),
+            p,
+        )?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = a.exr {
+        let (w, h, v) = figures::mosaic(&tiles, n, tiles.len());
+        figures::save_exr(p, w, h, &v)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
 }

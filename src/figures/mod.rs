@@ -1,4 +1,5 @@
-//! Pictures: spot diagrams, lens layouts, tolerance histograms, PSF maps and training curves.
+//! Pictures: spot diagrams, lens layouts, tolerance histograms, PSF maps, training curves, and
+//! the wave-optics pictures (OPD maps, Zernike bar charts, MTF curves; `wave.rs`).
 //!
 //! Each `*_figure` function gathers what a picture shows into a [`Figure`]; [`save`] draws it
 //! with [`plotters`] in an embedded DejaVu Sans (so every machine draws the same glyphs, µ and λ
@@ -46,6 +47,8 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::ops::Range;
 use std::path::Path;
 
+pub use wave::{mtf_figure, opd_map_figure, through_focus_figure, zernike_figure, FocusRow};
+
 /// An RGB colour, `[r, g, b]`.
 pub type Rgb = [u8; 3];
 
@@ -67,7 +70,7 @@ pub const PNG_SCALE: u32 = 2;
 
 /// The font every figure is drawn in: DejaVu Sans reduced to the characters figures use
 /// (`assets/fonts/README.md` says how and under which licence).
-const FONT_BYTES: &[u8] = include_bytes!("../assets/fonts/DejaVuSans-subset.ttf");
+const FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-subset.ttf");
 /// The family name the font is registered under (also written into SVG files, so a viewer with
 /// DejaVu Sans installed shows the same face).
 const FAMILY: &str = "DejaVu Sans";
@@ -129,6 +132,9 @@ enum Kind {
         series: Vec<DeepSeries>,
         split: usize,
     },
+    OpdMap(wave::OpdMap),
+    Bars(wave::Bars),
+    Curves(wave::Curves),
 }
 
 /// A named, coloured set of points.
@@ -240,6 +246,9 @@ impl Figure {
             } => draw_psf(&body, s, tiles, *ks, *cols, *scale),
             Kind::Training { rows, stage2 } => draw_training(&body, s, rows, *stage2),
             Kind::DeepTraining { series, split } => draw_deep_training(&body, s, series, *split),
+            Kind::OpdMap(m) => wave::draw_opd_map(&body, s, m),
+            Kind::Bars(b) => wave::draw_bars(&body, s, b),
+            Kind::Curves(c) => wave::draw_curves(&body, s, c),
         }
     }
 }
@@ -1728,3 +1737,6 @@ mod tests {
         assert_eq!(inferno(f64::NAN), RGBColor(0, 0, 4));
     }
 }
+
+// The wave-optics figures (after the house macros, which they use).
+mod wave;

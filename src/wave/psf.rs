@@ -1,0 +1,407 @@
+//! Diffraction PSFs: the FFT of the pupil function, and Huygens' direct sum of wavelets from
+//! the reference sphere to each image point.
+//!
+//! Both are given relative to the peak of the unaberrated PSF of the same pupil (same
+//! vignetting, zero OPD), so the peak of a PSF is its Strehl ratio; pixel (n/2, n/2) is the
+//! reference sphere's centre (the chief ray's image point), row 0 the top (+y) of the image
+//! plane.
+//!
+//! **FFT** ([`fft_psf`]): the OPD on an `S x S` grid over the entrance pupil is placed in an
+//! `N x N` array (zero padded, `N >= 2S` so that the MTF computed from it does not wrap) and
+//! transformed. The amplitude at image point `x` is `Σ_p exp(i 2π (W_p − L(p)·x / λ))` (a ray
+//! leading the sphere by `W` is a path `W λ` short; moving `x` along a ray lengthens its path
+//! by `L·x`), which the forward transform evaluates on a grid. The image-plane scale comes from the rays themselves: a least-squares affine
+//! map from pupil coordinates to the rays' direction cosines (times the image-space index),
+//! whose slopes `a_x`, `a_y` are the image-space numerical aperture per unit pupil coordinate;
+//! the pixel is `λ / (N Δp |a|)` with `Δp = 2 / S`, i.e. `λ N_w / Q` with `Q = N / S` for a
+//! pupil of working F-number `N_w`. Off axis the two slopes differ (the pupil seen from an
+//! off-axis image point is narrower tangentially), so the pixels are rectangular. The FFT PSF
+//! assumes, as OpticStudio's does, that the PSF is small against the exit pupil distance and
+//! that the pupil's map to direction cosines is affine.
+//!
+//! **Huygens** ([`huygens_psf`]): `U(x) = Σ_p w_p exp(i k (n' |x − q_p| − W_p λ)) / |x − q_p|`
+//! over the rays' points `q_p` on the reference sphere, for every image point `x` of an
+//! `M x M` grid of any pitch on the image plane (tilted planes and wide fields included).
+
+use super::Wavefront;
+use crate::error::{Error, Result};
+use crate::math::Vec3;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex;
+use serde::Serialize;
+
+/// A diffraction PSF on a grid of the image plane.
+#[derive(Clone, Debug, Serialize)]
+pub struct DiffractionPsf {
+    /// Grid side, pixels.
+    pub n: usize,
+    /// Pixel pitch along x and y, µm.
+    pub pitch_um: [f64; 2],
+    /// Intensity relative to the unaberrated peak, row-major, row 0 at the top (+y).
+    pub values: Vec<f64>,
+    /// Strehl ratio: the PSF's peak (located between pixels) over the unaberrated peak.
+    pub strehl: f64,
+    /// Where pixel (n/2, n/2) lies in the image plane's frame (x, y), mm.
+    pub centre_image_mm: [f64; 2],
+}
+
+/// Options of the FFT PSF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct FftOptions {
+    /// Pupil samples across the diameter, S.
+    pub pupil_samples: usize,
+    /// Side of the transformed array, N (at least 2 S).
+    pub grid: usize,
+}
+
+impl Default for FftOptions {
+    /// 64 pupil samples in a 256 array: pixels of λ N_w / 4.
+    fn default() -> Self {
+        FftOptions {
+            pupil_samples: 64,
+            grid: 256,
+        }
+    }
+}
+
+/// Largest FFT grid side (a 8192² complex array is 1 GiB).
+pub const MAX_GRID: usize = 8192;
+
+impl FftOptions {
+    /// Checks the sizes.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for fewer than 4 pupil samples, a grid smaller than twice
+    /// the pupil samples or larger than [`MAX_GRID`].
+    pub fn check(&self) -> Result<()> {
+        let (s, n) = (self.pupil_samples, self.grid);
+        if s < 4 {
+            return Err(Error::argument(format!(
+                "{s} pupil samples: give at least 4"
+            )));
+        }
+        if n < 2 * s {
+            return Err(Error::argument(format!(
+                "FFT grid {n} for {s} pupil samples: the grid must be at least twice the pupil \
+                 samples ({}) so that the pupil's autocorrelation (the MTF) does not wrap",
+                2 * s
+            )));
+        }
+        if n > MAX_GRID {
+            return Err(Error::argument(format!(
+                "FFT grid {n}: at most {MAX_GRID} (a {MAX_GRID}² array takes 1 GiB)"
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The affine map from normalised pupil coordinates to the rays' image-space direction cosines
+/// times the index: `[[L0, a_xx, a_xy], [M0, a_yx, a_yy]]`.
+pub(crate) fn direction_map(w: &Wavefront) -> Result<[[f64; 3]; 2]> {
+    let n = w.image_index;
+    let fit = |k: usize| -> Result<[f64; 3]> {
+        let v: Vec<f64> = w
+            .directions
+            .iter()
+            .map(|d| n * if k == 0 { d.x } else { d.y })
+            .collect();
+        let f = super::zernike::fit(
+            super::zernike::Ordering::Standard,
+            3,
+            &w.pupil,
+            &v,
+            &w.weight,
+        )?;
+        // Z2 = 2x, Z3 = 2y.
+        Ok([
+            f.coefficients[0],
+            2.0 * f.coefficients[1],
+            2.0 * f.coefficients[2],
+        ])
+    };
+    let m = [fit(0)?, fit(1)?];
+    if !(m[0][1].abs() > 0.0 && m[1][2].abs() > 0.0) {
+        return Err(Error::numerical(
+            "the rays leave the pupil with one direction: no converging beam to diffract",
+        ));
+    }
+    Ok(m)
+}
+
+/// Cell index of a grid point of [`super::Sampling::Grid`]`(s)`.
+fn cell(x: f64, s: usize) -> usize {
+    (((x + 1.0) * 0.5 * s as f64).floor() as usize).min(s - 1)
+}
+
+/// The FFT of the pupil function of `w` (traced with [`super::Sampling::Grid`] of
+/// `opts.pupil_samples`): the complex amplitude, unshifted (index 0 is the chief ray's image
+/// point), and the normalisation `(Σ A)²` of the unaberrated peak. With `aberrated` false the
+/// OPD is set to zero (the diffraction limit of the same pupil).
+pub(crate) fn pupil_transform(
+    w: &Wavefront,
+    opts: &FftOptions,
+    aberrated: bool,
+) -> (Vec<Complex<f64>>, f64) {
+    let (s, n) = (opts.pupil_samples, opts.grid);
+    let mut a = vec![Complex::new(0.0, 0.0); n * n];
+    let off = (n - s) / 2;
+    for (p, &opd) in w.pupil.iter().zip(&w.opd_waves) {
+        let (i, j) = (cell(p[0], s) + off, cell(p[1], s) + off);
+        let phase = if aberrated {
+            std::f64::consts::TAU * opd
+        } else {
+            0.0
+        };
+        a[j * n + i] = Complex::from_polar(1.0, phase);
+    }
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let f = planner.plan_fft_forward(n);
+    crate::psf::transform2(&mut a, n, &f);
+    let count = w.pupil.len() as f64;
+    (a, count * count)
+}
+
+/// The FFT PSF of a wavefront traced with [`super::Sampling::Grid`]`(opts.pupil_samples)`.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for sizes [`FftOptions::check`] refuses or a wavefront not
+/// sampled on that grid; [`crate::ErrorKind::Numerical`] for a beam that does not converge.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::Field;
+/// use tolray::wave::{psf::{fft_psf, FftOptions}, wavefront, Sampling, WaveOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("lens2")?;
+/// let o = FftOptions { pupil_samples: 32, grid: 64 };
+/// let opts = WaveOptions { sampling: Sampling::Grid(32), ..WaveOptions::default() };
+/// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.0), 587.5618, &opts)?;
+/// let p = fft_psf(&w, &o)?;
+/// assert!(p.strehl > 0.0 && p.strehl <= 1.0 + 1e-9);
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn fft_psf(w: &Wavefront, opts: &FftOptions) -> Result<DiffractionPsf> {
+    opts.check()?;
+    check_grid_sampled(w, opts.pupil_samples)?;
+    let (s, n) = (opts.pupil_samples, opts.grid);
+    let map = direction_map(w)?;
+    let (ax, ay) = (map[0][1], map[1][2]);
+    let lambda_mm = w.wavelength_nm * 1e-6;
+    let dp = 2.0 / s as f64;
+    let pitch = [
+        lambda_mm / (n as f64 * dp * ax.abs()),
+        lambda_mm / (n as f64 * dp * ay.abs()),
+    ];
+    let (a, ideal) = pupil_transform(w, opts, true);
+    let half = (n / 2) as isize;
+    let wrap = |k: isize| k.rem_euclid(n as isize) as usize;
+    let mut values = vec![0.0; n * n];
+    for r in 0..n {
+        // Image y = (n/2 - r) pitch; frequency index k_y = sign(a_y) (n/2 - r).
+        let ky = wrap((ay.signum() as isize) * (half - r as isize));
+        for c in 0..n {
+            let kx = wrap((ax.signum() as isize) * (c as isize - half));
+            values[r * n + c] = a[ky * n + kx].norm_sqr() / ideal;
+        }
+    }
+    // The peak between pixels: the continuous PSF by direct summation, refined from the
+    // brightest pixel.
+    let amp = |x: f64, y: f64| -> f64 {
+        let mut sum = Complex::new(0.0, 0.0);
+        for (p, &opd) in w.pupil.iter().zip(&w.opd_waves) {
+            let ph = std::f64::consts::TAU * (opd - (ax * p[0] * x + ay * p[1] * y) / lambda_mm);
+            sum += Complex::from_polar(1.0, ph);
+        }
+        sum.norm_sqr() / ideal
+    };
+    let (kmax, _) =
+        values.iter().enumerate().fold(
+            (0, f64::NEG_INFINITY),
+            |b, (k, &v)| if v > b.1 { (k, v) } else { b },
+        );
+    let x0 = ((kmax % n) as f64 - half as f64) * pitch[0];
+    let y0 = (half as f64 - (kmax / n) as f64) * pitch[1];
+    let strehl = refine_peak(&amp, x0, y0, pitch).min(1.0);
+    Ok(DiffractionPsf {
+        n,
+        pitch_um: [pitch[0] * 1e3, pitch[1] * 1e3],
+        values,
+        strehl,
+        centre_image_mm: w.centre_image_mm,
+    })
+}
+
+/// The maximum of `f` near (x0, y0) by coordinate-wise parabolic steps on a shrinking scale.
+fn refine_peak(f: &dyn Fn(f64, f64) -> f64, x0: f64, y0: f64, pitch: [f64; 2]) -> f64 {
+    let (mut x, mut y) = (x0, y0);
+    let mut best = f(x, y);
+    let mut h = [pitch[0], pitch[1]];
+    for _ in 0..30 {
+        for axis in 0..2 {
+            let at = |t: f64| if axis == 0 { f(x + t, y) } else { f(x, y + t) };
+            let (fm, fp) = (at(-h[axis]), at(h[axis]));
+            let curv = fm - 2.0 * best + fp;
+            let mut t = if curv < 0.0 {
+                0.5 * h[axis] * (fm - fp) / curv
+            } else if fp > fm {
+                h[axis]
+            } else {
+                -h[axis]
+            };
+            t = t.clamp(-h[axis], h[axis]);
+            let v = at(t);
+            if v > best {
+                best = v;
+                if axis == 0 {
+                    x += t;
+                } else {
+                    y += t;
+                }
+            }
+        }
+        h = [h[0] * 0.5, h[1] * 0.5];
+    }
+    best
+}
+
+/// Checks that `w` was traced on [`super::Sampling::Grid`]`(s)`: every pupil point is a cell
+/// centre of that grid.
+fn check_grid_sampled(w: &Wavefront, s: usize) -> Result<()> {
+    let ok = w.pupil.iter().all(|p| {
+        p.iter().all(|&x| {
+            let c = cell(x, s) as f64;
+            ((2.0 * c + 1.0) / s as f64 - 1.0 - x).abs() < 1e-9
+        })
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(Error::argument(format!(
+            "the FFT PSF needs a wavefront traced on the {s} x {s} pupil grid"
+        )))
+    }
+}
+
+/// Options of the Huygens PSF.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HuygensOptions {
+    /// Image points per side, M.
+    pub image_samples: usize,
+    /// Pixel pitch, µm.
+    pub pitch_um: f64,
+}
+
+/// Most image points per side of a Huygens PSF.
+pub const MAX_HUYGENS_SIDE: usize = 2048;
+
+/// The Huygens PSF of `w` on an `M x M` grid of the image plane centred on the reference
+/// sphere's centre. Cost: rays x M² complex exponentials, in parallel over rows.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for no image point, more than [`MAX_HUYGENS_SIDE`] per side,
+/// or a pitch that is not positive and finite.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::Field;
+/// use tolray::wave::{psf::{huygens_psf, HuygensOptions}, wavefront, WaveOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("lens2")?;
+/// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.0), 587.5618, &WaveOptions::default())?;
+/// let p = huygens_psf(&w, &HuygensOptions { image_samples: 16, pitch_um: 1.0 })?;
+/// assert_eq!(p.values.len(), 256);
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn huygens_psf(w: &Wavefront, opts: &HuygensOptions) -> Result<DiffractionPsf> {
+    let m = opts.image_samples;
+    if m == 0 || m > MAX_HUYGENS_SIDE {
+        return Err(Error::argument(format!(
+            "{m} Huygens image points per side: give 1 to {MAX_HUYGENS_SIDE}"
+        )));
+    }
+    if !(opts.pitch_um > 0.0 && opts.pitch_um.is_finite()) {
+        return Err(Error::argument(format!(
+            "Huygens pixel pitch {} µm: give a positive number",
+            opts.pitch_um
+        )));
+    }
+    let k = std::f64::consts::TAU / (w.wavelength_nm * 1e-6);
+    let n_img = w.image_index;
+    let pitch = opts.pitch_um * 1e-3;
+    let half = (m / 2) as f64;
+    let c = w.centre_image_mm;
+    let at = |r: usize, col: usize| -> Vec3<f64> {
+        w.image.point_to_global(Vec3::cst(
+            c[0] + (col as f64 - half) * pitch,
+            c[1] + (half - r as f64) * pitch,
+            0.0,
+        ))
+    };
+    let field = |x: Vec3<f64>, aberrated: bool| -> Complex<f64> {
+        let mut sum = Complex::new(0.0, 0.0);
+        for ((q, &opd), &wt) in w.sphere_points.iter().zip(&w.opd_waves).zip(&w.weight) {
+            let d = (x - *q).norm();
+            let lag = if aberrated {
+                opd * std::f64::consts::TAU
+            } else {
+                0.0
+            };
+            sum += Complex::from_polar(wt / d, k * n_img * d - lag);
+        }
+        sum
+    };
+    let centre = Vec3::cst(w.centre_mm[0], w.centre_mm[1], w.centre_mm[2]);
+    let ideal = field(centre, false).norm_sqr();
+    let values: Vec<f64> = (0..m)
+        .into_par_iter()
+        .flat_map_iter(|r| (0..m).map(move |col| (r, col)))
+        .map(|(r, col)| field(at(r, col), true).norm_sqr() / ideal)
+        .collect();
+    let (kmax, _) =
+        values.iter().enumerate().fold(
+            (0, f64::NEG_INFINITY),
+            |b, (i, &v)| if v > b.1 { (i, v) } else { b },
+        );
+    let local = |x: f64, y: f64| w.image.point_to_global(Vec3::cst(c[0] + x, c[1] + y, 0.0));
+    let f = |x: f64, y: f64| field(local(x, y), true).norm_sqr() / ideal;
+    let x0 = ((kmax % m) as f64 - half) * pitch;
+    let y0 = (half - (kmax / m) as f64) * pitch;
+    let strehl = refine_peak(&f, x0, y0, [pitch, pitch]).min(1.0);
+    Ok(DiffractionPsf {
+        n: m,
+        pitch_um: [opts.pitch_um; 2],
+        values,
+        strehl,
+        centre_image_mm: c,
+    })
+}
+
+/// The fraction of a PSF's energy on its grid within each radius (µm) of pixel (n/2, n/2)
+/// (the chief ray's image point): encircled energy, pixels counted by their centres.
+#[must_use]
+pub fn encircled_energy(psf: &DiffractionPsf, radii_um: &[f64]) -> Vec<f64> {
+    let n = psf.n;
+    let half = (n / 2) as f64;
+    let total: f64 = psf.values.iter().sum();
+    radii_um
+        .iter()
+        .map(|&r| {
+            let mut s = 0.0;
+            for j in 0..n {
+                for i in 0..n {
+                    let x = (i as f64 - half) * psf.pitch_um[0];
+                    let y = (half - j as f64) * psf.pitch_um[1];
+                    if x.hypot(y) <= r {
+                        s += psf.values[j * n + i];
+                    }
+                }
+            }
+            if total > 0.0 {
+                s / total
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
