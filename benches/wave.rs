@@ -1,4 +1,4 @@
-//! `wave`: the wave-optics analyses on lens2 at the d line, 0.7 field, all threads: the
+//! `wave`: the wave-optics analyses on the Cooke triplet at the d line, 0.7 field, all threads: the
 //! wavefront with its Zernike fits (16 x 48 quadrature, 37 terms), the FFT PSF (128² pupil in a
 //! 256² array), the Huygens PSF (64² pupil x 64² image points) and the diffraction MTF of one
 //! field (64² pupil, 256² array, three frequencies). `scripts/bench/wave_vs_optiland.py` times
@@ -13,10 +13,10 @@ use tolray::wave::{wavefront, Sampling, WaveOptions};
 use tolray::Lens;
 
 fn bench(c: &mut Criterion) {
-    let lens = Lens::load("lens2").unwrap();
+    let lens = Lens::load("cooke-triplet").unwrap();
     let sys = lens.compile();
     let field = Field::fraction(0.7);
-    let mut g = c.benchmark_group("wave/lens2");
+    let mut g = c.benchmark_group("wave/cooke-triplet");
     g.sample_size(10);
     g.bench_function("wavefront+zernike", |b| {
         b.iter(|| {

@@ -811,6 +811,7 @@ fn lens_work(l: &Lens, round_trips: bool) -> Verdict {
             }
         }
     }
+    wave_work(l, &sys)?;
     if round_trips {
         let back = json::from_str(&json::to_string(l))
             .map_err(|e| format!("JSON round trip: tolray refuses the JSON it wrote: {e}"))?;
@@ -824,6 +825,79 @@ fn lens_work(l: &Lens, round_trips: bool) -> Verdict {
         }
     }
     Ok(Outcome::Accepted)
+}
+
+/// `tolray wavefront`, `mtf` and `psf --method fft|huygens` on a loaded lens: every number a
+/// result carries is finite, and a result is never empty.
+fn wave_work(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), String> {
+    use tolray::wave::{mtf, psf, wavefront, Sampling, WaveOptions};
+    let wl = l.primary_wavelength_nm;
+    let q = WaveOptions {
+        sampling: Sampling::Quadrature {
+            rings: 4,
+            spokes: 8,
+        },
+        ..WaveOptions::default()
+    };
+    let Ok(w) = wavefront(l, sys, Field::fraction(0.7), wl, &q) else {
+        return Ok(());
+    };
+    if w.opd_waves.is_empty() || w.opd_waves.len() != w.weight.len() {
+        return Err("wavefront: an empty or ragged result".into());
+    }
+    if let Ok(s) = w.stats(15) {
+        finite!(
+            "wavefront",
+            s.rms_to_chief_waves,
+            s.rms_to_centroid_waves,
+            s.pv_to_chief_waves,
+            s.strehl_marechal
+        );
+        if s.zernike_standard
+            .coefficients
+            .iter()
+            .any(|v| !v.is_finite())
+        {
+            return Err("wavefront: a non-finite Zernike coefficient".into());
+        }
+    }
+    let g = WaveOptions {
+        sampling: Sampling::Grid(8),
+        ..WaveOptions::default()
+    };
+    let Ok(w) = wavefront(l, sys, Field::fraction(0.7), wl, &g) else {
+        return Ok(());
+    };
+    let fft = psf::FftOptions {
+        pupil_samples: 8,
+        grid: 16,
+    };
+    if let Ok(p) = psf::fft_psf(&w, &fft) {
+        if p.values.iter().any(|v| !v.is_finite()) || !p.strehl.is_finite() {
+            return Err("fft psf: a non-finite value".into());
+        }
+    }
+    if let Ok(p) = psf::huygens_psf(
+        &w,
+        &psf::HuygensOptions {
+            image_samples: 4,
+            pitch_um: 1.0,
+        },
+    ) {
+        if p.values.iter().any(|v| !v.is_finite()) || !p.strehl.is_finite() {
+            return Err("huygens psf: a non-finite value".into());
+        }
+    }
+    if let Ok(m) = mtf::fft_mtf(&w, &fft, &[1.0, 10.0]) {
+        if m.tangential
+            .iter()
+            .chain(&m.sagittal)
+            .any(|v| !v.is_finite())
+        {
+            return Err("mtf: a non-finite value".into());
+        }
+    }
+    Ok(())
 }
 
 fn run_agf(b: &[u8]) -> Verdict {

@@ -207,10 +207,18 @@ fn build(source: &str, link: Link, tag: &str) -> PathBuf {
 
 /// Runs a built program and returns its RESULT lines as key -> numbers.
 fn run(exe: &Path) -> std::collections::HashMap<String, Vec<f64>> {
-    let out = Command::new(exe)
-        .env_remove("LD_LIBRARY_PATH")
-        .output()
-        .unwrap();
+    // A program just written may still be open for writing in a child that another test
+    // thread forked meanwhile (ETXTBSY = 26 on Linux, "Text file busy"): try again shortly.
+    let mut tries = 0;
+    let out = loop {
+        match Command::new(exe).env_remove("LD_LIBRARY_PATH").output() {
+            Err(e) if e.raw_os_error() == Some(26) && tries < 50 => {
+                tries += 1;
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            r => break r.unwrap(),
+        }
+    };
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),

@@ -54,6 +54,7 @@ struct Otf {
 impl Otf {
     fn new(w: &Wavefront, opts: &FftOptions) -> Result<Otf> {
         opts.check()?;
+        super::psf::check_sampling(w, opts.pupil_samples)?;
         let map = direction_map(w)?;
         let (ax, ay) = (map[0][1], map[1][2]);
         let n = opts.grid;
@@ -137,14 +138,14 @@ fn check_freqs(freqs: &[f64], cut: [f64; 2]) -> Result<()> {
 /// # Errors
 /// [`crate::ErrorKind::Argument`] for sizes [`FftOptions::check`] refuses, no frequency, or a
 /// frequency not below the cutoff; [`crate::ErrorKind::Numerical`] for a beam that does not
-/// converge.
+/// converge or a pupil grid too coarse for the wavefront (as [`super::psf::fft_psf`]).
 ///
 /// # Examples
 /// ```
 /// use tolray::trace::Field;
 /// use tolray::wave::{mtf::fft_mtf, psf::FftOptions, wavefront, Sampling, WaveOptions};
 /// use tolray::Lens;
-/// let lens = Lens::load("lens2")?;
+/// let lens = Lens::load("cooke-triplet")?;
 /// let opts = WaveOptions { sampling: Sampling::Grid(64), ..WaveOptions::default() };
 /// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.7), 587.5618, &opts)?;
 /// let m = fft_mtf(&w, &FftOptions::default(), &[0.0, 20.0, 40.0])?;
@@ -184,7 +185,10 @@ pub fn geometric_mtf(
     opts: &FftOptions,
     freqs: &[f64],
 ) -> Result<Mtf> {
-    let otf = Otf::new(limit, opts)?;
+    // Only the unaberrated pupil of `limit` is used: its OPD is not sampled.
+    let mut flat = limit.clone();
+    flat.opd_waves.iter_mut().for_each(|v| *v = 0.0);
+    let otf = Otf::new(&flat, opts)?;
     let (t, s) = directions(w);
     let cut = [otf.cutoff(t), otf.cutoff(s)];
     check_freqs(freqs, cut)?;

@@ -134,6 +134,45 @@ fn cell(x: f64, s: usize) -> usize {
     (((x + 1.0) * 0.5 * s as f64).floor() as usize).min(s - 1)
 }
 
+/// The largest OPD difference (waves) between neighbouring samples of `w` on the `s x s` pupil
+/// grid: above half a wave the sampled pupil function aliases and an FFT PSF or MTF computed
+/// from it is wrong.
+#[must_use]
+pub fn opd_step_waves(w: &Wavefront, s: usize) -> f64 {
+    let mut g = vec![f64::NAN; s * s];
+    for (p, &opd) in w.pupil.iter().zip(&w.opd_waves) {
+        g[cell(p[1], s) * s + cell(p[0], s)] = opd;
+    }
+    let mut step: f64 = 0.0;
+    for j in 0..s {
+        for i in 0..s {
+            let v = g[j * s + i];
+            for (a, b) in [(i + 1, j), (i, j + 1)] {
+                if a < s && b < s {
+                    let u = g[b * s + a];
+                    if v.is_finite() && u.is_finite() {
+                        step = step.max((u - v).abs());
+                    }
+                }
+            }
+        }
+    }
+    step
+}
+
+/// Refuses a wavefront too steep for its pupil grid ([`opd_step_waves`] above half a wave),
+/// saying how many samples would do.
+pub(crate) fn check_sampling(w: &Wavefront, s: usize) -> Result<()> {
+    let step = opd_step_waves(w, s);
+    if step > 0.5 {
+        let need = (s as f64 * step / 0.4).ceil() as usize;
+        return Err(Error::numerical(format!(
+            "pupil undersampled: the OPD changes by {step:.2} waves between neighbouring samples              of the {s} x {s} pupil grid (at most 0.5 without aliasing); use about {need} pupil              samples or more"
+        )));
+    }
+    Ok(())
+}
+
 /// The FFT of the pupil function of `w` (traced with [`super::Sampling::Grid`] of
 /// `opts.pupil_samples`): the complex amplitude, unshifted (index 0 is the chief ray's image
 /// point), and the normalisation `(Σ A)²` of the unaberrated peak. With `aberrated` false the
@@ -166,24 +205,31 @@ pub(crate) fn pupil_transform(
 ///
 /// # Errors
 /// [`crate::ErrorKind::Argument`] for sizes [`FftOptions::check`] refuses or a wavefront not
-/// sampled on that grid; [`crate::ErrorKind::Numerical`] for a beam that does not converge.
+/// sampled on that grid; [`crate::ErrorKind::Numerical`] for a beam that does not converge or
+/// a pupil grid too coarse for the wavefront (an OPD step over half a wave between
+/// neighbouring samples, which aliases: the message says how many samples would do).
 ///
 /// # Examples
 /// ```
 /// use tolray::trace::Field;
 /// use tolray::wave::{psf::{fft_psf, FftOptions}, wavefront, Sampling, WaveOptions};
 /// use tolray::Lens;
-/// let lens = Lens::load("lens2")?;
+/// let lens = Lens::load("cooke-triplet")?;
 /// let o = FftOptions { pupil_samples: 32, grid: 64 };
 /// let opts = WaveOptions { sampling: Sampling::Grid(32), ..WaveOptions::default() };
 /// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.0), 587.5618, &opts)?;
 /// let p = fft_psf(&w, &o)?;
 /// assert!(p.strehl > 0.0 && p.strehl <= 1.0 + 1e-9);
+/// // lens2 carries 20 waves of defocus at its sensor: 32 samples alias, and are refused.
+/// let lens2 = Lens::load("lens2")?;
+/// let w2 = wavefront(&lens2, &lens2.compile(), Field::fraction(0.0), 587.5618, &opts)?;
+/// assert!(fft_psf(&w2, &o).unwrap_err().message().contains("undersampled"));
 /// # Ok::<(), tolray::Error>(())
 /// ```
 pub fn fft_psf(w: &Wavefront, opts: &FftOptions) -> Result<DiffractionPsf> {
     opts.check()?;
     check_grid_sampled(w, opts.pupil_samples)?;
+    check_sampling(w, opts.pupil_samples)?;
     let (s, n) = (opts.pupil_samples, opts.grid);
     let map = direction_map(w)?;
     let (ax, ay) = (map[0][1], map[1][2]);

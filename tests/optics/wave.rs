@@ -334,9 +334,14 @@ fn bad_input_is_refused_by_name() {
     let e = wavefront(&l, &sys, Field::angle(0.0), WL, &grid(100_000)).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Argument);
     assert!(e.message().contains("at most"), "{}", e.message());
-    // A frequency above the cutoff.
+    // A pupil grid too coarse for lens2's 20 waves of defocus (it would alias).
     let w = wavefront(&l, &sys, Field::angle(0.0), WL, &grid(64)).unwrap();
-    let e = fft_mtf(&w, &FftOptions::default(), &[10.0, 5000.0]).unwrap_err();
+    let e = fft_mtf(&w, &FftOptions::default(), &[10.0]).unwrap_err();
+    assert!(e.message().contains("undersampled"), "{}", e.message());
+    // A frequency above the cutoff.
+    let c = Lens::load("cooke-triplet").unwrap();
+    let wc = wavefront(&c, &c.compile(), Field::angle(0.0), WL, &grid(64)).unwrap();
+    let e = fft_mtf(&wc, &FftOptions::default(), &[10.0, 5000.0]).unwrap_err();
     assert!(e.message().contains("cutoff"), "{}", e.message());
     // A grid that would wrap the MTF, and one too large.
     assert!(fft_psf(

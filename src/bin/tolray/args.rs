@@ -158,7 +158,8 @@ impl RayArgs {
 
 #[derive(Args)]
 pub struct PsfArgs {
-    /// Kernel size, pixels (odd).
+    /// Kernel size, pixels (odd; diffraction PSFs: the central --ks x --ks pixels of the FFT,
+    /// the Huygens grid side).
     #[arg(long, default_value_t = 51)]
     pub ks: usize,
     /// Rays per PSF (uniform random over the entrance pupil).

@@ -43,8 +43,8 @@ pub struct PsfCmdArgs {
     /// Pupil samples across the diameter (fft, huygens).
     #[arg(long, default_value_t = 64)]
     pub pupil_samples: usize,
-    /// FFT grid side, at least twice the pupil samples (fft; the PSF is grid x grid pixels of
-    /// λ N_w pupil-samples / grid).
+    /// FFT grid side, at least twice the pupil samples (fft: pixels of λ N_w pupil-samples /
+    /// grid; the central --ks x --ks pixels are written).
     #[arg(long, default_value_t = 256)]
     pub grid: usize,
 }
@@ -240,6 +240,20 @@ struct DiffractionArgs<'a> {
     image_samples: usize,
 }
 
+/// The central `k x k` pixels of `p` (all of it when `k` is 0 or not smaller), pixel (k/2, k/2)
+/// staying on the chief ray's image point.
+fn crop(p: tolray::wave::psf::DiffractionPsf, k: usize) -> tolray::wave::psf::DiffractionPsf {
+    if k == 0 || k >= p.n {
+        return p;
+    }
+    let off = p.n / 2 - k / 2;
+    let values = (0..k)
+        .flat_map(|r| (0..k).map(move |c| (r, c)))
+        .map(|(r, c)| p.values[(r + off) * p.n + c + off])
+        .collect();
+    tolray::wave::psf::DiffractionPsf { n: k, values, ..p }
+}
+
 /// `tolray psf --method fft|huygens`: one diffraction PSF per wavelength.
 fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
     use tolray::wave::psf::{fft_psf, huygens_psf, FftOptions, HuygensOptions};
@@ -267,15 +281,22 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
     };
     let mut psfs = Vec::new();
     for &wl in &wls {
-        let w = wavefront(&l, &sys, field, wl, &opts)?;
-        let p = if a.method == "fft" {
-            fft_psf(&w, &fft)?
-        } else {
-            // The FFT PSF's pitch unless given, so that the two compare pixel for pixel.
-            let pitch = match a.pitch_um {
-                Some(p) => p,
-                None => fft_psf(&w, &fft)?.pitch_um[0],
+        let what = format!("field {}, {wl} nm", field.label());
+        let trace = |fft: &FftOptions| {
+            let o = WaveOptions {
+                sampling: Sampling::Grid(fft.pupil_samples),
+                ..opts
             };
+            wavefront(&l, &sys, field, wl, &o)
+        };
+        let p = if a.method == "fft" {
+            let p =
+                crate::wave::with_fine_enough_pupil(a.pupil_samples, a.grid, &what, &mut |fft| {
+                    fft_psf(&trace(fft)?, fft)
+                })?
+                .0;
+            crop(p, a.image_samples)
+        } else {
             if a.image_samples == 0 || a.image_samples > tolray::wave::psf::MAX_HUYGENS_SIDE {
                 usage!(
                     "--ks {}: give 1 to {} image points per side",
@@ -283,13 +304,23 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
                     tolray::wave::psf::MAX_HUYGENS_SIDE
                 );
             }
-            huygens_psf(
-                &w,
-                &HuygensOptions {
-                    image_samples: a.image_samples,
-                    pitch_um: pitch,
-                },
-            )?
+            // The FFT PSF's pitch unless given, so that the two compare pixel for pixel.
+            let (p, _) =
+                crate::wave::with_fine_enough_pupil(a.pupil_samples, a.grid, &what, &mut |fft| {
+                    let w = trace(fft)?;
+                    let pitch = match a.pitch_um {
+                        Some(p) => p,
+                        None => fft_psf(&w, fft)?.pitch_um[0],
+                    };
+                    huygens_psf(
+                        &w,
+                        &HuygensOptions {
+                            image_samples: a.image_samples,
+                            pitch_um: pitch,
+                        },
+                    )
+                })?;
+            p
         };
         emit_line(&format!(
             "{} PSF at field {}, {wl:.2} nm: {}x{} px of {:.4} x {:.4} µm, Strehl {:.5}, peak pixel {:.5}",

@@ -248,6 +248,45 @@ pub struct MtfArgs {
     pub png: Option<PathBuf>,
 }
 
+/// Runs `f` with a wavefront traced on a pupil grid of `samples` (and an FFT grid in the same
+/// ratio to it), doubling both while the wavefront is too steep for the grid (an aliased FFT),
+/// up to 1024 samples; says so on stderr. Returns the result and the samples used.
+pub fn with_fine_enough_pupil<T>(
+    samples: usize,
+    grid: usize,
+    what: &str,
+    f: &mut dyn FnMut(&FftOptions) -> tolray::Result<T>,
+) -> anyhow::Result<(T, usize)> {
+    let mut fft = FftOptions {
+        pupil_samples: samples,
+        grid,
+    };
+    loop {
+        match f(&fft) {
+            Err(e)
+                if e.message().contains("undersampled")
+                    && fft.pupil_samples < 1024
+                    && fft.grid * 2 <= tolray::wave::psf::MAX_GRID =>
+            {
+                let next = FftOptions {
+                    pupil_samples: fft.pupil_samples * 2,
+                    grid: fft.grid * 2,
+                };
+                eprintln!(
+                    "note: {what}: {} pupil samples alias ({}); trying {} in a {} grid",
+                    fft.pupil_samples,
+                    e.message(),
+                    next.pupil_samples,
+                    next.grid
+                );
+                fft = next;
+            }
+            Err(e) => return Err(e.into()),
+            Ok(v) => return Ok((v, fft.pupil_samples)),
+        }
+    }
+}
+
 /// The lens with its sensor moved by `dz_mm` along the axis.
 fn refocused(l: &Lens, dz_mm: f64) -> Lens {
     let mut m = l.clone();
@@ -307,23 +346,37 @@ pub fn run_mtf(a: MtfArgs) -> anyhow::Result<()> {
                     refocused(&l, dz)
                 };
                 let sys = perturbed_system(&lf, a.rays.perturb.as_deref())?;
-                let limit = wave::wavefront(&lf, &sys, *field, wl, &grid_opts)?;
-                let m = if a.method == "fft" {
-                    wave::mtf::fft_mtf(&limit, &fft, &a.freq_lpmm)?
+                let what = format!("field {label}, {wl} nm, focus {dz} mm");
+                let quad = if a.method == "fft" {
+                    None
                 } else {
-                    let w = wave::wavefront(&lf, &sys, *field, wl, &quad_opts)?;
-                    wave::mtf::geometric_mtf(&w, &limit, &fft, &a.freq_lpmm)?
+                    Some(wave::wavefront(&lf, &sys, *field, wl, &quad_opts)?)
                 };
-                if a.png.is_some() && focus.len() == 1 {
-                    let c = m.cutoff_lpmm[0].min(m.cutoff_lpmm[1]);
-                    let f: Vec<f64> = (0..=100).map(|k| c * 0.995 * k as f64 / 100.0).collect();
-                    let curve = if a.method == "fft" {
-                        wave::mtf::fft_mtf(&limit, &fft, &f)?
-                    } else {
-                        let w = wave::wavefront(&lf, &sys, *field, wl, &quad_opts)?;
-                        wave::mtf::geometric_mtf(&w, &limit, &fft, &f)?
-                    };
-                    curves.push((format!("{label}, {wl:.1} nm"), curve));
+                let plot = a.png.is_some() && focus.len() == 1;
+                let ((m, curve), used) =
+                    with_fine_enough_pupil(a.pupil_samples, a.grid, &what, &mut |fft| {
+                        let g = WaveOptions {
+                            sampling: Sampling::Grid(fft.pupil_samples),
+                            ..grid_opts
+                        };
+                        let limit = wave::wavefront(&lf, &sys, *field, wl, &g)?;
+                        let at = |freqs: &[f64]| match &quad {
+                            None => wave::mtf::fft_mtf(&limit, fft, freqs),
+                            Some(w) => wave::mtf::geometric_mtf(w, &limit, fft, freqs),
+                        };
+                        let m = at(&a.freq_lpmm)?;
+                        let curve = if plot {
+                            let c = m.cutoff_lpmm[0].min(m.cutoff_lpmm[1]);
+                            let f: Vec<f64> =
+                                (0..=100).map(|k| c * 0.995 * k as f64 / 100.0).collect();
+                            Some(at(&f)?)
+                        } else {
+                            None
+                        };
+                        Ok((m, curve))
+                    })?;
+                if let Some(c) = curve {
+                    curves.push((format!("{label}, {wl:.1} nm"), c));
                 }
                 let mut row = serde_json::json!({
                     "field": label,
@@ -335,6 +388,7 @@ pub fn run_mtf(a: MtfArgs) -> anyhow::Result<()> {
                     "diffraction_limit": m.diffraction_limit,
                     "diffraction_limit_sagittal": m.diffraction_limit_sagittal,
                     "cutoff_lpmm": m.cutoff_lpmm,
+                    "pupil_samples": used,
                 });
                 if a.through_focus.is_some() {
                     row["focus_shift_mm"] = serde_json::json!(dz);
