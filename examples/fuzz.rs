@@ -897,6 +897,43 @@ fn wave_work(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), String> {
             return Err("mtf: a non-finite value".into());
         }
     }
+    if !psf::strehl(&w).is_finite() {
+        return Err("strehl: not finite".into());
+    }
+    if let Ok(m) = mtf::direct_mtf(l, sys, Field::fraction(0.7), wl, &g, &[1.0, 10.0]) {
+        if m.tangential
+            .iter()
+            .chain(&m.sagittal)
+            .any(|v| !v.is_finite())
+        {
+            return Err("direct mtf: a non-finite value".into());
+        }
+    }
+    aberration_work(l, sys)
+}
+
+/// The aberration curves: any error is a refusal, any number finite.
+fn aberration_work(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), String> {
+    use tolray::analysis::aberrations as ab;
+    let wl = l.primary_wavelength_nm;
+    let f = [Field::fraction(0.0), Field::fraction(0.7)];
+    if let Ok([t, s]) = ab::field_curvature(l, sys, f[1], wl, false) {
+        finite!("field curvature", t, s);
+    }
+    if let Ok(d) = ab::distortion(l, sys, &f, wl, ab::DistortionKind::FTan, false) {
+        finite!("distortion", d[0], d[1]);
+    }
+    if let Ok(r) = ab::relative_illumination(l, sys, &f, wl, false) {
+        finite!("relative illumination", r[0], r[1]);
+    }
+    if let Ok(c) = ab::lateral_colour(l, sys, &f, &[wl, wl * 1.1], false) {
+        finite!("lateral colour", c[1][0], c[1][1]);
+    }
+    if let Ok(fan) = ab::fans(l, sys, f[1], wl, 5, &Default::default()) {
+        if fan.pupil.len() != 5 || fan.opd_tangential_waves.iter().any(|v| v.is_infinite()) {
+            return Err("fans: a ragged or infinite result".into());
+        }
+    }
     Ok(())
 }
 

@@ -367,6 +367,54 @@
 #define TOLRAY_PARAM_GLASS_VD 5
 
 /**
+ * The reference sphere is centred on the chief ray's image point (OpticStudio's default).
+ */
+#define TOLRAY_REFERENCE_CHIEF 0
+
+/**
+ * The reference sphere is centred on the centroid of the rays' image points.
+ */
+#define TOLRAY_REFERENCE_CENTROID 1
+
+/**
+ * Zernike terms fitted over the normalised entrance pupil (the launch points; optiland's).
+ */
+#define TOLRAY_ZERNIKE_ENTRANCE 0
+
+/**
+ * Zernike terms fitted over the normalised exit pupil (points on the reference sphere;
+ * OpticStudio's).
+ */
+#define TOLRAY_ZERNIKE_EXIT 1
+
+/**
+ * Largest side of an OPD map, FFT PSF grid or Huygens image (8192: a 8192^2 double array is
+ * 512 MiB).
+ */
+#define TOLRAY_WAVE_MAX_SIDE 8192
+
+/**
+ * FFT diffraction PSF: the pupil function on a `pupil_samples` grid zero-padded to `grid`.
+ */
+#define TOLRAY_DIFFRACTION_FFT 0
+
+/**
+ * Huygens diffraction PSF: the direct sum of wavelets from the reference sphere.
+ */
+#define TOLRAY_DIFFRACTION_HUYGENS 1
+
+/**
+ * Diffraction MTF as the FFT of the FFT PSF (`pupil_samples`, `grid`).
+ */
+#define TOLRAY_MTF_FFT 0
+
+/**
+ * Diffraction MTF as the pupil's autocorrelation evaluated directly from exactly traced,
+ * sheared pupils (`pupil_samples` grid; `grid` ignored): no FFT grid, nothing aliases.
+ */
+#define TOLRAY_MTF_DIRECT 1
+
+/**
  * Outcome of a C ABI call. The numeric values are fixed and will never be reused.
  */
 enum tolray_status
@@ -440,6 +488,63 @@ typedef struct tolray_spec tolray_spec;
  * top of tolray.h). Immutable; shareable.
  */
 typedef struct tolray_system tolray_system;
+
+/**
+ * A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 4, `x` and `y` finite. How a
+ * field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
+ */
+typedef struct tolray_field {
+    /**
+     * One of the `TOLRAY_FIELD_*` values: how `x` and `y` are measured.
+     */
+    uint32_t kind;
+    /**
+     * Field along x (sagittal). Positive values put the object right of the axis (+x).
+     */
+    double x;
+    /**
+     * Field along y (meridional). Positive values put the object above the axis (+y): the
+     * rays then travel toward -y.
+     */
+    double y;
+} tolray_field;
+
+/**
+ * Settings of [`tolray_diffraction_psf`] and [`tolray_mtf`], checked
+ * (`TOLRAY_ERROR_ARGUMENT`).
+ */
+typedef struct tolray_diffraction_options {
+    /**
+     * `TOLRAY_DIFFRACTION_FFT` or `TOLRAY_DIFFRACTION_HUYGENS` (the PSF); for the MTF,
+     * `TOLRAY_MTF_FFT` or `TOLRAY_MTF_DIRECT`.
+     */
+    uint32_t method;
+    /**
+     * Pupil samples across the diameter, 4 or more, at most 4194304 rays in the disk (64 by
+     * default); a grid whose OPD steps by
+     * more than half a wave between neighbouring samples is refused
+     * (`TOLRAY_ERROR_NUMERICAL`, the message says how many samples would do).
+     */
+    uint32_t pupil_samples;
+    /**
+     * FFT: the transformed array's side, at least 2 `pupil_samples`, at most 8192 (256);
+     * Huygens: image points per side, 1 to 2048.
+     */
+    uint32_t grid;
+    /**
+     * Huygens: the image pixel pitch, micrometres, finite and positive (ignored by the FFT,
+     * whose pitch is lambda N_w / (grid / pupil_samples)).
+     */
+    double pitch_um;
+    /**
+     * Nonzero: aim rays at the real stop.
+     */
+    uint32_t aim;
+    /**
+     * Nonzero: apertures clip.
+     */
+    uint32_t apertures;
+} tolray_diffraction_options;
 
 /**
  * A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
@@ -552,26 +657,6 @@ typedef struct tolray_paraxial {
      */
     uint32_t image_at_infinity;
 } tolray_paraxial;
-
-/**
- * A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 4, `x` and `y` finite. How a
- * field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
- */
-typedef struct tolray_field {
-    /**
-     * One of the `TOLRAY_FIELD_*` values: how `x` and `y` are measured.
-     */
-    uint32_t kind;
-    /**
-     * Field along x (sagittal). Positive values put the object right of the axis (+x).
-     */
-    double x;
-    /**
-     * Field along y (meridional). Positive values put the object above the axis (+y): the
-     * rays then travel toward -y.
-     */
-    double y;
-} tolray_field;
 
 /**
  * Pupil sampling: points (px, py) in the unit disk times `scale`, normalized coordinates of the
@@ -767,6 +852,84 @@ typedef int32_t (*tolray_train_progress)(void *user,
                                          double loss,
                                          double spot_um);
 
+/**
+ * Settings of [`tolray_wavefront`], checked (`TOLRAY_ERROR_ARGUMENT`): `rings` and `spokes` at
+ * least 1 with at most 4194304 rays in all, `zernike_terms` 1 to 231, `reference` and
+ * `zernike_pupil` 0 or 1.
+ */
+typedef struct tolray_wave_options {
+    /**
+     * Radial Gauss nodes of the pupil quadrature (16 by default).
+     */
+    uint32_t rings;
+    /**
+     * Angular nodes of the pupil quadrature (48 by default).
+     */
+    uint32_t spokes;
+    /**
+     * Zernike Standard (Noll) terms to fit (37 by default).
+     */
+    uint32_t zernike_terms;
+    /**
+     * `TOLRAY_REFERENCE_CHIEF` or `TOLRAY_REFERENCE_CENTROID`: the reference sphere's centre.
+     */
+    uint32_t reference;
+    /**
+     * `TOLRAY_ZERNIKE_ENTRANCE` or `TOLRAY_ZERNIKE_EXIT`: the pupil coordinates of the fit.
+     */
+    uint32_t zernike_pupil;
+    /**
+     * Nonzero: aim rays at the real stop.
+     */
+    uint32_t aim;
+    /**
+     * Nonzero: apertures clip.
+     */
+    uint32_t apertures;
+} tolray_wave_options;
+
+/**
+ * Wavefront error of one field and wavelength, in waves of that wavelength.
+ */
+typedef struct tolray_wavefront_stats {
+    /**
+     * RMS OPD with piston removed, waves.
+     */
+    double rms_to_chief_waves;
+    /**
+     * RMS OPD with piston and tilt removed, waves.
+     */
+    double rms_to_centroid_waves;
+    /**
+     * Peak to valley, waves.
+     */
+    double pv_to_chief_waves;
+    /**
+     * Peak to valley with tilt removed, waves.
+     */
+    double pv_to_centroid_waves;
+    /**
+     * Maréchal's Strehl estimate exp(-(2 pi rms_to_centroid)^2).
+     */
+    double strehl_marechal;
+    /**
+     * RMS of the OPD minus the Zernike Standard fit, waves.
+     */
+    double zernike_residual_waves;
+    /**
+     * Radius of the reference sphere, mm.
+     */
+    double reference_radius_mm;
+    /**
+     * Rays launched (the quadrature's points).
+     */
+    uint64_t n_launched;
+    /**
+     * Rays that reached the reference sphere.
+     */
+    uint64_t n_rays;
+} tolray_wavefront_stats;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -798,6 +961,27 @@ tolray_status tolray_add_sensor_noise(float *data,
                                       double noise_sigma,
                                       double full_well_electrons,
                                       uint64_t seed);
+
+/**
+ * The diffraction PSF of one field at one wavelength, relative to the peak of the unaberrated
+ * PSF of the same pupil (so the peak is the Strehl ratio), row-major with row 0 at +y, centred
+ * on the chief ray's image point: `grid` x `grid` values in `out` (`out_len` must be
+ * `grid`^2, `TOLRAY_ERROR_BUFFER_SIZE`). `*strehl_out` gets the Strehl ratio (the peak found
+ * between pixels) and `pitch_um_out[0..2]` the pixel pitch along x and y in micrometres
+ * (the FFT's pixels are rectangular off axis). Errors as [`tolray_wavefront`], and
+ * `TOLRAY_ERROR_NUMERICAL` for an undersampled pupil.
+ *
+ * # Safety
+ * Pointers valid as named; `out` holds `out_len` writable doubles, `pitch_um_out` two.
+ */
+tolray_status tolray_diffraction_psf(const struct tolray_system *system,
+                                     const struct tolray_field *field,
+                                     double wavelength_nm,
+                                     const struct tolray_diffraction_options *opts,
+                                     double *out,
+                                     size_t out_len,
+                                     double *strehl_out,
+                                     double *pitch_um_out);
 
 /**
  * Copies the message of the last failed call on this thread into `buf` (`cap` bytes),
@@ -896,6 +1080,49 @@ tolray_status tolray_lens_with_param(const struct tolray_lens *lens,
                                      const struct tolray_param *param,
                                      double value,
                                      struct tolray_lens **out);
+
+/**
+ * The diffraction MTF of one field at one wavelength at `n_freqs` frequencies (cycles/mm,
+ * finite, 0 or more, below the cutoff: `TOLRAY_ERROR_ARGUMENT` names it), tangential (along
+ * the field's direction in the image plane; y on axis) in `tangential_out` and sagittal in
+ * `sagittal_out`, 1 at zero frequency; the diffraction limit of the same pupil (tangential) in
+ * `limit_out` (may be NULL). Each output holds `n_freqs` doubles. `opts->method` is
+ * `TOLRAY_MTF_FFT` or `TOLRAY_MTF_DIRECT`. Errors as [`tolray_diffraction_psf`].
+ *
+ * # Safety
+ * Pointers valid as named; `freqs_lpmm` holds `n_freqs` doubles, each output `n_freqs`
+ * writable doubles.
+ */
+tolray_status tolray_mtf(const struct tolray_system *system,
+                         const struct tolray_field *field,
+                         double wavelength_nm,
+                         const struct tolray_diffraction_options *opts,
+                         const double *freqs_lpmm,
+                         size_t n_freqs,
+                         double *tangential_out,
+                         double *sagittal_out,
+                         double *limit_out);
+
+/**
+ * The OPD map of one field at one wavelength on an `n` x `n` cell-centred grid over the
+ * normalised entrance pupil (`n` 2 to 2048), in waves with the chief ray's reference sphere,
+ * row-major with row 0 at +y (pupil y = 1) and column 0 at -x: `opd_out[r n + c]`.
+ * `valid_out[r n + c]` is 1 where a ray got through and 0 elsewhere (outside the pupil,
+ * vignetted), where `opd_out` holds 0. Both arrays hold `out_len` = n^2 elements
+ * (`TOLRAY_ERROR_BUFFER_SIZE` otherwise). Errors as [`tolray_wavefront`].
+ *
+ * # Safety
+ * Pointers valid as named; `opd_out` and `valid_out` hold `out_len` writable elements.
+ */
+tolray_status tolray_opd_map(const struct tolray_system *system,
+                             const struct tolray_field *field,
+                             double wavelength_nm,
+                             uint32_t n,
+                             uint32_t aim,
+                             uint32_t apertures,
+                             double *opd_out,
+                             uint8_t *valid_out,
+                             size_t out_len);
 
 /**
  * Frees a pattern handle; NULL is ignored.
@@ -1260,6 +1487,39 @@ tolray_status tolray_train_resume(const char *out_dir,
  * The library version as a static NUL-terminated string, e.g. `"0.1.0"`. Never fails.
  */
 const char *tolray_version(void);
+
+/**
+ * The default wavefront settings: a 16 x 48 quadrature, 37 terms, chief-ray reference,
+ * entrance-pupil Zernikes, no aiming, apertures clip.
+ *
+ * # Safety
+ * `out` points to a writable `tolray_wave_options`.
+ */
+tolray_status tolray_wave_options_default(struct tolray_wave_options *out);
+
+/**
+ * Wavefront error of one field at one wavelength (finite, 100 to 20000 nm): the OPD of each
+ * ray against the reference sphere (centred on the chief ray's image point, or the centroid,
+ * through the paraxial exit pupil's centre at the primary wavelength; OpticStudio's
+ * convention), integrated over the pupil quadrature of `opts`, in `*out`; and the Zernike
+ * Standard (Noll, orthonormal over the unit disk) coefficients Z1..Z`opts->zernike_terms` in
+ * waves in `zernike_out` (`zernike_len` must equal `opts->zernike_terms`,
+ * `TOLRAY_ERROR_BUFFER_SIZE`; NULL with `zernike_len` 0 skips them). Rays are launched as
+ * "Ray bundles" at the top of tolray.h says and traced through `system`.
+ * `TOLRAY_ERROR_ARGUMENT` for an afocal lens or bad options; `TOLRAY_ERROR_NUMERICAL` when the
+ * chief ray misses the image (a field beyond the lens' reach) or fewer than 3 rays get
+ * through.
+ *
+ * # Safety
+ * Pointers valid as named; `zernike_out` holds `zernike_len` writable doubles.
+ */
+tolray_status tolray_wavefront(const struct tolray_system *system,
+                               const struct tolray_field *field,
+                               double wavelength_nm,
+                               const struct tolray_wave_options *opts,
+                               struct tolray_wavefront_stats *out,
+                               double *zernike_out,
+                               size_t zernike_len);
 
 #ifdef __cplusplus
 }  // extern "C"

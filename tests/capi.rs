@@ -1019,3 +1019,331 @@ fn an_afocal_lens_has_paraxial_data_through_the_c_abi() {
     );
     assert!((p.entrance_pupil_diameter_mm - 20.0).abs() < 1e-12, "{p:?}");
 }
+
+/// The wave-optics calls give the Rust API's numbers, and refuse bad sizes, NULLs and
+/// frequencies beyond the cutoff with statuses (never an abort: a pupil grid of 10^5 samples
+/// is refused before anything is allocated).
+#[test]
+fn wave_optics_through_the_c_abi() {
+    use std::ptr::{null, null_mut};
+    use tolray::ffi::tolray_status::*;
+    use tolray::ffi::*;
+    use tolray::wave::{self, mtf, psf, Sampling, WaveOptions};
+    let name = std::ffi::CString::new("cooke-triplet").unwrap();
+    let mut lens = null_mut();
+    let sys;
+    // SAFETY: valid pointers; handles freed below.
+    unsafe {
+        assert_eq!(tolray_lens_load(name.as_ptr(), &mut lens), TOLRAY_OK);
+        sys = nominal_system(lens);
+    }
+    let l = tolray::Lens::load("cooke-triplet").unwrap();
+    let s = l.compile();
+    let field = tolray_field {
+        kind: TOLRAY_FIELD_FRACTION,
+        x: 0.0,
+        y: 0.7,
+    };
+    let f = tolray::trace::Field::fraction(0.7);
+    let wl = 587.5618;
+
+    // Wavefront statistics and Zernike coefficients.
+    let mut o = std::mem::MaybeUninit::<tolray_wave_options>::uninit();
+    // SAFETY: `o` is writable.
+    assert_eq!(
+        unsafe { tolray_wave_options_default(o.as_mut_ptr()) },
+        TOLRAY_OK
+    );
+    // SAFETY: initialised by the call above.
+    let o = unsafe { o.assume_init() };
+    let mut st = tolray_wavefront_stats::default();
+    let mut z = vec![0.0; 37];
+    // SAFETY: valid handle and pointers; `z` holds 37 doubles.
+    let r = unsafe { tolray_wavefront(sys, &field, wl, &o, &mut st, z.as_mut_ptr(), z.len()) };
+    assert_eq!(r, TOLRAY_OK, "{}", last_error());
+    let w = wave::wavefront(&l, &s, f, wl, &WaveOptions::default()).unwrap();
+    let want = w.stats(37).unwrap();
+    assert_eq!(st.rms_to_chief_waves, want.rms_to_chief_waves);
+    assert_eq!(st.strehl_marechal, want.strehl_marechal);
+    assert_eq!(z, want.zernike_standard.coefficients);
+    assert_eq!(st.n_rays, w.opd_waves.len() as u64);
+    // A wrong Zernike buffer, bad options.
+    // SAFETY: as above; the calls must refuse.
+    unsafe {
+        assert_eq!(
+            tolray_wavefront(sys, &field, wl, &o, &mut st, z.as_mut_ptr(), 36),
+            TOLRAY_ERROR_BUFFER_SIZE
+        );
+        assert_eq!(
+            tolray_wavefront(sys, &field, wl, &o, &mut st, null_mut(), 0),
+            TOLRAY_OK
+        );
+        let bad = tolray_wave_options {
+            zernike_terms: 500,
+            ..o
+        };
+        assert_eq!(
+            tolray_wavefront(sys, &field, wl, &bad, &mut st, null_mut(), 0),
+            TOLRAY_ERROR_ARGUMENT
+        );
+        let far = tolray_field {
+            kind: TOLRAY_FIELD_ANGLE_DEG,
+            x: 0.0,
+            y: 80.0,
+        };
+        assert_eq!(
+            tolray_wavefront(sys, &far, wl, &o, &mut st, null_mut(), 0),
+            TOLRAY_ERROR_NUMERICAL
+        );
+        assert_eq!(
+            tolray_wavefront(sys, &field, wl, null(), &mut st, null_mut(), 0),
+            TOLRAY_ERROR_NULL_ARGUMENT
+        );
+    }
+
+    // The OPD map.
+    let n = 32;
+    let mut opd = vec![f64::NAN; n * n];
+    let mut valid = vec![9u8; n * n];
+    // SAFETY: buffers of n² elements.
+    let r = unsafe {
+        tolray_opd_map(
+            sys,
+            &field,
+            wl,
+            n as u32,
+            0,
+            1,
+            opd.as_mut_ptr(),
+            valid.as_mut_ptr(),
+            n * n,
+        )
+    };
+    assert_eq!(r, TOLRAY_OK, "{}", last_error());
+    let g = wave::wavefront(
+        &l,
+        &s,
+        f,
+        wl,
+        &WaveOptions {
+            sampling: Sampling::Grid(n),
+            ..WaveOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(valid.iter().filter(|&&v| v == 1).count(), g.opd_waves.len());
+    assert!(valid.iter().all(|&v| v <= 1) && opd.iter().all(|v| v.is_finite()));
+    let sum: f64 = opd.iter().sum();
+    assert!((sum - g.opd_waves.iter().sum::<f64>()).abs() < 1e-9);
+
+    // Diffraction PSFs and MTFs.
+    let d = tolray_diffraction_options {
+        method: TOLRAY_DIFFRACTION_FFT,
+        pupil_samples: 32,
+        grid: 64,
+        pitch_um: 1.0,
+        aim: 0,
+        apertures: 1,
+    };
+    let mut img = vec![0.0; 64 * 64];
+    let (mut strehl, mut pitch) = (0.0, [0.0; 2]);
+    // SAFETY: `img` holds 64² doubles, `pitch` two.
+    let r = unsafe {
+        tolray_diffraction_psf(
+            sys,
+            &field,
+            wl,
+            &d,
+            img.as_mut_ptr(),
+            img.len(),
+            &mut strehl,
+            pitch.as_mut_ptr(),
+        )
+    };
+    assert_eq!(r, TOLRAY_OK, "{}", last_error());
+    let want = psf::fft_psf(
+        &g_of(&l, &s, f, wl, 32),
+        &psf::FftOptions {
+            pupil_samples: 32,
+            grid: 64,
+        },
+    )
+    .unwrap();
+    assert_eq!(strehl, want.strehl);
+    assert_eq!(img, want.values);
+    assert_eq!(pitch, want.pitch_um);
+    let h = tolray_diffraction_options {
+        method: TOLRAY_DIFFRACTION_HUYGENS,
+        grid: 16,
+        pitch_um: 0.5,
+        ..d
+    };
+    let mut small = vec![0.0; 16 * 16];
+    // SAFETY: `small` holds 16² doubles.
+    let r = unsafe {
+        tolray_diffraction_psf(
+            sys,
+            &field,
+            wl,
+            &h,
+            small.as_mut_ptr(),
+            small.len(),
+            &mut strehl,
+            pitch.as_mut_ptr(),
+        )
+    };
+    assert_eq!(r, TOLRAY_OK, "{}", last_error());
+    assert_eq!(pitch, [0.5, 0.5]);
+    for (bad, want) in [
+        (
+            tolray_diffraction_options { grid: 40, ..d },
+            TOLRAY_ERROR_ARGUMENT,
+        ),
+        (
+            tolray_diffraction_options {
+                pupil_samples: 100_000,
+                grid: 8192,
+                ..d
+            },
+            TOLRAY_ERROR_ARGUMENT,
+        ),
+        (
+            tolray_diffraction_options { method: 7, ..d },
+            TOLRAY_ERROR_ARGUMENT,
+        ),
+    ] {
+        // SAFETY: as above; refused before writing.
+        let r = unsafe {
+            tolray_diffraction_psf(
+                sys,
+                &field,
+                wl,
+                &bad,
+                img.as_mut_ptr(),
+                img.len(),
+                &mut strehl,
+                pitch.as_mut_ptr(),
+            )
+        };
+        assert_eq!(r, want, "{bad:?}: {}", last_error());
+    }
+    // SAFETY: a wrong length is refused.
+    let r = unsafe {
+        tolray_diffraction_psf(
+            sys,
+            &field,
+            wl,
+            &d,
+            img.as_mut_ptr(),
+            100,
+            &mut strehl,
+            pitch.as_mut_ptr(),
+        )
+    };
+    assert_eq!(r, TOLRAY_ERROR_BUFFER_SIZE);
+
+    let freqs = [0.0, 20.0, 40.0];
+    let (mut t, mut sg, mut lim) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+    for method in [TOLRAY_MTF_FFT, TOLRAY_MTF_DIRECT] {
+        let m = tolray_diffraction_options { method, ..d };
+        // SAFETY: outputs of three doubles each.
+        let r = unsafe {
+            tolray_mtf(
+                sys,
+                &field,
+                wl,
+                &m,
+                freqs.as_ptr(),
+                3,
+                t.as_mut_ptr(),
+                sg.as_mut_ptr(),
+                lim.as_mut_ptr(),
+            )
+        };
+        assert_eq!(r, TOLRAY_OK, "{}", last_error());
+        let want = if method == TOLRAY_MTF_FFT {
+            mtf::fft_mtf(
+                &g_of(&l, &s, f, wl, 32),
+                &psf::FftOptions {
+                    pupil_samples: 32,
+                    grid: 64,
+                },
+                &freqs,
+            )
+            .unwrap()
+        } else {
+            mtf::direct_mtf(
+                &l,
+                &s,
+                f,
+                wl,
+                &WaveOptions {
+                    sampling: Sampling::Grid(32),
+                    ..WaveOptions::default()
+                },
+                &freqs,
+            )
+            .unwrap()
+        };
+        assert_eq!(t.to_vec(), want.tangential);
+        assert_eq!(sg.to_vec(), want.sagittal);
+        assert_eq!(lim.to_vec(), want.diffraction_limit);
+    }
+    let above = [5000.0];
+    // SAFETY: one frequency, outputs of three doubles.
+    let r = unsafe {
+        tolray_mtf(
+            sys,
+            &field,
+            wl,
+            &d,
+            above.as_ptr(),
+            1,
+            t.as_mut_ptr(),
+            sg.as_mut_ptr(),
+            null_mut(),
+        )
+    };
+    assert_eq!(r, TOLRAY_ERROR_ARGUMENT);
+    assert!(last_error().contains("cutoff"), "{}", last_error());
+    // SAFETY: no frequency.
+    let r = unsafe {
+        tolray_mtf(
+            sys,
+            &field,
+            wl,
+            &d,
+            freqs.as_ptr(),
+            0,
+            t.as_mut_ptr(),
+            sg.as_mut_ptr(),
+            null_mut(),
+        )
+    };
+    assert_eq!(r, TOLRAY_ERROR_BUFFER_SIZE);
+    // SAFETY: handles from above.
+    unsafe {
+        tolray_system_free(sys);
+        tolray_lens_free(lens);
+    }
+}
+
+fn g_of(
+    l: &tolray::Lens,
+    s: &tolray::lens::System<f64>,
+    f: tolray::trace::Field,
+    wl: f64,
+    n: usize,
+) -> tolray::wave::Wavefront {
+    tolray::wave::wavefront(
+        l,
+        s,
+        f,
+        wl,
+        &tolray::wave::WaveOptions {
+            sampling: tolray::wave::Sampling::Grid(n),
+            ..tolray::wave::WaveOptions::default()
+        },
+    )
+    .unwrap()
+}

@@ -1,6 +1,7 @@
 //! Analyses built on the tracer: spot diagrams, their statistics and the spot moments every
 //! spot size is computed from.
 
+pub mod aberrations;
 pub mod spot;
 
 pub use spot::{

@@ -645,6 +645,7 @@ pub fn refocus_options(lens: &Lens) -> crate::tolerance::analysis::McOptions {
         pupil: Pupil::grid(16),
         compensate_focus: true,
         apertures: true,
+        criterion: Default::default(),
     }
 }
 

@@ -214,7 +214,7 @@ pub struct tolray_rays_out {
 }
 
 impl tolray_field {
-    fn to_field(self) -> FfiResult<Field> {
+    pub(crate) fn to_field(self) -> FfiResult<Field> {
         let (x, y) = (self.x, self.y);
         if !x.is_finite() || !y.is_finite() {
             return Err(FfiError::argument(format!(

@@ -23,10 +23,12 @@
 mod analysis;
 mod handles;
 mod train;
+mod wave;
 
 pub use analysis::*;
 pub use handles::*;
 pub use train::*;
+pub use wave::*;
 
 use crate::error::{Error, ErrorKind};
 use std::cell::RefCell;

@@ -47,7 +47,10 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::ops::Range;
 use std::path::Path;
 
-pub use wave::{mtf_figure, opd_map_figure, through_focus_figure, zernike_figure, FocusRow};
+pub use wave::{
+    curves_figure, fan_figure, mtf_figure, opd_map_figure, through_focus_figure, zernike_figure,
+    CurveSpec, FanRow, FocusRow,
+};
 
 /// An RGB colour, `[r, g, b]`.
 pub type Rgb = [u8; 3];
@@ -115,6 +118,8 @@ enum Kind {
         values: Vec<f64>,
         nominal: f64,
         yields: Vec<(f64, f64)>,
+        /// The axis label (the criterion and its unit) and the unit after numbers.
+        axis: (String, String),
     },
     Psf {
         tiles: Vec<Vec<f64>>,
@@ -135,6 +140,7 @@ enum Kind {
     OpdMap(wave::OpdMap),
     Bars(wave::Bars),
     Curves(wave::Curves),
+    Panels(wave::Panels),
 }
 
 /// A named, coloured set of points.
@@ -237,7 +243,8 @@ impl Figure {
                 values,
                 nominal,
                 yields,
-            } => draw_tolerance(&body, s, values, *nominal, yields),
+                axis,
+            } => draw_tolerance(&body, s, values, *nominal, yields, axis),
             Kind::Psf {
                 tiles,
                 ks,
@@ -249,6 +256,7 @@ impl Figure {
             Kind::OpdMap(m) => wave::draw_opd_map(&body, s, m),
             Kind::Bars(b) => wave::draw_bars(&body, s, b),
             Kind::Curves(c) => wave::draw_curves(&body, s, c),
+            Kind::Panels(p) => wave::draw_panels(&body, s, p),
         }
     }
 }
@@ -337,7 +345,8 @@ fn px(v_pt: f64, s: f64) -> u32 {
 /// form for very large or small magnitudes.
 fn tick(v: f64) -> String {
     let a = v.abs();
-    let text = if v == 0.0 || !v.is_finite() {
+    // Below 1e-12 is the rounding of a tick computed as a sum (−0.15 + 3 × 0.05), not a value.
+    let text = if a < 1e-12 || !v.is_finite() {
         "0".to_string()
     } else if !(1e-4..1e6).contains(&a) {
         format!("{v:.0e}")
@@ -1033,17 +1042,39 @@ fn draw_layout<DB: DrawingBackend>(
 /// distribution (right axis, %), the nominal design and the 50 % / 90 % yield marked.
 #[must_use]
 pub fn tolerance_figure(report: &crate::tolerance::McReport) -> Figure {
-    let values: Vec<f64> = report
-        .trials
-        .iter()
-        .map(|t| t.mean_rms_um)
-        .filter(|v| v.is_finite())
-        .collect();
-    let nominal =
-        report.nominal_rms_um.iter().sum::<f64>() / report.nominal_rms_um.len().max(1) as f64;
+    let crit = report.summary.as_ref().and_then(|sm| sm.criterion.as_ref());
+    let (values, nominal_per_field, axis): (Vec<f64>, &[f64], (String, String)) =
+        match (crit, &report.nominal_criterion) {
+            (Some(c), Some(nom)) => (
+                report
+                    .trials
+                    .iter()
+                    .filter_map(|t| t.mean_criterion)
+                    .filter(|v| v.is_finite())
+                    .collect(),
+                nom,
+                (format!("field mean of {}", c.label), String::new()),
+            ),
+            _ => (
+                report
+                    .trials
+                    .iter()
+                    .map(|t| t.mean_rms_um)
+                    .filter(|v| v.is_finite())
+                    .collect(),
+                &report.nominal_rms_um,
+                ("mean RMS spot over fields (µm)".into(), " µm".into()),
+            ),
+        };
+    let nominal = nominal_per_field.iter().sum::<f64>() / nominal_per_field.len().max(1) as f64;
     let yields = report.summary.as_ref().map_or_else(Vec::new, |sm| {
-        sm.mean_over_fields
-            .yield_below
+        let st = crit.map_or(&sm.mean_over_fields, |c| &c.mean_over_fields);
+        let table = if st.yield_above.is_empty() {
+            &st.yield_below
+        } else {
+            &st.yield_above
+        };
+        table
             .iter()
             .filter(|r| r[0] == 0.9 || r[0] == 0.5)
             .map(|r| (r[0], r[1]))
@@ -1061,6 +1092,7 @@ pub fn tolerance_figure(report: &crate::tolerance::McReport) -> Figure {
             values,
             nominal,
             yields,
+            axis,
         },
     }
 }
@@ -1071,9 +1103,11 @@ fn draw_tolerance<DB: DrawingBackend>(
     values: &[f64],
     nominal: f64,
     yields: &[(f64, f64)],
+    axis: &(String, String),
 ) -> DrawResult<DB> {
     let all = values.iter().copied().chain(std::iter::once(nominal));
-    let r = span(all, 0.0, nominal - 1.0..nominal + 1.0);
+    let pad = if axis.1.is_empty() { 0.05 } else { 1.0 };
+    let r = span(all, 0.0, nominal - pad..nominal + pad);
     let bins = (values.len() as f64).sqrt().clamp(5.0, 60.0) as usize;
     let w = (r.end - r.start) / bins as f64;
     let mut counts = vec![0usize; bins];
@@ -1085,7 +1119,7 @@ fn draw_tolerance<DB: DrawingBackend>(
     let mut chart = frame(body, s, Right::Axis)
         .build_cartesian_2d(xr.clone(), 0.0..(top * 1.12).max(1.0))?
         .set_secondary_coord(xr, 0.0..112.0);
-    house_mesh!(chart, s, "mean RMS spot over fields (µm)", "trials").draw()?;
+    house_mesh!(chart, s, axis.0.as_str(), "trials").draw()?;
     house_secondary!(chart, s, "cumulative share of trials (%)")?;
     let bar = tint(PALETTE[0], 0.55);
     // The bars, filled, then again with white outlines that part neighbours.
@@ -1129,7 +1163,7 @@ fn draw_tolerance<DB: DrawingBackend>(
     let ymax = top * 1.12;
     chart
         .draw_series(line(vec![(nominal, 0.0), (nominal, ymax)], green, 1.8, s))?
-        .label(format!("nominal design ({} µm)", tick(nominal)))
+        .label(format!("nominal design ({}{})", tick(nominal), axis.1))
         .legend(line_glyph(green, s));
     for (k, &(frac, v)) in yields.iter().enumerate() {
         let label = format!("{:.0} %", frac * 100.0);

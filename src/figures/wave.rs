@@ -250,6 +250,104 @@ pub fn mtf_figure(curves: &[(String, Mtf)], title: &str) -> Figure {
     }
 }
 
+/// A curve of [`curves_figure`]: label, palette colour index, dashed, points.
+pub type CurveSpec = (String, usize, bool, Vec<(f64, f64)>);
+
+/// A line chart of `series` (label, palette colour index, dashed, points): the aberration
+/// curves' picture. `y` fixes the vertical range; `None` takes the data's with a margin.
+#[must_use]
+pub fn curves_figure(
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    y: Option<Range<f64>>,
+    series: &[CurveSpec],
+) -> Figure {
+    let y = y.unwrap_or_else(|| {
+        let ys = series.iter().flat_map(|s| s.3.iter().map(|p| p.1));
+        span(ys, 0.08, -1.0..1.0)
+    });
+    Figure {
+        width: 720,
+        height: 460,
+        title: title.to_string(),
+        kind: Kind::Curves(Curves {
+            x_desc: x_desc.into(),
+            y_desc: y_desc.into(),
+            y,
+            series: series
+                .iter()
+                .map(|(n, c, d, p)| (n.clone(), PALETTE[c % PALETTE.len()], *d, p.clone()))
+                .collect(),
+            reference: Vec::new(),
+            reference_label: String::new(),
+        }),
+    }
+}
+
+/// Line charts on a grid, `cols` per row, each with its own axes.
+#[derive(Clone, Debug)]
+pub(super) struct Panels {
+    cols: usize,
+    panels: Vec<Curves>,
+}
+
+/// Ray or OPD fans: a row of two panels per field (tangential: the error against the pupil
+/// coordinate along the field's direction; sagittal: across it), a curve per wavelength in one
+/// colour each, one vertical scale for every panel. `rows` holds (field label, [(wavelength
+/// label, tangential points, sagittal points)]).
+#[must_use]
+pub fn fan_figure(title: &str, y_desc: &str, rows: &[FanRow]) -> Figure {
+    let ys = rows
+        .iter()
+        .flat_map(|r| r.1.iter())
+        .flat_map(|c| c.1.iter().chain(c.2.iter()).map(|p| p.1));
+    let y = span(ys.chain([0.0]), 0.08, -1.0..1.0);
+    let mut panels = Vec::new();
+    for (field, curves) in rows {
+        for (k, which) in ["tangential", "sagittal"].iter().enumerate() {
+            panels.push(Curves {
+                x_desc: format!("field {field}: {which} pupil coordinate"),
+                y_desc: y_desc.to_string(),
+                y: y.clone(),
+                series: curves
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| {
+                        let pts = if k == 0 { c.1.clone() } else { c.2.clone() };
+                        (c.0.clone(), PALETTE[i % PALETTE.len()], false, pts)
+                    })
+                    .collect(),
+                reference: vec![vec![(-1.0, 0.0), (1.0, 0.0)]],
+                reference_label: String::new(),
+            });
+        }
+    }
+    Figure {
+        width: 900,
+        height: (40 + 280 * rows.len().max(1) as u32).min(MAX_SIDE_PT),
+        title: title.to_string(),
+        kind: Kind::Panels(Panels { cols: 2, panels }),
+    }
+}
+
+/// One field's fans: (field label, [(wavelength label, tangential, sagittal)]).
+pub type FanRow = (String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>);
+
+pub(super) fn draw_panels<DB: DrawingBackend>(
+    body: &DrawingArea<DB, Shift>,
+    s: f64,
+    p: &Panels,
+) -> DrawResult<DB> {
+    let cols = p.cols.max(1);
+    let rows = p.panels.len().div_ceil(cols).max(1);
+    let areas = body.split_evenly((rows, cols));
+    for (c, a) in p.panels.iter().zip(areas.iter()) {
+        draw_curves(a, s, c)?;
+    }
+    Ok(())
+}
+
 /// Through-focus MTF at one frequency: (label, tangential points, sagittal points) with the
 /// sensor shift (mm) on x.
 #[must_use]
@@ -291,7 +389,7 @@ pub(super) fn draw_curves<DB: DrawingBackend>(
     let grey = rgb(GREY);
     for (k, r) in c.reference.iter().enumerate() {
         let a = chart.draw_series(line(r.clone(), grey, 1.0, s))?;
-        if k == 0 {
+        if k == 0 && !c.reference_label.is_empty() {
             a.label(c.reference_label.clone())
                 .legend(line_glyph(grey, s));
         }
@@ -324,5 +422,9 @@ pub(super) fn draw_curves<DB: DrawingBackend>(
             }
         });
     }
-    legend_box(&mut chart, s, SeriesLabelPosition::UpperRight)
+    // One curve needs no legend: the title names it.
+    if c.series.len() > 1 || !c.reference_label.is_empty() {
+        legend_box(&mut chart, s, SeriesLabelPosition::UpperRight)?;
+    }
+    Ok(())
 }

@@ -656,6 +656,7 @@ pub fn held_out(lens: &Lens, cfg: &TrainConfig, trials: usize, seed: u64) -> Res
                 pupil: Pupil::grid(cfg.spot_grid),
                 compensate_focus,
                 apertures: cfg.apertures,
+                criterion: Default::default(),
             };
             let rep = crate::tolerance::monte_carlo(lens, "design", &mc, None, &|| {})?;
             let s = rep

@@ -1,6 +1,7 @@
 //! Monte Carlo tolerance analysis, the focus compensator, sensitivity, yield statistics, and
 //! merging of sharded runs.
 
+use super::criterion::{Criterion, WaveJudge};
 use super::spec::{OperandKind, Slot, ToleranceSpec};
 use super::Perturbation;
 use crate::analysis::SpotMoments;
@@ -34,6 +35,10 @@ pub struct McOptions {
     pub compensate_focus: bool,
     /// Clip at clear apertures and the stop.
     pub apertures: bool,
+    /// What each trial is judged by (the compensator optimises it); the RMS spot is always
+    /// reported too, at the compensator's focus.
+    #[serde(default)]
+    pub criterion: Criterion,
 }
 
 /// The outcome of one trial.
@@ -47,6 +52,12 @@ pub struct TrialResult {
     pub mean_rms_um: f64,
     /// Sensor refocus of the compensator along the image-plane normal, mm.
     pub focus_shift_mm: Option<f64>,
+    /// The criterion per field when it is not the RMS spot (its unit: [`Criterion::label`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub criterion: Option<Vec<f64>>,
+    /// Mean of `criterion` over the fields.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_criterion: Option<f64>,
     /// The sampled pattern, so that the trial can be re-traced (`tolray spot --perturb`).
     pub pattern: Perturbation,
 }
@@ -67,6 +78,10 @@ pub struct Stats {
     /// Yield in the paper's form: `[fraction, X]` = "this fraction of lenses have RMS spot
     /// below X µm", for 90, 70, 50 and 10 %.
     pub yield_below: Vec<[f64; 2]>,
+    /// For a criterion where higher is better (Strehl, MTF): `[fraction, X]` = "this fraction
+    /// of lenses reach at least X", for 90, 70, 50 and 10 %.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub yield_above: Vec<[f64; 2]>,
 }
 
 /// Percentile `p` (0..100) of sorted values, linear interpolation between closest ranks.
@@ -100,7 +115,22 @@ pub fn stats(values: &[f64]) -> Stats {
             .iter()
             .map(|&p| [p / 100.0, percentile(&s, p)])
             .collect(),
+        yield_above: Vec::new(),
     }
+}
+
+/// [`stats`], with [`Stats::yield_above`] when higher values are better.
+pub fn stats_for(values: &[f64], higher_is_better: bool) -> Stats {
+    let mut st = stats(values);
+    if higher_is_better {
+        let mut s = values.to_vec();
+        s.sort_by(f64::total_cmp);
+        st.yield_above = [90.0, 70.0, 50.0, 10.0]
+            .iter()
+            .map(|&p| [p / 100.0, percentile(&s, 100.0 - p)])
+            .collect();
+    }
+    st
 }
 
 /// Summary over all trials: per field and for the field mean.
@@ -112,6 +142,20 @@ pub struct Summary {
     pub mean_over_fields: Stats,
     /// Of the compensator's refocus, mm.
     pub focus_shift_mm: Option<Stats>,
+    /// Of the criterion, when it is not the RMS spot.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub criterion: Option<CriterionSummary>,
+}
+
+/// Statistics of a criterion other than the RMS spot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CriterionSummary {
+    /// What was judged, e.g. `MTF at 30 cycles/mm (mean of T and S)`.
+    pub label: String,
+    /// Per field, in the order of the fields.
+    pub per_field: Vec<Stats>,
+    /// Of the field mean.
+    pub mean_over_fields: Stats,
 }
 
 /// A Monte Carlo report (complete, or one shard of a study).
@@ -129,6 +173,9 @@ pub struct McReport {
     pub nominal_rms_um: Vec<f64>,
     /// Nominal refocus, mm (when compensating).
     pub nominal_focus_shift_mm: Option<f64>,
+    /// Nominal criterion per field, when it is not the RMS spot.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_criterion: Option<Vec<f64>>,
     /// Trials in index order.
     pub trials: Vec<TrialResult>,
     /// Statistics; present when the report holds every trial of the study.
@@ -146,13 +193,19 @@ fn bundles(lens: &Lens, opts: &McOptions) -> Result<Bundles> {
     Bundles::new(lens, &opts.fields, &opts.wavelengths_nm, &opts.pupil)
 }
 
-/// RMS per field (µm) of a compiled system, refocused when `opts.compensate_focus` (one sensor
-/// shift for all fields, [`SpotMoments::best_focus`]).
-fn system_rms(
+/// What one system is judged: RMS spot per field (µm), the compensator's shift, the criterion
+/// per field (when not the RMS spot).
+type Judged = (Vec<f64>, Option<f64>, Option<Vec<f64>>);
+
+/// Judges a compiled system: RMS per field (µm), refocused when `opts.compensate_focus` (one
+/// sensor shift for all fields: [`SpotMoments::best_focus`] for the RMS spot, the criterion's
+/// optimum for a wave criterion), and the criterion per field at that focus.
+fn system_eval(
     bundles: &Bundles,
     sys: &System<f64>,
     opts: &McOptions,
-) -> Result<(Vec<f64>, Option<f64>)> {
+    judge: Option<&WaveJudge>,
+) -> Result<Judged> {
     let mut rays: Vec<Vec<[f64; 4]>> = vec![Vec::new(); opts.fields.len()];
     let trace = TraceOptions {
         apertures: opts.apertures,
@@ -172,23 +225,52 @@ fn system_rms(
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    let delta = opts
+    let mut delta = opts
         .compensate_focus
         .then(|| SpotMoments::best_focus(&moments));
+    let criterion = match judge {
+        None => None,
+        Some(j) => Some(match delta {
+            Some(d0) => {
+                let (d, v) = j.best_focus(sys, d0)?;
+                delta = Some(d);
+                v
+            }
+            None => j.values(sys)?,
+        }),
+    };
     let d = delta.unwrap_or(0.0);
     let rms = moments.iter().map(|m| m.rms_at(d) * 1e3).collect();
-    Ok((rms, delta))
+    Ok((rms, delta, criterion))
 }
 
-fn trial_rms(
+/// The wave judge of `opts.criterion` (None for the RMS spot).
+fn judge<'a>(lens: &'a Lens, opts: &'a McOptions) -> Result<Option<WaveJudge<'a>>> {
+    if opts.criterion == Criterion::RmsSpot {
+        return Ok(None);
+    }
+    WaveJudge::new(
+        lens,
+        opts.criterion,
+        &opts.fields,
+        &opts.wavelengths_nm,
+        TraceOptions {
+            apertures: opts.apertures,
+        },
+    )
+    .map(Some)
+}
+
+fn trial_eval(
     lens: &Lens,
     bundles: &Bundles,
     opts: &McOptions,
+    judge: Option<&WaveJudge>,
     pattern: &Perturbation,
-) -> Result<(Vec<f64>, Option<f64>)> {
+) -> Result<Judged> {
     let (plens, adj) = pattern.apply(lens)?;
     let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-    system_rms(bundles, &sys, opts)
+    system_eval(bundles, &sys, opts, judge)
 }
 
 /// RMS spot per field (µm) of `lens` perturbed by `pattern`, refocused when the options say so.
@@ -200,7 +282,24 @@ pub fn perturbed_rms(
     opts: &McOptions,
     pattern: &Perturbation,
 ) -> Result<(Vec<f64>, Option<f64>)> {
-    trial_rms(lens, &bundles(lens, opts)?, opts, pattern)
+    let j = judge(lens, opts)?;
+    trial_eval(lens, &bundles(lens, opts)?, opts, j.as_ref(), pattern).map(|r| (r.0, r.1))
+}
+
+/// The criterion per field of `lens` perturbed by `pattern` (after the compensator when the
+/// options say so), with the RMS spot per field (µm) and the refocus (mm): what one Monte Carlo
+/// trial records. For the RMS spot criterion the first two are the same numbers.
+///
+/// # Errors
+/// As [`perturbed_rms`].
+pub fn perturbed_criterion(
+    lens: &Lens,
+    opts: &McOptions,
+    pattern: &Perturbation,
+) -> Result<(Vec<f64>, Vec<f64>, Option<f64>)> {
+    let j = judge(lens, opts)?;
+    let (rms, d, c) = trial_eval(lens, &bundles(lens, opts)?, opts, j.as_ref(), pattern)?;
+    Ok((c.unwrap_or_else(|| rms.clone()), rms, d))
 }
 
 /// Runs the Monte Carlo trials `range` (all of them when `shard` is `None`) in parallel; results
@@ -224,7 +323,10 @@ pub fn monte_carlo(
     }
     let slots = opts.spec.slots(lens)?;
     let bundles = bundles(lens, opts)?;
-    let (nominal, nominal_shift) = system_rms(&bundles, &lens.compile(), opts)?;
+    let judge = judge(lens, opts)?;
+    let judge = judge.as_ref();
+    let (nominal, nominal_shift, nominal_criterion) =
+        system_eval(&bundles, &lens.compile(), opts, judge)?;
     let range = match shard {
         None => 0..opts.trials,
         Some((k, n)) => {
@@ -238,18 +340,22 @@ pub fn monte_carlo(
         .into_par_iter()
         .map(|k| {
             let pattern = opts.spec.sample_slots(&slots, opts.seed, k as u64);
-            let r = trial_rms(lens, &bundles, opts, &pattern).map_err(|e| {
+            let r = trial_eval(lens, &bundles, opts, judge, &pattern).map_err(|e| {
                 e.context(format!(
                     "trial {k} (pattern: {})",
                     serde_json::to_string(&pattern).unwrap_or_default()
                 ))
             });
             progress();
-            r.map(|(rms, shift)| TrialResult {
+            r.map(|(rms, shift, crit)| TrialResult {
                 index: k,
                 mean_rms_um: rms.iter().sum::<f64>() / rms.len() as f64,
                 rms_um: rms,
                 focus_shift_mm: shift,
+                mean_criterion: crit
+                    .as_ref()
+                    .map(|c| c.iter().sum::<f64>() / c.len() as f64),
+                criterion: crit,
                 pattern,
             })
         })
@@ -261,6 +367,7 @@ pub fn monte_carlo(
         shard: shard.map(|(k, n)| [k, n]),
         nominal_rms_um: nominal,
         nominal_focus_shift_mm: nominal_shift,
+        nominal_criterion,
         trials,
         summary: None,
     };
@@ -276,10 +383,33 @@ fn summarize(r: &McReport) -> Summary {
         .map(|f| stats(&r.trials.iter().map(|t| t.rms_um[f]).collect::<Vec<_>>()))
         .collect();
     let shifts: Vec<f64> = r.trials.iter().filter_map(|t| t.focus_shift_mm).collect();
+    let c = r.options.criterion;
+    let criterion = r.nominal_criterion.as_ref().map(|_| {
+        let at = |f: usize| -> Vec<f64> {
+            r.trials
+                .iter()
+                .map(|t| t.criterion.as_ref().map_or(f64::NAN, |v| v[f]))
+                .collect()
+        };
+        CriterionSummary {
+            label: c.label(),
+            per_field: (0..nf)
+                .map(|f| stats_for(&at(f), c.higher_is_better()))
+                .collect(),
+            mean_over_fields: stats_for(
+                &r.trials
+                    .iter()
+                    .map(|t| t.mean_criterion.unwrap_or(f64::NAN))
+                    .collect::<Vec<_>>(),
+                c.higher_is_better(),
+            ),
+        }
+    });
     Summary {
         per_field,
         mean_over_fields: stats(&r.trials.iter().map(|t| t.mean_rms_um).collect::<Vec<_>>()),
         focus_shift_mm: (!shifts.is_empty()).then(|| stats(&shifts)),
+        criterion,
     }
 }
 
@@ -348,16 +478,48 @@ pub struct SensitivityRow {
     pub rms_plus_um: Vec<f64>,
     /// Largest |ΔRMS| over fields and signs, µm.
     pub worst_delta_um: f64,
+    /// The criterion per field at −max, when it is not the RMS spot.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub criterion_minus: Option<Vec<f64>>,
+    /// The criterion per field at +max.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub criterion_plus: Option<Vec<f64>>,
+    /// Largest |Δ criterion| over fields and signs (the rows are sorted by it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub worst_delta_criterion: Option<f64>,
+}
+
+/// The nominal lens of a sensitivity table: RMS spot per field (µm) and the criterion per field
+/// (when not the RMS spot).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SensitivityNominal {
+    /// RMS spot per field, µm.
+    pub rms_um: Vec<f64>,
+    /// The criterion per field.
+    pub criterion: Option<Vec<f64>>,
 }
 
 /// Sensitivity analysis: each operand alone at −max and +max, sorted worst first.
 ///
 /// # Errors
 /// As [`monte_carlo`].
-pub fn sensitivity(lens: &Lens, opts: &McOptions) -> Result<(Vec<f64>, Vec<SensitivityRow>)> {
+pub fn sensitivity(
+    lens: &Lens,
+    opts: &McOptions,
+) -> Result<(SensitivityNominal, Vec<SensitivityRow>)> {
     let slots: Vec<Slot> = opts.spec.slots(lens)?;
     let bundles = bundles(lens, opts)?;
-    let (nominal, _) = system_rms(&bundles, &lens.compile(), opts)?;
+    let judge = judge(lens, opts)?;
+    let judge = judge.as_ref();
+    let (nominal, _, nominal_c) = system_eval(&bundles, &lens.compile(), opts, judge)?;
+    let worst_of = |minus: &[f64], plus: &[f64], nom: &[f64]| {
+        minus
+            .iter()
+            .chain(plus)
+            .zip(nom.iter().chain(nom))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    };
     let mut rows = slots
         .par_iter()
         .map(|&(k, t, axis)| {
@@ -368,15 +530,14 @@ pub fn sensitivity(lens: &Lens, opts: &McOptions) -> Result<(Vec<f64>, Vec<Sensi
                     ..Default::default()
                 };
                 op.kind.set(&mut p, t, axis, v);
-                trial_rms(lens, &bundles, opts, &p).map(|r| r.0)
+                trial_eval(lens, &bundles, opts, judge, &p)
             };
-            let (minus, plus) = (at(-op.max)?, at(op.max)?);
-            let worst = minus
-                .iter()
-                .chain(&plus)
-                .zip(nominal.iter().chain(&nominal))
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let ((minus, _, cm), (plus, _, cp)) = (at(-op.max)?, at(op.max)?);
+            let worst = worst_of(&minus, &plus, &nominal);
+            let worst_c = match (&cm, &cp, &nominal_c) {
+                (Some(a), Some(b), Some(n)) => Some(worst_of(a, b, n)),
+                _ => None,
+            };
             Ok(SensitivityRow {
                 operand: op.kind,
                 target: t,
@@ -385,9 +546,21 @@ pub fn sensitivity(lens: &Lens, opts: &McOptions) -> Result<(Vec<f64>, Vec<Sensi
                 rms_minus_um: minus,
                 rms_plus_um: plus,
                 worst_delta_um: worst,
+                criterion_minus: cm,
+                criterion_plus: cp,
+                worst_delta_criterion: worst_c,
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    rows.sort_by(|a, b| b.worst_delta_um.total_cmp(&a.worst_delta_um));
-    Ok((nominal, rows))
+    rows.sort_by(|a, b| {
+        let key = |r: &SensitivityRow| r.worst_delta_criterion.unwrap_or(r.worst_delta_um);
+        key(b).total_cmp(&key(a))
+    });
+    Ok((
+        SensitivityNominal {
+            rms_um: nominal,
+            criterion: nominal_c,
+        },
+        rows,
+    ))
 }

@@ -9,11 +9,14 @@
 //! moves one surface about its own vertex before the element moves.
 
 pub mod analysis;
+pub mod criterion;
 pub mod spec;
 
 pub use analysis::{
-    merge_reports, monte_carlo, sensitivity, McOptions, McReport, SensitivityRow, TrialResult,
+    merge_reports, monte_carlo, perturbed_criterion, sensitivity, McOptions, McReport,
+    SensitivityNominal, SensitivityRow, TrialResult,
 };
+pub use criterion::{Criterion, MtfDirection};
 pub use spec::{Distribution, Operand, OperandKind, ToleranceSpec};
 
 use crate::error::{Error, Result};

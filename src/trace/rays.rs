@@ -278,7 +278,7 @@ impl Field {
     /// numbers `o` (the focal length turns a fraction of the field into an angle, the chief
     /// ray's image height an image height), in any number type. A real image height must be
     /// resolved first ([`Field::resolved`]).
-    fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
+    pub(crate) fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
         Ok(match *self {
             Field::AngleDeg { x, y } => {
                 // tan flips sign past 90°: a field there is not a direction toward the lens.

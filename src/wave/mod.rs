@@ -304,6 +304,22 @@ pub fn wavefront_at(
     w: &[f64],
     opts: &WaveOptions,
 ) -> Result<Wavefront> {
+    trace_wavefront(lens, sys, field, wavelength_nm, pts, w, opts, 3)
+}
+
+/// [`wavefront_at`], refusing fewer than `min_rays` rays through (0 for the sheared pupils of
+/// [`mtf::direct_mtf`], where none getting through is an answer).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn trace_wavefront(
+    lens: &Lens,
+    sys: &System<f64>,
+    field: Field,
+    wavelength_nm: f64,
+    pts: &[[f64; 2]],
+    w: &[f64],
+    opts: &WaveOptions,
+    min_rays: usize,
+) -> Result<Wavefront> {
     if pts.len() != w.len() || pts.is_empty() || pts.len() > MAX_SAMPLES {
         return Err(Error::argument(format!(
             "{} pupil points with {} weights: give 1 to {MAX_SAMPLES} points, one weight each",
@@ -460,21 +476,52 @@ pub fn wavefront_at(
         let h = img.point_to_local(r.o);
         out.image_points.push([h.x, h.y]);
     }
-    if out.opd_waves.len() < 3 {
+    if out.opd_waves.len() < min_rays {
         return Err(Error::numerical(format!(
-            "{}: {} of {m} rays reach the image; a wavefront needs at least 3",
+            "{}: {} of {m} rays reach the image; a wavefront needs at least {min_rays}",
             what(),
             out.opd_waves.len()
         )));
     }
     let total: f64 = out.weight.iter().sum();
-    for v in &mut out.weight {
-        *v /= total;
+    if total > 0.0 {
+        for v in &mut out.weight {
+            *v /= total;
+        }
     }
     Ok(out)
 }
 
 impl Wavefront {
+    /// The RMS OPD to centroid (piston and tilt removed by a weighted least-squares plane over
+    /// the entrance pupil), waves: [`WavefrontStats::rms_to_centroid_waves`] without the
+    /// Zernike fits, for the tolerance criterion.
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Numerical`] when the rays cannot determine a plane.
+    ///
+    /// # Examples
+    /// ```
+    /// use tolray::trace::Field;
+    /// use tolray::wave::{wavefront, WaveOptions};
+    /// use tolray::Lens;
+    /// let lens = Lens::load("cooke-triplet")?;
+    /// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.7), 587.5618, &WaveOptions::default())?;
+    /// let full = w.stats(3)?;
+    /// assert!((w.rms_to_centroid_waves()? - full.rms_to_centroid_waves).abs() < 1e-15);
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    pub fn rms_to_centroid_waves(&self) -> Result<f64> {
+        let tilt = zernike::fit(
+            Ordering::Standard,
+            3,
+            &self.pupil,
+            &self.opd_waves,
+            &self.weight,
+        )?;
+        Ok(tilt.residual_rms)
+    }
+
     /// The points the Zernike terms are fitted at.
     fn fit_points(&self, coords: PupilCoords) -> &[[f64; 2]] {
         match coords {

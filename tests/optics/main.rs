@@ -2,7 +2,9 @@
 //! link of the library's test dependencies instead of nine): `cargo test --release --test optics`,
 //! or one subject with a filter, e.g. `cargo test --release --test optics zemax::`.
 
+mod aberrations;
 mod constraints;
+mod criterion;
 mod gradient;
 mod grating;
 mod json;

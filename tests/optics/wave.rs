@@ -13,7 +13,7 @@ use tolray::{ErrorKind, Lens};
 
 const WL: f64 = 587.5618;
 /// Index of the oval's glass, surface radius and semi-aperture (mm).
-const N: f64 = 1.5;
+pub(crate) const N: f64 = 1.5;
 const R: f64 = 20.0;
 const H: f64 = 5.0;
 
@@ -24,7 +24,7 @@ fn oval(dz_mm: f64) -> Lens {
 }
 
 /// [`oval`] with semi-aperture `h` mm.
-fn oval_of(dz_mm: f64, h: f64) -> Lens {
+pub(crate) fn oval_of(dz_mm: f64, h: f64) -> Lens {
     let f = N * R / (N - 1.0);
     tolray::lens::json::from_str(&format!(
         r#"{{"(object)": "inf", "primary_wvln": 0.5875618, "r_sensor": 1.0,
@@ -38,7 +38,7 @@ fn oval_of(dz_mm: f64, h: f64) -> Lens {
 }
 
 /// The oval's image-space sine of the marginal ray's angle, from its geometry.
-fn marginal_sine(h: f64) -> f64 {
+pub(crate) fn marginal_sine(h: f64) -> f64 {
     let f = N * R / (N - 1.0);
     let c = 1.0 / R;
     let k = -1.0 / (N * N);

@@ -31,7 +31,7 @@ fn data() -> Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
 }
 
-fn floats(v: &Value) -> Vec<f64> {
+pub(crate) fn floats(v: &Value) -> Vec<f64> {
     v.as_array()
         .unwrap()
         .iter()
@@ -40,7 +40,7 @@ fn floats(v: &Value) -> Vec<f64> {
 }
 
 /// The lens as the script traced it.
-fn load(l: &Value) -> Lens {
+pub(crate) fn load(l: &Value) -> Lens {
     let path = format!(
         "{}/{}",
         env!("CARGO_MANIFEST_DIR"),

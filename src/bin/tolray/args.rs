@@ -8,7 +8,7 @@ use tolray::analysis::SpotOptions;
 use tolray::lens::material::{self, LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
 use tolray::lens::GlassCatalogs;
 use tolray::psf::{PsfCentre, PsfOptions};
-use tolray::tolerance::{McOptions, Perturbation, ToleranceSpec};
+use tolray::tolerance::{Criterion, McOptions, Perturbation, ToleranceSpec};
 use tolray::trace::{Field, Pupil, TraceOptions};
 use tolray::{Lens, Object};
 
@@ -256,9 +256,15 @@ pub struct TolArgs {
     pub spec: Option<PathBuf>,
     #[command(flatten)]
     pub rays: RaySampleArgs,
-    /// Compensator: "focus" refocuses the sensor per trial to the best RMS focus.
+    /// Compensator: "focus" refocuses the sensor per trial to the focus that optimises the
+    /// criterion (the best RMS focus for rms-spot).
     #[arg(long, value_parser = ["focus"])]
     pub compensate: Option<String>,
+    /// What each trial is judged by: rms-spot (µm, the paper's), rms-wavefront (waves, to
+    /// centroid), strehl, or mtf@FREQ[:t|s|mean] (diffraction MTF at FREQ cycles/mm,
+    /// tangential, sagittal or their mean). Wave criteria are averaged over the wavelengths.
+    #[arg(long, default_value = "rms-spot", value_name = "CRITERION")]
+    pub criterion: String,
     /// Ignore clear apertures and the stop.
     #[arg(long)]
     pub no_apertures: bool,
@@ -293,6 +299,7 @@ impl TolArgs {
             pupil,
             compensate_focus: self.compensate.is_some(),
             apertures: !self.no_apertures,
+            criterion: Criterion::parse(&self.criterion).context("--criterion")?,
         })
     }
 }

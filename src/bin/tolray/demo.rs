@@ -88,6 +88,7 @@ fn optics_tour(out: &Path) -> anyhow::Result<()> {
             pupil: Pupil::grid(32),
             compensate_focus: true,
             apertures: true,
+            criterion: Default::default(),
         };
         emit_line("");
         let report = with_progress(mc.trials as u64, "trials", |tick| {

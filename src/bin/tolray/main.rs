@@ -9,6 +9,7 @@
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
+mod aberrations;
 mod app;
 mod args;
 mod convert;
@@ -57,6 +58,9 @@ enum Command {
     /// MTF per field and wavelength, tangential and sagittal: diffraction (FFT) or geometric,
     /// with the diffraction limit, optionally through focus.
     Mtf(wave::MtfArgs),
+    /// Aberration curves: field curvature, distortion (f-tan θ, f-θ), lateral colour and relative
+    /// illumination against field; ray and OPD fans per field and wavelength.
+    Aberrations(aberrations::AberrationsArgs),
     /// PSF map: PSFs over a grid of fields covering the sensor.
     PsfMap(psf::PsfMapArgs),
     /// Two-stage optimization: stage 1 (pretrain) minimizes the RMS spot without tolerances;
@@ -107,6 +111,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::PsfMap(a) => psf::run_map(a),
         Command::Wavefront(a) => wave::run_wavefront(a),
         Command::Mtf(a) => wave::run_mtf(a),
+        Command::Aberrations(a) => aberrations::run(a),
         Command::Train(a) => train::run(a),
         Command::Merge(a) => tolerance::run_merge(a),
         Command::Trace(a) => trace::run(a),

@@ -274,14 +274,16 @@ pub fn spot_table(results: &[SpotResult]) -> String {
 
 pub use tolray::optim::train::fmt_list;
 
-/// A row of RMS spot statistics (mean, std, min, max, yields) named `name`.
-/// `width` is the name column's width (the header's too).
+/// A row of statistics (mean, std, min, max, yields: the values 90/70/50/10 % of lenses stay
+/// below, or reach when higher is better) named `name`. `width` is the name column's width
+/// (the header's too).
 pub fn stats_row(name: &str, s: &Stats, width: usize) -> String {
-    let y: Vec<String> = s
-        .yield_below
-        .iter()
-        .map(|r| format!("{:.3}", r[1]))
-        .collect();
+    let table = if s.yield_above.is_empty() {
+        &s.yield_below
+    } else {
+        &s.yield_above
+    };
+    let y: Vec<String> = table.iter().map(|r| format!("{:.3}", r[1])).collect();
     format!(
         "{name:<width$} {:>10.3} {:>10.3} {:>10.3} {:>10.3}   {}\n",
         s.mean,
@@ -307,10 +309,15 @@ pub fn tolerance_text(r: &McReport) -> String {
         )),
         o.pupil.pattern,
         fmt_list(&o.wavelengths_nm),
-        if o.compensate_focus {
-            ", compensator: best focus"
+        if !o.compensate_focus {
+            String::new()
+        } else if o.criterion != Default::default() {
+            format!(
+                ", compensator: the focus of best {}",
+                o.criterion.spelling()
+            )
         } else {
-            ""
+            ", compensator: best focus".to_string()
         }
     );
     let fields: Vec<String> = o.fields.iter().map(|f| f.label()).collect();
@@ -345,6 +352,28 @@ pub fn tolerance_text(r: &McReport) -> String {
         s.push_str(&stats_row(name, st, w));
     }
     s.push_str(&stats_row("field mean", &sm.mean_over_fields, w));
+    if let Some(c) = &sm.criterion {
+        let better = if o.criterion.higher_is_better() {
+            "at least"
+        } else {
+            "below"
+        };
+        s.push_str(&format!(
+            "\n{:<w$} {:>10} {:>10} {:>10} {:>10}   yield: 90 % / 70 % / 50 % / 10 % of lenses have {better}\n",
+            "criterion", "mean", "std", "min", "max"
+        ));
+        s.push_str(&format!(
+            "({}; nominal per field: {})\n",
+            c.label,
+            r.nominal_criterion
+                .as_deref()
+                .map_or(String::new(), fmt_list)
+        ));
+        for (name, st) in names.iter().zip(&c.per_field) {
+            s.push_str(&stats_row(name, st, w));
+        }
+        s.push_str(&stats_row("field mean", &c.mean_over_fields, w));
+    }
     if let Some(fs) = &sm.focus_shift_mm {
         s.push_str(&format!(
             "refocus (mm): mean {:.4}, std {:.4}, min {:.4}, max {:.4} (nominal {:.4})\n",

@@ -110,12 +110,30 @@ pub fn run_sensitivity(a: SensitivityArgs) -> anyhow::Result<()> {
     let opts = tol.options(&l, 0, 0, file_fields)?;
     let (nominal, rows) = sensitivity(&l, &opts)?;
     let fields: Vec<String> = opts.fields.iter().map(|f| f.label()).collect();
-    emit(&format!("Sensitivity of RMS spot (µm) to each operand alone at -max / +max; nominal per field {}: {}\n", fields.join(", "), fmt_list(&nominal)));
+    let c = opts.criterion;
+    let (label, nom) = match &nominal.criterion {
+        Some(v) => (c.label(), v.clone()),
+        None => ("RMS spot (µm)".to_string(), nominal.rms_um.clone()),
+    };
+    emit(&format!(
+        "Sensitivity of {label} to each operand alone at -max / +max{}; nominal per field {}: {}\n",
+        if opts.compensate_focus {
+            ", refocused"
+        } else {
+            ""
+        },
+        fields.join(", "),
+        fmt_list(&nom)
+    ));
     emit(&format!(
         "{:>16} {:>6} {:>4} {:>10}   {:<30} {:<30} {:>10}\n",
-        "operand", "target", "axis", "max", "RMS at -max", "RMS at +max", "worst |d|"
+        "operand", "target", "axis", "max", "at -max", "at +max", "worst |d|"
     ));
     for r in rows.iter().take(top) {
+        let (minus, plus, worst) = match (&r.criterion_minus, &r.criterion_plus) {
+            (Some(a), Some(b)) => (a, b, r.worst_delta_criterion.unwrap_or(f64::NAN)),
+            _ => (&r.rms_minus_um, &r.rms_plus_um, r.worst_delta_um),
+        };
         emit(&format!(
             "{:>16} {:>6} {:>4} {:>7} {:<3}  {:<30} {:<30} {:>10.4}\n",
             format!("{:?}", r.operand).to_lowercase(),
@@ -127,17 +145,20 @@ pub fn run_sensitivity(a: SensitivityArgs) -> anyhow::Result<()> {
             },
             r.max,
             r.operand.unit(),
-            fmt_list(&r.rms_minus_um),
-            fmt_list(&r.rms_plus_um),
-            r.worst_delta_um
+            fmt_list(minus),
+            fmt_list(plus),
+            worst
         ));
     }
     if let Some(p) = json {
         write_text(
             &p,
-            &(serde_json::to_string_pretty(
-                &serde_json::json!({"nominal_rms_um": nominal, "rows": rows}),
-            )? + "\n"),
+            &(serde_json::to_string_pretty(&serde_json::json!({
+                "criterion": c.spelling(),
+                "nominal_rms_um": nominal.rms_um,
+                "nominal_criterion": nominal.criterion,
+                "rows": rows
+            }))? + "\n"),
         )?;
         eprintln!("wrote {}", p.display());
     }
