@@ -51,20 +51,6 @@ fn field_direction(t: (f64, f64)) -> [f64; 2] {
     }
 }
 
-/// The field at tangents `q` (as [`Field::resolved`] forms them).
-fn field_of_tangents(lens: &Lens, q: [f64; 2]) -> Field {
-    match lens.object {
-        Object::Infinite => Field::AngleDeg {
-            x: q[0].atan().to_degrees(),
-            y: q[1].atan().to_degrees(),
-        },
-        Object::Finite { distance_mm } => Field::HeightMm {
-            x: q[0] * distance_mm,
-            y: q[1] * distance_mm,
-        },
-    }
-}
-
 /// Traced rays of one field and wavelength: each pupil point's image-plane point (image frame,
 /// mm) and direction (image frame), `None` where the ray did not get through; and the chief
 /// ray's.
@@ -260,7 +246,7 @@ pub fn distortion(
                 chief_point(
                     lens,
                     sys,
-                    field_of_tangents(lens, [sgn * e * u[0], sgn * e * u[1]]),
+                    Field::of_tangents(lens, [sgn * e * u[0], sgn * e * u[1]]),
                     wavelength_nm,
                     aim,
                 )
@@ -409,7 +395,7 @@ pub fn relative_illumination(
             chief_point(
                 lens,
                 sys,
-                field_of_tangents(lens, [q.0 + dx, q.1 + dy]),
+                Field::of_tangents(lens, [q.0 + dx, q.1 + dy]),
                 wavelength_nm,
                 aim,
             )

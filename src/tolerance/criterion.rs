@@ -249,10 +249,7 @@ impl<'a> WaveJudge<'a> {
             } => {
                 let map = wave::psf::direction_map(&w)?;
                 let (t, s) = mtf::directions(&w);
-                let lambda_mm = wl * 1e-6;
-                let cut = |u: [f64; 2]| {
-                    2.0 / (u[0] * lambda_mm / map[0][1]).hypot(u[1] * lambda_mm / map[1][2])
-                };
+                let cut = |u| mtf::cutoff_along(&w, &map, u);
                 mtf::check_freqs(&[freq_lpmm], [cut(t), cut(s)])
                     .map_err(|e| e.context(format!("field {}, {wl} nm", field.label())))?;
                 let at = |u| mtf::direct_otf(self.lens, sys, &w, &map, &self.opts, freq_lpmm, u);

@@ -187,17 +187,7 @@ impl Field {
             return Err(fail("not finite"));
         }
         let optics = LaunchOptics::of(para);
-        // Field parameters: the tangents of Field::tangents, as an angle or object height.
-        let field_of = |q: [f64; 2]| match lens.object {
-            Object::Infinite => Field::AngleDeg {
-                x: q[0].atan().to_degrees(),
-                y: q[1].atan().to_degrees(),
-            },
-            Object::Finite { distance_mm } => Field::HeightMm {
-                x: q[0] * distance_mm,
-                y: q[1] * distance_mm,
-            },
-        };
+        let field_of = |q: [f64; 2]| Field::of_tangents(lens, q);
         let sys = lens.compile();
         let wl = lens.primary_wavelength_nm;
         let n = sys.indices(wl);
@@ -272,6 +262,21 @@ impl Field {
             }
         }
         Err(fail("Newton's method did not converge in 50 steps"))
+    }
+
+    /// The field at object-side tangents `q` (as [`Field::tangents`] gives them): an angle for
+    /// an object at infinity, an object height for a finite one.
+    pub(crate) fn of_tangents(lens: &Lens, q: [f64; 2]) -> Field {
+        match lens.object {
+            Object::Infinite => Field::AngleDeg {
+                x: q[0].atan().to_degrees(),
+                y: q[1].atan().to_degrees(),
+            },
+            Object::Finite { distance_mm } => Field::HeightMm {
+                x: q[0] * distance_mm,
+                y: q[1] * distance_mm,
+            },
+        }
     }
 
     /// Field angles (tan x, tan y) seen from the first vertex for a lens with the first-order

@@ -109,6 +109,13 @@ impl Otf {
     }
 }
 
+/// Cutoff of `w`'s pupil along the image-plane unit vector `u`, cycles/mm (the shift of a pupil
+/// diameter), from its [`direction_map`] `map`.
+pub(crate) fn cutoff_along(w: &Wavefront, map: &[[f64; 3]; 2], u: [f64; 2]) -> f64 {
+    let lambda_mm = w.wavelength_nm * 1e-6;
+    2.0 / (u[0] * lambda_mm / map[0][1]).hypot(u[1] * lambda_mm / map[1][2])
+}
+
 /// Checks frequencies: finite, not negative, below the cutoff of each direction.
 pub(crate) fn check_freqs(freqs: &[f64], cut: [f64; 2]) -> Result<()> {
     if freqs.is_empty() {
@@ -293,10 +300,7 @@ pub fn direct_mtf(
     let base = super::wavefront(lens, sys, field, wavelength_nm, opts)?;
     let map = direction_map(&base)?;
     let (t, s) = directions(&base);
-    let lambda_mm = wavelength_nm * 1e-6;
-    let cutoff =
-        |u: [f64; 2]| 2.0 / (u[0] * lambda_mm / map[0][1]).hypot(u[1] * lambda_mm / map[1][2]);
-    let cut = [cutoff(t), cutoff(s)];
+    let cut = [cutoff_along(&base, &map, t), cutoff_along(&base, &map, s)];
     check_freqs(freqs, cut)?;
     let mut m = Mtf {
         freq_lpmm: freqs.to_vec(),
@@ -386,10 +390,10 @@ pub fn polychromatic_mtf(
     // Refused only beyond the shortest wavelength's cutoff (the largest).
     let mut cut = [0.0f64; 2];
     for (_, b, map) in &parts {
-        let lambda_mm = b.wavelength_nm * 1e-6;
-        let c =
-            |u: [f64; 2]| 2.0 / (u[0] * lambda_mm / map[0][1]).hypot(u[1] * lambda_mm / map[1][2]);
-        cut = [cut[0].max(c(t)), cut[1].max(c(s))];
+        cut = [
+            cut[0].max(cutoff_along(b, map, t)),
+            cut[1].max(cutoff_along(b, map, s)),
+        ];
     }
     check_freqs(freqs, cut)?;
     let mut m = Mtf {
