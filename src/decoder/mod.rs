@@ -7,6 +7,7 @@
 //! Parameters of every part live in one flat `f64` vector ([`Decoder::params`]) so that one
 //! Adam, with a learning rate per group, steps them together with the lens.
 
+pub mod file;
 pub mod loss;
 pub mod unet;
 pub mod wiener;
@@ -488,8 +489,8 @@ impl Decoder {
 
 #[cfg(test)]
 mod tests {
+    use super::file::decoder_from_bytes;
     use super::*;
-    use crate::deep::study::decoder_from_bytes;
 
     fn bytes(kind: &str, grid: u64, ks: u64, width: u64, n: u64, params: &[f64]) -> Vec<u8> {
         let h = format!(

@@ -87,7 +87,8 @@ const FAINT: RGBColor = RGBColor(246, 246, 246);
 /// A picture ready to be written: its size in points and the data it shows.
 ///
 /// Made by [`spot_figure`], [`layout_figure`], [`tolerance_figure`], [`psf_figure`],
-/// [`training_figure`] and [`deep_training_figure`]; written by [`save`], or rendered in memory
+/// [`training_curves`], [`deep_training_curves`] and the wave-optics figures; written by
+/// [`save`], or rendered in memory
 /// by [`Figure::to_png`] and [`Figure::to_svg`].
 #[derive(Clone, Debug)]
 pub struct Figure {
@@ -1340,18 +1341,22 @@ pub fn mosaic(tiles: &[Vec<f64>], ks: usize, cols: usize) -> (usize, usize, Vec<
 // Training curves.
 
 /// Training curves of the optics: the loss per iteration on a log scale (top), and the spot
-/// size with the PSF similarity on a second axis (bottom); the start of stage 2 is marked.
+/// size with the PSF similarity on a second axis (bottom); `stage2`, the iteration where stage
+/// 2 starts, is marked. Each row is (iteration, loss, spot µm, PSF similarity); the optimizer's
+/// logs make them (`optim::train::training_figure`).
+///
+/// ```
+/// let rows = (0..10).map(|i| (i as f64, 1.0 / (1.0 + i as f64), 20.0 - i as f64, None)).collect();
+/// let fig = tolray::figures::training_curves(rows, None, "Training");
+/// assert!(fig.to_svg()?.contains("training loss"));
+/// # Ok::<(), tolray::Error>(())
+/// ```
 #[must_use]
-pub fn training_figure(logs: &[crate::optim::train::IterLog], title: &str) -> Figure {
-    let rows = logs
-        .iter()
-        .map(|l| (l.iter as f64, l.loss, l.spot_um, l.psf_similarity))
-        .collect();
-    let stage2 = logs
-        .iter()
-        .find(|l| l.stage == crate::optim::train::Stage::Tolerance)
-        .map(|l| l.iter as f64)
-        .filter(|&i| i > 0.0);
+pub fn training_curves(
+    rows: Vec<(f64, f64, f64, Option<f64>)>,
+    stage2: Option<f64>,
+    title: &str,
+) -> Figure {
     Figure {
         width: 900,
         height: 680,
@@ -1427,44 +1432,30 @@ fn draw_training<DB: DrawingBackend>(
     legend_box(&mut chart, s, SeriesLabelPosition::UpperRight)
 }
 
+/// One curve of a deep-optics training figure.
+#[derive(Clone, Debug)]
+pub struct DeepCurve {
+    /// The legend's name.
+    pub name: String,
+    /// Colour: an index into the house palette, or `None` for grey (the shared stage 1).
+    pub colour: Option<usize>,
+    /// (iteration, batch PSNR dB, validation PSNR dB when validated, batch image loss).
+    pub rows: Vec<(f64, f64, Option<f64>, f64)>,
+}
+
 /// Training curves of a deep-optics study: the batch PSNR (light) and the validation PSNR
-/// (dots) against the iteration (top), and the batch image loss on a log scale (bottom). Stage
-/// 1 (`stage1`, which every branch's log starts with) is drawn once in grey; a dashed line marks
-/// where the branches start. With no branches, the figure is stage 1's.
+/// (dots) against the iteration (top), and the batch image loss on a log scale (bottom). A
+/// dashed line marks `split`, where the branches start (0: none). The study's logs make the
+/// curves (`deep::deep_training_figure`).
 #[must_use]
-pub fn deep_training_figure(
-    stage1: &[crate::deep::DeepLog],
-    branches: &[(String, Vec<crate::deep::DeepLog>)],
-    title: &str,
-) -> Figure {
-    // The branches start after stage 1's last iteration (at 0 when stage 1 ran none).
-    let split = stage1.last().map_or(0, |l| l.iter + 1);
-    let row = |l: &crate::deep::DeepLog| (l.iter as f64, l.psnr_db, l.val_psnr_db, l.image_loss);
-    let mut series = Vec::new();
-    if !stage1.is_empty() {
-        let name = if branches.len() > 1 {
-            "stage 1 (shared)"
-        } else {
-            "stage 1"
-        };
-        series.push((name.to_string(), GREY, stage1.iter().map(row).collect()));
-    }
-    for (k, (name, logs)) in branches.iter().enumerate() {
-        // Joined to the last shared point so that the curves continue.
-        let from = split.saturating_sub(1);
-        // A design keeps its colour whichever branches ran.
-        use crate::deep::study::{CONVENTIONAL, DECODER_ONLY, OPTICS_ONLY, TOLERANCE_AWARE};
-        let c = [CONVENTIONAL, TOLERANCE_AWARE, DECODER_ONLY, OPTICS_ONLY]
-            .iter()
-            .position(|n| n == name)
-            .unwrap_or(k);
-        series.push((
-            name.clone(),
-            PALETTE[c % PALETTE.len()],
-            logs.iter().filter(|l| l.iter >= from).map(row).collect(),
-        ));
-    }
-    let split = if branches.is_empty() { 0 } else { split };
+pub fn deep_training_curves(curves: Vec<DeepCurve>, split: usize, title: &str) -> Figure {
+    let series = curves
+        .into_iter()
+        .map(|c| {
+            let colour = c.colour.map_or(GREY, |k| PALETTE[k % PALETTE.len()]);
+            (c.name, colour, c.rows)
+        })
+        .collect();
     Figure {
         width: 900,
         height: 700,
@@ -1655,18 +1646,15 @@ mod tests {
         };
         let spots = crate::analysis::spot_diagram(&lens, &lens.compile(), &opts).unwrap();
         let layout = layout_figure(&lens, &lens.compile(), &para, &fields, 587.5618, 5).unwrap();
-        let logs: Vec<crate::optim::train::IterLog> = (0..20)
-            .map(|i| crate::optim::train::IterLog {
-                iter: i,
-                stage: if i < 12 {
-                    crate::optim::train::Stage::Pretrain
-                } else {
-                    crate::optim::train::Stage::Tolerance
-                },
-                loss: 1.0 / (1.0 + i as f64),
-                spot_um: 20.0 - i as f64 * 0.5,
-                psf_similarity: (i >= 12).then_some(0.7 + 0.01 * i as f64),
-                lr_scale: 1.0,
+        let rows: Vec<(f64, f64, f64, Option<f64>)> = (0..20)
+            .map(|i| {
+                let sim = (i >= 12).then_some(0.7 + 0.01 * f64::from(i));
+                (
+                    f64::from(i),
+                    1.0 / (1.0 + f64::from(i)),
+                    20.0 - f64::from(i) * 0.5,
+                    sim,
+                )
             })
             .collect();
         let psf: Vec<f64> = (0..81).map(|i| if i == 40 { 1.0 } else { 0.0 }).collect();
@@ -1677,7 +1665,7 @@ mod tests {
             ),
             (layout, vec!["z (mm)", "field 1.000", "image plane", "EFL"]),
             (
-                training_figure(&logs, "train"),
+                training_curves(rows, Some(12.0), "train"),
                 vec!["PSF similarity", "stage 2", "spot (µm)"],
             ),
             (
@@ -1713,21 +1701,14 @@ mod tests {
 
     #[test]
     fn non_finite_data_is_skipped_not_drawn_or_fatal() {
-        let logs: Vec<crate::optim::train::IterLog> = [f64::NAN, 0.0, f64::INFINITY, 0.5]
+        let rows: Vec<(f64, f64, f64, Option<f64>)> = [f64::NAN, 0.0, f64::INFINITY, 0.5]
             .iter()
             .enumerate()
-            .map(|(i, &v)| crate::optim::train::IterLog {
-                iter: i,
-                stage: crate::optim::train::Stage::Pretrain,
-                loss: v,
-                spot_um: v,
-                psf_similarity: None,
-                lr_scale: 1.0,
-            })
+            .map(|(i, &v)| (i as f64, v, v, None))
             .collect();
-        let fig = training_figure(&logs, "bad values");
+        let fig = training_curves(rows, None, "bad values");
         assert!(fig.to_png().is_ok() && fig.to_svg().is_ok());
-        let empty = training_figure(&[], "no iterations");
+        let empty = training_curves(Vec::new(), None, "no iterations");
         assert!(empty.to_png().is_ok());
         let psf = psf_figure(&[vec![f64::NAN; 4]], 2, 1, "nan psf");
         assert!(psf.to_png().is_ok());

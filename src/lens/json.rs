@@ -42,12 +42,12 @@
 //! and optional vignetting factors `"vignetting": {"vdx": 0, "vdy": 0.06, "vcx": 0, "vcy": 0.16}`
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
+use super::field::{Field, FieldPoint, Vignetting};
 use super::{
     Aperture, ApertureShape, Fold, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object,
     Sensor, Shape, Surface, SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
-use crate::trace::{Field, FieldPoint, Vignetting};
 use serde_json::{json, Map, Value};
 use std::path::Path;
 

@@ -11,6 +11,7 @@
 pub mod agf;
 mod builtin;
 mod catalog_data;
+pub mod field;
 pub mod json;
 pub mod material;
 pub mod paraxial;
@@ -21,6 +22,7 @@ mod text;
 pub mod zemax;
 
 pub use builtin::{builtin, builtin_names};
+pub use field::{Field, FieldPoint, Vignetting};
 pub use material::{GlassCatalogs, Material};
 pub use paraxial::Paraxial;
 pub use system::{Adjustments, Clip, Param, SurfaceKind, SurfaceRow, System};
@@ -645,7 +647,7 @@ pub struct Lens {
     /// fields; JSON `"fields"`): the CLI's default fields when `--fields` is not given. Rays of
     /// a field equal to one of them fill its vignetted pupil ([`Lens::vignetting_of`]). Empty
     /// for the built-in lenses.
-    pub fields: Vec<crate::trace::FieldPoint>,
+    pub fields: Vec<FieldPoint>,
     /// Where the image plane sits and how it is turned (a .zmx coordinate break before the image
     /// surface; JSON `"image_plane"`): centred on the axis and perpendicular to it by default.
     pub image_plane: ImagePlane,
@@ -781,7 +783,7 @@ impl Lens {
     /// assert_eq!(lens.vignetting_of(field), v);
     /// assert!(lens.vignetting_of(Field::angle(5.0)).is_none());
     /// ```
-    pub fn vignetting_of(&self, field: crate::trace::Field) -> crate::trace::Vignetting {
+    pub fn vignetting_of(&self, field: Field) -> Vignetting {
         self.fields
             .iter()
             .find(|p| p.field == field)
@@ -1083,7 +1085,7 @@ impl Lens {
         }
         for (k, p) in self.fields.iter().enumerate() {
             let at = |m: String| Error::invalid(format!("field {}: {m}", k + 1));
-            if let crate::trace::Field::Fraction { .. } = p.field {
+            if let Field::Fraction { .. } = p.field {
                 return Err(at(
                     "a lens' field points are angles, object heights or image heights, not fractions"
                         .into(),

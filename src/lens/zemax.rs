@@ -76,7 +76,7 @@ use super::{
 };
 use crate::error::{Error, ErrorKind, Result};
 use crate::math::{Mat3, Vec3};
-use crate::trace::{Field, FieldPoint, Vignetting};
+use super::field::{Field, FieldPoint, Vignetting};
 use std::path::Path;
 
 /// How a .zmx file defines the system aperture.

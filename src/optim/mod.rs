@@ -22,8 +22,7 @@ pub trait Objective: Sync {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S;
 }
 
-/// Width of the dual numbers used for gradients (derivatives per pass).
-pub const GRAD_WIDTH: usize = 8;
+pub use crate::real::GRAD_WIDTH;
 
 /// Current value of a design parameter in `lens`.
 ///

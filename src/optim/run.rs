@@ -202,7 +202,7 @@ pub fn run_to_report(
         RunOutcome::Stopped { next_iter } => return Ok(RunEnd::Stopped { next_iter }),
     };
     crate::figures::save(
-        &crate::figures::training_figure(&logs, "Training"),
+        &super::train::training_figure(&logs, "Training"),
         &out_dir.join("training.png"),
     )?;
     let report = final_report(state, out_dir, eval_trials)?;

@@ -327,6 +327,22 @@ impl Objective for PatternObjective<'_> {
     }
 }
 
+/// Training curves of the optics from a run's logs ([`crate::figures::training_curves`]): the
+/// loss, the spot size and the PSF similarity per iteration, with the start of stage 2 marked.
+#[must_use]
+pub fn training_figure(logs: &[IterLog], title: &str) -> crate::figures::Figure {
+    let rows = logs
+        .iter()
+        .map(|l| (l.iter as f64, l.loss, l.spot_um, l.psf_similarity))
+        .collect();
+    let stage2 = logs
+        .iter()
+        .find(|l| l.stage == Stage::Tolerance)
+        .map(|l| l.iter as f64)
+        .filter(|&i| i > 0.0);
+    crate::figures::training_curves(rows, stage2, title)
+}
+
 /// What one iteration measured.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IterLog {

@@ -8,6 +8,10 @@
 mod dual;
 pub use dual::Dual;
 
+/// Width of the dual numbers used for gradients (derivatives per pass). The kernel compiles its
+/// gradient entry points for this width once, in the library (`trace::kernel`).
+pub const GRAD_WIDTH: usize = 8;
+
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
 

@@ -101,7 +101,7 @@ impl Traceable for f64 {
 }
 
 /// Dual numbers trace with the generic build. The widths the library differentiates with (1 and
-/// [`crate::optim::GRAD_WIDTH`]) call builds compiled once, in this crate: a crate that takes
+/// [`crate::real::GRAD_WIDTH`]) call builds compiled once, in this crate: a crate that takes
 /// gradients (the tests, a user's program) links them instead of compiling the kernel again for
 /// its width (minutes of optimization each).
 impl<const N: usize> Traceable for Dual<f64, N> {
@@ -112,7 +112,7 @@ impl<const N: usize> Traceable for Dual<f64, N> {
         clip: bool,
         blocks: &mut [Block<Self>],
     ) {
-        const W: usize = crate::optim::GRAD_WIDTH;
+        const W: usize = crate::real::GRAD_WIDTH;
         // `if const`: the other branches of each width are not compiled.
         if const { N == W } {
             let (sys, n, blocks) = same_width::<N, W>(sys, n, blocks);
@@ -154,11 +154,11 @@ fn same_width<'a, const A: usize, const B: usize>(
 
 #[inline(never)]
 fn trace_blocks_dual_grad(
-    sys: &System<Dual<f64, { crate::optim::GRAD_WIDTH }>>,
-    n: &[Dual<f64, { crate::optim::GRAD_WIDTH }>],
+    sys: &System<Dual<f64, { crate::real::GRAD_WIDTH }>>,
+    n: &[Dual<f64, { crate::real::GRAD_WIDTH }>],
     wavelength_nm: f64,
     clip: bool,
-    blocks: &mut [Block<Dual<f64, { crate::optim::GRAD_WIDTH }>>],
+    blocks: &mut [Block<Dual<f64, { crate::real::GRAD_WIDTH }>>],
 ) {
     trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
