@@ -14,7 +14,7 @@ fn main() {
     let target = env::var("TARGET").unwrap_or_default();
     println!("cargo:rustc-env=TOLRAY_TARGET={target}");
     // The shared library's SONAME carries the ABI version (`TOLRAY_ABI_VERSION` in
-    // src/ffi/mod.rs; tests/capi.rs checks that they agree): programs linked against
+    // src/ffi/mod.rs; tests/capi/ checks that they agree): programs linked against
     // libtolray.so record `libtolray.so.2` and keep working across compatible updates, and an
     // incompatible library (ABI 3) is a different file. scripts/install-c.sh installs
     // libtolray.so.2 with the libtolray.so link for the linker.

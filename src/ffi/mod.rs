@@ -10,7 +10,7 @@
 //!   unwind into C. Every pointer is checked for NULL and every buffer for its size.
 //! - Handles are immutable after creation, so one handle may be used from many threads at once.
 //!
-//! The header is generated from this module by cbindgen (`cbindgen.toml`); `tests/capi.rs`
+//! The header is generated from this module by cbindgen (`cbindgen.toml`); `tests/capi/`
 //! regenerates it and fails if the committed header differs.
 
 #![allow(non_camel_case_types)]

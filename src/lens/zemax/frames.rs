@@ -1,0 +1,591 @@
+//! Coordinate breaks and fold mirrors: the frames a .zmx file's surfaces sit in, walked surface by surface.
+
+use super::*;
+
+pub(super) fn rotation_xyz_deg(a: f64, b: f64, g: f64) -> Mat3<f64> {
+    crate::lens::system::rotation_xyz_deg([a, b, g])
+}
+
+/// The rotation of a coordinate break (PARM 3..5 degrees; PARM 6 = 0: about x, the new y, the
+/// new z; otherwise about z, the new y, the new x).
+pub(super) fn cb_rotation(s: &RawSurf) -> Mat3<f64> {
+    let (a, b, g) = (s.parm(3), s.parm(4), s.parm(5));
+    if s.parm(6) == 0.0 {
+        rotation_xyz_deg(a, b, g)
+    } else {
+        Mat3::from_tilt_deg(a, b, g)
+    }
+}
+
+/// A mirror tilted by this much or more against the axis is a fold mirror (the axis of the
+/// surfaces after it turns with the reflection) whatever the coordinate breaks after it say; a
+/// mirror tilted less is one when the file's frame after it follows the reflected axis
+/// (`Walker::follows_reflection`: an off-axis mirror written as OpticStudio writes a fold), and
+/// otherwise a tilted mirror on the axis (a tolerance tilt, say).
+pub(super) const FOLD_MIN_DEG: f64 = 20.0;
+
+/// The rotation turning the unit vector `u` onto the unit vector `v` by the shortest arc
+/// (`None` when they are opposite).
+pub(super) fn turn_onto(u: Vec3<f64>, v: Vec3<f64>) -> Option<Mat3<f64>> {
+    let k = u.cross(v);
+    let (s, c) = (k.norm(), u.dot(v));
+    if s <= 1e-12 {
+        return (c > 0.0).then(Mat3::identity);
+    }
+    let k = k * (1.0 / s);
+    // Rodrigues: R = I + sin K + (1 - cos) K², K the cross-product matrix of the unit axis.
+    let kk = [[0.0, -k.z, k.y], [k.z, 0.0, -k.x], [-k.y, k.x, 0.0]];
+    let mut rows = [[0.0; 3]; 3];
+    for (i, row) in rows.iter_mut().enumerate() {
+        for (j, e) in row.iter_mut().enumerate() {
+            let k2: f64 = (0..3).map(|m| kk[i][m] * kk[m][j]).sum();
+            *e = f64::from(u8::from(i == j)) + s * kk[i][j] + (1.0 - c) * k2;
+        }
+    }
+    Some(Mat3 {
+        rows: rows.map(|r| Vec3::cst(r[0], r[1], r[2])),
+    })
+}
+
+/// The tilts about x, the new y and the new z (degrees, `Rx(a) Ry(b) Rz(g)`) of a rotation.
+pub(super) fn angles_of(r: &Mat3<f64>) -> [f64; 3] {
+    // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
+    // (cos b cos g, -cos b sin g, sin b).
+    let b = r.rows[0].z.clamp(-1.0, 1.0).asin();
+    let a = (-r.rows[1].z).atan2(r.rows[2].z);
+    let g = (-r.rows[0].y).atan2(r.rows[0].x);
+    // (+ 0.0 turns a negative zero into zero.)
+    [
+        a.to_degrees() + 0.0,
+        b.to_degrees() + 0.0,
+        g.to_degrees() + 0.0,
+    ]
+}
+
+/// Snaps a rotation within 1e-12 of the identity to it, so that a coordinate break and its exact
+/// reverse leave no rounding residue.
+pub(super) fn snap(r: Mat3<f64>) -> Mat3<f64> {
+    let i = Mat3::<f64>::identity();
+    let close = r.rows.iter().zip(i.rows.iter()).all(|(a, b)| {
+        (a.x - b.x).abs() <= 1e-12 && (a.y - b.y).abs() <= 1e-12 && (a.z - b.z).abs() <= 1e-12
+    });
+    if close {
+        i
+    } else {
+        r
+    }
+}
+
+pub(super) fn finite_frame(o: &Vec3<f64>, r: &Mat3<f64>) -> bool {
+    [o.x, o.y, o.z].iter().all(|v| v.is_finite())
+        && r.rows
+            .iter()
+            .all(|v| v.x.is_finite() && v.y.is_finite() && v.z.is_finite())
+}
+
+pub(super) fn is_identity(r: &Mat3<f64>) -> bool {
+    *r == Mat3::identity()
+}
+
+impl Walker {
+    pub(super) fn axis(&self) -> Vec3<f64> {
+        self.rot.apply(Vec3::cst(0.0, 0.0, 1.0))
+    }
+
+    /// Moves the origin by `d` (global) and counts its axial part (along the leg's axis).
+    pub(super) fn shift(&mut self, d: Vec3<f64>) {
+        self.origin = self.origin + d;
+        self.pending += self.leg_rot.apply_t(d).z;
+    }
+
+    /// The current frame in unfolded coordinates: origin, axes and axis. Tiny residues of a
+    /// fold's turn (under 1e-12) are dropped, so a surface on the folded axis is untilted.
+    pub(super) fn unfolded(&self) -> (Vec3<f64>, Mat3<f64>, Vec3<f64>) {
+        if !self.folded {
+            return (self.origin, self.rot, self.axis());
+        }
+        let tiny = |v: f64| if v.abs() <= 1e-12 { 0.0 } else { v };
+        let o = self.leg_rot.apply_t(self.origin - self.leg_t);
+        let r = snap(self.leg_rot.transpose() * self.rot);
+        let a = r.apply(Vec3::cst(0.0, 0.0, 1.0));
+        (Vec3::cst(tiny(o.x), tiny(o.y), o.z), r, a)
+    }
+
+    /// After the fold mirror just placed (tilted by [`FOLD_MIN_DEG`] or more against the leg's
+    /// axis): the axis turns by the mirror's reflection of it, about the mirror's point on the
+    /// axis. Returns the fold kept on the mirror.
+    pub(super) fn fold(&mut self, n: Vec3<f64>, dir_before: f64) -> Option<crate::lens::Fold> {
+        let n = n.normalized();
+        let d_in = Vec3::cst(0.0, 0.0, dir_before);
+        let v = d_in - n * (2.0 * d_in.dot(n));
+        let u = Vec3::cst(0.0, 0.0, -dir_before);
+        let r = crate::lens::system::clean_rotation(turn_onto(u, v)?);
+        let fold = crate::lens::Fold {
+            tilt_deg: angles_of(&r),
+            pivot_mm: 0.0,
+        };
+        let r = fold.rotation();
+        let z = self.leg_rot.apply_t(self.origin - self.leg_t).z;
+        let p = Vec3::cst(0.0, 0.0, z);
+        self.leg_t = self.leg_t + self.leg_rot.apply(p - r.apply(p));
+        self.leg_rot = self.leg_rot * r;
+        self.folded = true;
+        // The travel to the next surface counts from the fold's pivot: a mirror off the axis
+        // lies off the pivot along the turned axis too.
+        self.pending = self.leg_rot.apply_t(self.origin - self.leg_t).z - z;
+        Some(fold)
+    }
+
+    /// True when the mirror with unfolded normal `n` is tilted against the leg's axis and the
+    /// file's frame `frame_after` (global) after it has its z axis along the reflected light,
+    /// against the direction of travel after the mirror, as thicknesses after a mirror are
+    /// negative.
+    pub(super) fn follows_reflection(&self, n: Vec3<f64>, frame_after: Mat3<f64>) -> bool {
+        let n = n.normalized();
+        if n.z.abs() >= 1.0 - 1e-15 {
+            return false;
+        }
+        let d_in = Vec3::cst(0.0, 0.0, self.dir);
+        let v = d_in - n * (2.0 * d_in.dot(n));
+        let after = self
+            .leg_rot
+            .apply_t(frame_after.apply(Vec3::cst(0.0, 0.0, 1.0)));
+        (v + after * self.dir).norm() <= 1e-9
+    }
+
+    /// Travels `t` mm along the current z axis.
+    pub(super) fn travel(&mut self, t: f64, line: usize) -> Result<()> {
+        self.shift(self.axis() * t);
+        if !finite_frame(&self.origin, &self.rot) || !self.pending.is_finite() {
+            return Err(invalid(
+                line,
+                "this moves the coordinate system to infinity",
+            ));
+        }
+        Ok(())
+    }
+
+    pub(super) fn coordinate_break(
+        &mut self,
+        s: &RawSurf,
+        warnings: &mut Vec<String>,
+    ) -> Result<()> {
+        if let Some(l) = s.stop {
+            return Err(invalid(l, "a coordinate break cannot be the stop"));
+        }
+        if let Some(g) = &s.glas {
+            warnings.push(format!(
+                "line {}: GLAS on a coordinate break ignored (the medium continues)",
+                g.line
+            ));
+        }
+        let decenter = Vec3::cst(s.parm(1) * self.scale, s.parm(2) * self.scale, 0.0);
+        if s.parm(6) == 0.0 {
+            // Decenter, then tilt about x, the new y, the new z.
+            self.shift(self.rot.apply(decenter));
+            self.rot = snap(self.rot * cb_rotation(s));
+        } else {
+            // Tilt about z, the new y, the new x, then decenter.
+            self.rot = snap(self.rot * cb_rotation(s));
+            self.shift(self.rot.apply(decenter));
+        }
+        self.last_cb_line = Some(s.type_line());
+        self.travel(s.thickness()? * self.scale, s.type_line())
+    }
+
+    /// The Forbes polynomials of a `QED_TYPE` surface (OpticStudio's Q-type asphere) into
+    /// `asph`: XDAT 1 the type (0: Qbfs, 1: Qcon; others are refused), XDAT 2 the number of terms,
+    /// XDAT 3 the normalization radius, XDAT 4.. the coefficients a_0, a_1, ... (lens units).
+    pub(super) fn q_type(
+        &self,
+        s: &RawSurf,
+        asph: &mut [f64; N_ASPH],
+        warnings: &mut Vec<String>,
+    ) -> Result<Shape> {
+        let get = |n: usize| s.xdat.iter().rev().find(|x| x.0 == n);
+        let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
+        let value = |n: usize| get(n).map_or(0.0, |x| x.1);
+        let ty = value(1);
+        if ty != 0.0 && ty != 1.0 {
+            return Err(invalid(
+                line_of(1),
+                format!(
+                    "XDAT 1 = {ty}: Q-type asphere type {ty}; tolray reads type 0 (Forbes' Qbfs polynomials) and type 1 (Qcon), each on a conic"
+                ),
+            ));
+        }
+        let terms = value(2);
+        if !((0.0..=1000.0).contains(&terms) && terms.fract() == 0.0) {
+            return Err(invalid(
+                line_of(2),
+                format!("XDAT 2 = {terms}: the number of Q terms must be a whole number"),
+            ));
+        }
+        let terms = terms as usize;
+        let norm = value(3) * self.scale;
+        for m in 0..terms {
+            let v = value(4 + m);
+            if m >= N_ASPH {
+                if v != 0.0 {
+                    return Err(invalid(
+                        line_of(4 + m),
+                        format!(
+                            "XDAT {} = {v}: Q term a_{m}; tolray traces Q terms a_0 to a_{}",
+                            4 + m,
+                            N_ASPH - 1
+                        ),
+                    ));
+                }
+                continue;
+            }
+            // A departure: lens units to mm.
+            asph[m] = v * self.scale;
+        }
+        if asph.iter().any(|&a| a != 0.0) && !(norm > 0.0 && norm.is_finite()) {
+            return Err(invalid(
+                line_of(3),
+                format!(
+                    "XDAT 3 = {}: the Q terms need a positive normalization radius",
+                    value(3)
+                ),
+            ));
+        }
+        if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 4 + terms && x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} ignored: beyond the {terms} Q terms of XDAT 2"
+            ));
+        }
+        let norm_radius_mm = if norm > 0.0 { norm } else { 1.0 };
+        Ok(if ty == 0.0 {
+            Shape::Qbfs { norm_radius_mm }
+        } else {
+            Shape::Qcon { norm_radius_mm }
+        })
+    }
+
+    /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
+    ///
+    /// `frame_after`: the file's frame after the coordinate breaks that follow the surface
+    /// (global), which tells whether a tilted mirror is a fold mirror.
+    pub(super) fn surface(
+        &mut self,
+        k: usize,
+        s: &RawSurf,
+        frame_after: Mat3<f64>,
+        catalogs: &GlassCatalogs,
+        warnings: &mut Vec<String>,
+    ) -> Result<()> {
+        let ty = s.type_name();
+        let scale = self.scale;
+        let c = s.curv.as_ref().map_or(0.0, |c| c.v) / scale;
+        let mut asph = [0.0; N_ASPH];
+        let mut shape = Shape::Even;
+        let mut grating = Grating {
+            lines_per_um: 0.0,
+            order: 0.0,
+        };
+        for &(p, v, line) in &s.parm {
+            match ty.as_str() {
+                "EVENASPH" if (1..=N_ASPH).contains(&p) => {
+                    // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
+                    asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
+                }
+                "ODDASPHE" if (1..=N_ASPH).contains(&p) => {
+                    // β_p ρ^p: lens units^{1-p} to mm^{1-p}.
+                    shape = Shape::Odd;
+                    asph[p - 1] = v * scale.powi(1 - p as i32);
+                }
+                "TOROIDAL" if p == 1 => {
+                    // The radius of rotation; 0 means none (a cylinder).
+                    let r = v * scale;
+                    let c_rot = if r == 0.0 { 0.0 } else { 1.0 / r };
+                    if !c_rot.is_finite() {
+                        return Err(invalid(line, format!("PARM 1 = {v}: radius of rotation")));
+                    }
+                    shape = Shape::Toroidal { c_rot };
+                }
+                "PARAXIAL" if p == 1 => {
+                    if v == 0.0 {
+                        return Err(invalid(
+                            line,
+                            "PARM 1 = 0: a PARAXIAL surface needs a focal length",
+                        ));
+                    }
+                    shape = Shape::Paraxial {
+                        focal_mm: v * scale,
+                    };
+                }
+                // The OPD mode changes how OpticStudio computes optical path, not rays.
+                "PARAXIAL" if p == 2 => {}
+                // Lines per µm (whatever the lens unit) and the diffraction order.
+                "DGRATING" if p == 1 => grating.lines_per_um = v,
+                "DGRATING" if p == 2 => grating.order = v,
+                "TOROIDAL" if (2..=N_ASPH).contains(&p) => {
+                    // α_{p-1} y^{2(p-1)}.
+                    let j = p - 1;
+                    asph[j - 1] = v * scale.powi(1 - 2 * j as i32);
+                }
+                _ if v != 0.0 => {
+                    let what = match ty.as_str() {
+                        "EVENASPH" => "tolray reads even-asphere terms r^2 to r^16 (PARM 1 to 8)",
+                        "ODDASPHE" => "tolray reads odd-asphere terms r^1 to r^8 (PARM 1 to 8)",
+                        "TOROIDAL" => {
+                            "tolray reads the radius of rotation (PARM 1) and y^2 to y^14 (PARM 2 to 8)"
+                        }
+                        "PARAXIAL" => "a PARAXIAL surface has a focal length (PARM 1) and an OPD mode (PARM 2)",
+                        "DGRATING" => "a DGRATING surface has lines per µm (PARM 1) and an order (PARM 2)",
+                        "QED_TYPE" => "a Q-type surface keeps its data in XDAT",
+                        _ => "a STANDARD surface has no parameters",
+                    };
+                    warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
+                }
+                _ => {}
+            }
+        }
+        if ty == "ODDASPHE" {
+            shape = Shape::Odd;
+        }
+        if ty == "PARAXIAL" {
+            if !matches!(shape, Shape::Paraxial { .. }) {
+                return Err(invalid(
+                    s.type_line(),
+                    "a PARAXIAL surface needs its focal length (PARM 1)",
+                ));
+            }
+            if c != 0.0 || s.coni.as_ref().is_some_and(|k| k.v != 0.0) {
+                let l = s.curv.as_ref().map_or(s.line, |c| c.line);
+                return Err(invalid(
+                    l,
+                    "a PARAXIAL surface is flat (CURV and CONI must be 0)",
+                ));
+            }
+        }
+        if ty == "TOROIDAL" {
+            if !matches!(shape, Shape::Toroidal { .. }) {
+                shape = Shape::Toroidal { c_rot: 0.0 };
+            }
+            // XDAT 1: the number of Zernike terms, XDAT 2: their normalization radius, XDAT 3..:
+            // the coefficients.
+            let terms = s.xdat.iter().rev().find(|x| x.0 == 1).map_or(0.0, |x| x.1);
+            if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 3 && x.1 != 0.0) {
+                if terms > 0.0 {
+                    return Err(invalid(
+                        line,
+                        format!(
+                            "XDAT {n} = {v}: a Zernike term on a TOROIDAL surface; tolray traces toroids without Zernike terms"
+                        ),
+                    ));
+                }
+            }
+        } else if ty == "QED_TYPE" {
+            shape = self.q_type(s, &mut asph, warnings)?;
+        } else if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} (extra surface data) ignored: a {ty} surface has none tolray reads"
+            ));
+        }
+        let mirror = s.glas.as_ref().is_some_and(|g| {
+            g.v.first()
+                .is_some_and(|n| n.eq_ignore_ascii_case("MIRROR"))
+        });
+        // A mirror sends the light back through the medium it came in.
+        let material = match &s.glas {
+            _ if mirror => self.medium.clone(),
+            Some(g) => glass(&g.v, g.line, catalogs, warnings)?,
+            None => Material::Air,
+        };
+        let diam = s.diam.as_ref().map(|d| (d.v.0 * scale, d.v.1));
+        let aperture = s.hard_aperture(scale)?;
+        let dummy = ty == "STANDARD"
+            && !mirror
+            && c == 0.0
+            && s.stop.is_none()
+            && material == self.medium
+            && aperture.is_none()
+            && !diam.is_some_and(|d| d.1);
+        if !dummy {
+            let (origin, rot, axis) = self.unfolded();
+            if axis.z <= 1e-9 {
+                return Err(invalid(
+                    s.line,
+                    format!(
+                        "SURF {k} is turned by 90 degrees or more against the axis by coordinate breaks; tolray turns the axis only at a fold mirror (a mirror tilted {FOLD_MIN_DEG} degrees or more)"
+                    ),
+                ));
+            }
+            // (Before the first surface, a negative travel is a virtual object's distance.)
+            if self.pending * self.dir < 0.0 && !self.built.is_empty() {
+                return Err(invalid(
+                    s.line,
+                    format!(
+                        "SURF {k} lies {} mm before the previous surface along the light's path; tolray needs the surfaces in order along the axis (thicknesses are negative after a mirror)",
+                        self.pending.abs()
+                    ),
+                ));
+            }
+            match self.built.last_mut() {
+                Some(prev) => prev.surface.d_next_mm = self.pending,
+                None => {
+                    self.object_gap = Some(self.pending);
+                    self.first_vertex = self.origin;
+                    self.leg_t = Vec3::cst(0.0, 0.0, self.origin.z);
+                }
+            }
+            self.pending = 0.0;
+            if let Some(l) = s.stop {
+                if let Some(first) = self.stop_line {
+                    return Err(invalid(
+                        l,
+                        format!("a second STOP (the first is at line {first})"),
+                    ));
+                }
+                self.stop_line = Some(l);
+            }
+            // The semi-diameter: DIAM, else MEMA, else a floating aperture's own value (FLAP's
+            // second number); surfaces without one get the paraxial beam's size later.
+            let flap = s
+                .aperture
+                .as_ref()
+                .filter(|a| a.v.0 == "FLAP")
+                .and_then(|a| a.v.1.get(1))
+                .map(|r| r * scale);
+            let semi = diam
+                .map(|d| d.0)
+                .filter(|&d| d > 0.0)
+                .or_else(|| s.mema.as_ref().map(|m| m.v * scale).filter(|&m| m > 0.0))
+                .or(flap.filter(|&r| r > 0.0));
+            let is_stop = s.stop.is_some();
+            // A flat stop in air is a bare aperture (DeepLens' "Aperture").
+            let role = if mirror {
+                SurfaceRole::Mirror
+            } else if is_stop
+                && ty == "STANDARD"
+                && c == 0.0
+                && self.medium.is_air()
+                && material.is_air()
+            {
+                SurfaceRole::Aperture
+            } else {
+                SurfaceRole::Refractive
+            };
+            let vec_local = if is_identity(&rot) {
+                [0.0, 0.0, 1.0]
+            } else {
+                [axis.x, axis.y, axis.z]
+            };
+            let mut surface = Surface {
+                role,
+                c,
+                k: s.coni.as_ref().map_or(0.0, |c| c.v),
+                asph,
+                shape,
+                semi_aperture_mm: semi.unwrap_or(0.0),
+                aperture,
+                d_next_mm: 0.0,
+                material: material.clone(),
+                is_stop,
+                pos_xy_mm: [origin.x, origin.y],
+                vec_local,
+                roll_deg: 0.0,
+                grating: (ty == "DGRATING").then_some(grating),
+                fold: None,
+            };
+            // A coordinate break that rolls the frame about the surface's axis matters where
+            // the surface is not symmetric about it (toroid, grating, a non-circular or
+            // decentred aperture); elsewhere it changes nothing and is dropped.
+            let roll = crate::lens::system::roll_of(&rot, surface.vec_local);
+            if roll != 0.0 && !surface.is_axially_symmetric() {
+                surface.roll_deg = roll;
+            }
+            // A mirror tilted far enough against the axis is a fold mirror, and so is any
+            // tilted mirror after which the file's frame follows the reflected axis (OpticStudio's
+            // coordinate break, mirror, coordinate break): the surfaces after it are placed on
+            // the reflected axis, so the unfolded model's gaps are the file's thicknesses and
+            // its paraxial model that of OpticStudio, which ignores the coordinate breaks.
+            if mirror
+                && (axis.z < FOLD_MIN_DEG.to_radians().cos()
+                    || self.follows_reflection(axis, frame_after))
+            {
+                surface.fold = self.fold(axis, self.dir);
+                if surface.fold.is_none() {
+                    return Err(invalid(
+                        s.line,
+                        format!("SURF {k} is a mirror at grazing incidence to the axis"),
+                    ));
+                }
+            }
+            self.built.push(Built {
+                surface,
+                raw: s.clone(),
+                index: k,
+                has_diam: semi.is_some(),
+            });
+            if mirror {
+                self.dir = -self.dir;
+            }
+        }
+        self.medium = material;
+        let line = s.disz.as_ref().map_or(s.line, |d| d.line);
+        self.travel(s.thickness()? * scale, line)
+    }
+
+    /// The image surface closes the last gap and gives the sensor's half-diagonal (`None`
+    /// without a `DIAM`: the caller sizes it by the fields).
+    pub(super) fn image(&mut self, img: &RawSurf) -> Result<Option<f64>> {
+        let ty = img.type_name();
+        if !matches!(ty.as_str(), "STANDARD" | "EVENASPH") {
+            return Err(invalid(
+                img.type_line(),
+                format!("image surface type {ty} is not supported: the image is a plane"),
+            ));
+        }
+        if img.curv.as_ref().is_some_and(|c| c.v != 0.0)
+            || (ty == "EVENASPH" && img.parm.iter().any(|p| p.1 != 0.0))
+        {
+            let l = img.curv.as_ref().map_or(img.line, |c| c.line);
+            return Err(invalid(
+                l,
+                "the image surface is curved; tolray's image is a plane",
+            ));
+        }
+        if let Some(l) = img.stop {
+            return Err(invalid(l, "the image surface cannot be the stop"));
+        }
+        // A tilted, rolled or decentred image plane keeps its pose (in the current leg of the
+        // axis); one turned by 90 degrees or more against that leg is not a plane the light
+        // reaches along it.
+        let (origin, rot, axis) = self.unfolded();
+        if axis.z <= 1e-9 {
+            return Err(invalid(
+                self.last_cb_line.unwrap_or(img.line),
+                format!("the image plane is turned by 90 degrees or more against the axis by coordinate breaks (the last one is here); tolray turns the axis only at a fold mirror (a mirror tilted {FOLD_MIN_DEG} degrees or more)"),
+            ));
+        }
+        let normal = if is_identity(&rot) {
+            [0.0, 0.0, 1.0]
+        } else {
+            [axis.x, axis.y, axis.z]
+        };
+        self.image_plane = ImagePlane {
+            decenter_mm: [origin.x, origin.y],
+            normal,
+            roll_deg: crate::lens::system::roll_of(&rot, normal),
+        };
+        // An image surface before the last lens surface along the light's path is a virtual
+        // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
+        let Some(last) = self.built.last_mut() else {
+            return Err(Error::invalid(
+                "the file has no lens surface between the object and the image",
+            ));
+        };
+        last.surface.d_next_mm = self.pending;
+        let r_sensor = img.diam.as_ref().map_or(0.0, |d| d.v.0 * self.scale);
+        if r_sensor < 0.0 || !r_sensor.is_finite() {
+            return Err(invalid(
+                img.diam.as_ref().map_or(img.line, |d| d.line),
+                format!("the image semi-diameter (DIAM) {r_sensor} mm must be positive"),
+            ));
+        }
+        Ok((r_sensor > 0.0).then_some(r_sensor))
+    }
+}
