@@ -325,3 +325,34 @@ fn polychromatic_and_direct_mtf() {
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("poly"), "{out}");
 }
+
+/// docs/cli.md is the parser's own reference (`tolray --markdown-help`); it fails when a flag,
+/// default or help text changes without it (`TOLRAY_BLESS=1 cargo test --release --test cli
+/// reference` rewrites it), as tests/capi/ does for the C header.
+#[test]
+fn cli_reference_is_generated_from_the_parser() {
+    let (code, out, err) = tolray(&["--markdown-help"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.starts_with("# Command-line reference"), "{out}");
+    for cmd in [
+        "info",
+        "spot",
+        "tolerance",
+        "mtf",
+        "wavefront",
+        "deep",
+        "render",
+    ] {
+        assert!(out.contains(&format!("## `tolray {cmd}`")), "{cmd} missing");
+    }
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/cli.md");
+    if std::env::var_os("TOLRAY_BLESS").is_some() {
+        std::fs::write(path, &out).unwrap();
+    }
+    let stored = std::fs::read_to_string(path).unwrap_or_default();
+    assert!(
+        stored == out,
+        "docs/cli.md differs from the parser; regenerate it with \
+         TOLRAY_BLESS=1 cargo test --release --test cli reference"
+    );
+}

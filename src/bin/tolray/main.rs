@@ -31,7 +31,7 @@ mod wave;
 #[command(
     name = "tolray",
     version,
-    about = "Tolerance-aware lens design: exact ray tracing, spots and tolerances for refractive lenses.\n\nLengths in mm, spot sizes in µm, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
+    about = "Tolerance-aware deep optics: exact, differentiable ray tracing of real lenses; spots, wave optics, tolerances and yield; lenses designed together with their image decoders.\n\nLengths in mm, spot sizes in µm, wavelengths in nm, angles in degrees. Surfaces are counted from 0.\nA LENS is a DeepLens JSON file, a Zemax .zmx file or a built-in name: lens1, lens2, cooke-triplet."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -128,8 +128,30 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// The command-line reference in Markdown, `docs/cli.md` (`tolray --markdown-help`, a hidden
+/// flag; `tests/cli/` fails when the file drifts from the parser).
+fn markdown_help() -> String {
+    use clap::CommandFactory;
+    let opts = clap_markdown::MarkdownOptions::new()
+        .title("Command-line reference".into())
+        .show_footer(false);
+    let intro =
+        "Generated from the parser by `tolray --markdown-help` (`TOLRAY_BLESS=1 cargo test \
+                 --release --test cli reference` rewrites it); the same text as `tolray COMMAND \
+                 --help`. The guide to the commands is [usage.md](usage.md).\n\n";
+    let md = clap_markdown::help_markdown_command_custom(&Cli::command(), &opts);
+    match md.split_once("\n\n") {
+        Some((title, rest)) => format!("{title}\n\n{intro}{rest}"),
+        None => md,
+    }
+}
+
 fn main() -> ExitCode {
     use clap::{CommandFactory, FromArgMatches};
+    if std::env::args().nth(1).as_deref() == Some("--markdown-help") {
+        print!("{}", markdown_help());
+        return ExitCode::SUCCESS;
+    }
     let m = app::negative_numbers(Cli::command()).get_matches();
     let checked = app::check_outputs(&m).and_then(|()| Ok(Cli::from_arg_matches(&m)?));
     app::install_interrupt_handler();
