@@ -664,16 +664,26 @@ pub fn find_glass(name: &str) -> Option<&'static CatalogGlass> {
 
 /// The built-in glass `name` (ignoring case) of the first of `vendors` that has it.
 pub fn find_in_vendors(name: &str, vendors: &[&str]) -> Option<&'static CatalogGlass> {
-    let all = crate::lens::catalog_data::CATALOG;
+    let all = catalog();
     vendors.iter().find_map(|v| {
         all.iter()
             .find(|g| g.vendor == *v && g.name.eq_ignore_ascii_case(name))
     })
 }
 
-/// The built-in catalog.
+/// The built-in catalog: the generated table (`catalog_data.rs`) and the hand-kept glasses
+/// (`catalog_extra.rs`), sorted by vendor then name (ignoring case).
 pub fn catalog() -> &'static [CatalogGlass] {
-    crate::lens::catalog_data::CATALOG
+    static ALL: std::sync::LazyLock<Vec<CatalogGlass>> = std::sync::LazyLock::new(|| {
+        let mut all = [
+            crate::lens::catalog_data::CATALOG,
+            crate::lens::catalog_extra::EXTRA,
+        ]
+        .concat();
+        all.sort_by_cached_key(|g| (g.vendor.to_ascii_uppercase(), g.name.to_ascii_uppercase()));
+        all
+    });
+    &ALL
 }
 
 /// Up to `max` catalog names closest to `name` (edit distance, case-insensitive).

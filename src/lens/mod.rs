@@ -11,6 +11,7 @@
 pub mod agf;
 mod builtin;
 mod catalog_data;
+mod catalog_extra;
 pub mod field;
 pub mod json;
 pub mod material;
