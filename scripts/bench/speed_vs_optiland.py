@@ -16,8 +16,8 @@ surfaces are optiland's surfaces after the object (the image included), the same
 The positions on the image surface are compared ray by ray (rays that arrive in both).
 
 Usage (from the repository root, after `cargo build --release`):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/bench/speed_vs_optiland.py [--rays 1000000] [--repeat 3]
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/bench/speed_vs_optiland.py [--rays 1000000] [--repeat 3]
 """
 from __future__ import annotations
 

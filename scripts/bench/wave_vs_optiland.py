@@ -20,8 +20,8 @@ TOLRAY_FIELD_FRACTION 0.7): the work is the same, the numbers are not compared h
 cross-check is tests/optics/wave_reference.rs).
 
 Usage (from the repository root, after `cargo build --release`):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/bench/wave_vs_optiland.py [--repeat 5]
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/bench/wave_vs_optiland.py [--repeat 5]
 """
 from __future__ import annotations
 

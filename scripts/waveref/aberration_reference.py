@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """Reference aberration curves (field curvature, distortion f-tan and f-theta) from optiland 0.6.3.
 
-Versions: optiland 0.6.3, numpy 2.4.6, Python 3.11 (venv /tmp/waveref/venv, as
+Versions: optiland 0.6.3, numpy 2.4.6, Python 3.11 (the environment of scripts/requirements.txt, as
 wave_reference.py). Generated once, 2026-11-28, for the tolray project; the Rust tests
 (tests/optics/aberrations.rs) read the output and never run this.
 
 Usage (from the repository root):
-    /tmp/waveref/venv/bin/python scripts/waveref/aberration_reference.py
+    .venv-ref/bin/python scripts/waveref/aberration_reference.py
 writes tests/data/wave/optiland_aberrations.json (a few seconds).
 
 Lenses and their adaptations are those of wave_reference.py (its LENSES, `load`, `choose_field`:

@@ -1,14 +1,13 @@
 #!/usr/bin/env python3
 """Reference wave-optics numbers (OPD, Zernike, FFT PSF Strehl, MTF) from optiland 0.6.3.
 
-Versions: optiland 0.6.3, numpy 2.4.6, scipy 1.17.1, matplotlib 3.11.2, Python 3.11 (venv
-/tmp/waveref/venv). Generated once, 2026-11-28, for the tolray project; the Rust tests read the
+Versions: optiland 0.6.3, numpy 2.4.6, scipy 1.17.1, matplotlib 3.11.2, Python 3.11 (the environment of
+scripts/requirements.txt). Generated once, 2026-11-28, for the tolray project; the Rust tests read the
 output and never run this.
 
 Usage (from the repository root):
-    python3 -m venv /tmp/waveref/venv
-    /tmp/waveref/venv/bin/pip install optiland==0.6.3      # pulls numpy, scipy, matplotlib
-    /tmp/waveref/venv/bin/python scripts/waveref/wave_reference.py
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/waveref/wave_reference.py
 writes tests/data/wave/optiland_wave.json (about 30 seconds on 2 cores).
 
 Lenses are read as scripts/zmxref/gen_reference.py reads them (its `load_optic`: optiland's Zemax
@@ -665,7 +664,7 @@ def main():
         "date": DATE,
         "engine": f"optiland {optiland.__version__ if hasattr(optiland, '__version__') else '0.6.3'}",
         "versions": {"python": platform.python_version(), "numpy": np.__version__},
-        "command": "/tmp/waveref/venv/bin/python scripts/waveref/wave_reference.py",
+        "command": ".venv-ref/bin/python scripts/waveref/wave_reference.py",
         "units": "mm, waves at the case wavelength, lp/mm, um for PSF pixels",
         "frame": "optiland global frame (z = axis, first surface at first_surface_z_global_mm)",
         "pupil": "normalised entrance-pupil coordinates Px, Py (paraxial EP, radius EPD/2)",

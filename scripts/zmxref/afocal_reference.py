@@ -5,8 +5,8 @@ Versions: optiland 0.6.3 (numpy backend, float64), Python 3.11. Generated once (
 the tolray project; tests read tests/data/zemax/afocal_reference.json and never run Python.
 
 Usage (from outside the repository, which is the first argument):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    cd /tmp && /tmp/optvenv/bin/python REPO/scripts/zmxref/afocal_reference.py REPO \
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    cd /tmp && REPO/.venv-ref/bin/python REPO/scripts/zmxref/afocal_reference.py REPO \
         > REPO/tests/data/zemax/afocal_reference.json
 
 Lens: tests/data/zemax/keplerian.zmx (hand-made: two N-BK7 plano-convex lenses of 100 and 50 mm

@@ -5,7 +5,7 @@ Versions: optiland 0.6.3, numpy 2.4.6, Python 3.11 (the venv of gen_reference.py
 for the tolray project (2026-11-26); tests read the output, never run this.
 
 Usage (from the repository root):
-    /tmp/optvenv/bin/python scripts/zmxref/field_reference.py
+    .venv-ref/bin/python scripts/zmxref/field_reference.py
 writes tests/data/zemax/real/field_reference.json.
 
 For each file in FILES and each of its field points (FTYP/XFLN/YFLN: angles, object heights,

@@ -5,8 +5,8 @@ Versions: optiland 0.6.3 (numpy backend, float64), Python 3.11. Generated once (
 the tolray project; tests read tests/data/zemax/fold_reference.json and never run Python.
 
 Usage (outside the repository root):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/zmxref/fold_reference.py > tests/data/zemax/fold_reference.json
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/zmxref/fold_reference.py > tests/data/zemax/fold_reference.json
 
 Lenses: tests/data/zemax/fold.zmx (hand-made: a singlet, a 45-degree fold mirror about x, a
 30-degree fold mirror about y on a decentred frame; constant index 1.5168) and

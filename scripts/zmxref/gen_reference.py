@@ -2,16 +2,15 @@
 """Generate reference numbers for a corpus of Zemax .zmx files.
 
 Versions: optiland 0.6.3, rayoptics 0.9.8 (fallback only), numpy (see venv),
-Python 3.11.7, numpy 2.4.6 (venv /tmp/zmxref/venv).  Generated 2026-11-25 for the tolray project.
+Python 3.11.7, numpy 2.4.6 (scripts/requirements.txt).  Generated 2026-11-25 for the tolray project.
 
 Usage (from the repository root; nothing in tolray runs this, tests read its output):
-    python3 -m venv /tmp/zmxref/venv
-    /tmp/zmxref/venv/bin/pip install optiland==0.6.3 rayoptics==0.9.8 pyyaml
-    /tmp/zmxref/venv/bin/python scripts/zmxref/gen_reference.py
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/zmxref/gen_reference.py
 writes tests/data/zemax/real/reference.json for every tests/data/zemax/real/<source>/*.zmx.
 `... gen_reference.py --only rayoptics/HoO-V2C18Ex46.zmx` regenerates just the entries named
 (paths as in the JSON) and keeps the others as they are (so used on 2026-11-27 for patch 7,
-optiland 0.6.3 in /tmp/optvenv), and for patch 8 on optiland/complicated_fold_mirrors_setup_v2.zmx.
+optiland 0.6.3), and for patch 8 on optiland/complicated_fold_mirrors_setup_v2.zmx.
 
 Per file:
   * feature inventory (scan_zmx.scan, pure python)

@@ -5,8 +5,8 @@ Versions: optiland 0.6.3 (numpy backend, float64), Python 3.11. Generated once f
 project (2026-11-27); tests read tests/data/zemax/qbfs_reference.json and never run Python.
 
 Usage (outside the repository root):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/zmxref/qbfs_reference.py > tests/data/zemax/qbfs_reference.json
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/zmxref/qbfs_reference.py > tests/data/zemax/qbfs_reference.json
 
 optiland 0.6.3 does not read OpticStudio's QED_TYPE surfaces, so the lenses are built here from
 the files' numbers with optiland's `forbes_qbfs` geometry (ForbesQNormalSlopeGeometry: Forbes'

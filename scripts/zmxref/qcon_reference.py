@@ -6,8 +6,8 @@ the tolray project (2026-11-27); tests read tests/data/zemax/qcon_reference.json
 Python.
 
 Usage (outside the repository root):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/zmxref/qcon_reference.py > tests/data/zemax/qcon_reference.json
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/zmxref/qcon_reference.py > tests/data/zemax/qcon_reference.json
 
 optiland has no Qcon geometry. A Qcon surface is a conic plus x^2 sum_m a_m Q_m(x),
 x = (r / r_n)^2, Q_m(x) = P_m^(0,4)(2x - 1) (Jacobi polynomials; Forbes, Opt. Express 15, 5218

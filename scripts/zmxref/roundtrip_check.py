@@ -7,10 +7,10 @@ evaluated exactly as gen_reference.py evaluates an original (its scan + optiland
 all its patches), and the numbers are compared with the reference.json entry of the ORIGINAL file.
 
 Usage (from any directory outside the repository; optiland may write logs into the cwd):
-    /tmp/zmxref/venv/bin/python scripts/zmxref/roundtrip_check.py \
+    .venv-ref/bin/python scripts/zmxref/roundtrip_check.py \
         --tolray /path/to/tolray --json OUT.json [--keep DIR]
 
-Quantities and tolerances (those of tests/optics/zemax.rs, corpus_mismatches; lengths in mm, the
+Quantities and tolerances (those of tests/optics/zemax/, corpus_mismatches; lengths in mm, the
 reference's file units converted by its UNIT):
   * wavelength, EFL (optiland f2), BFD, EPD: relative 1e-9; the field's kind and maximum (angle or
     object height that was traced): relative 1e-9;
@@ -20,7 +20,7 @@ reference's file units converted by its UNIT):
     surface, so where the original has dummy surfaces or coordinate breaks before its first lens
     surface the written file's frame origin lies dz further along z.  dz is measured with optiland
     on both files as the shift of the image plane relative to each file's frame origin (optiland
-    surface 1), and the reference EP z is compared as ep_z - dz (tests/optics/zemax.rs does the same with
+    surface 1), and the reference EP z is compared as ep_z - dz (tests/optics/zemax/ does the same with
     tolray's own first_vertex_mm);
   * per field (0, 0.7, 1 of the maximum): rays launched and rays reaching the image: exact;
     RMS spot: |a - b| <= 1e-9 b + 1e-6 um; centroid: each coordinate within 1e-9 (1 + |y_ref|) mm,

@@ -6,8 +6,8 @@ Versions: optiland 0.6.3 (numpy backend, float64), Python 3.11. Generated once f
 project; tests read tests/data/zemax/shapes_reference.json and never run Python.
 
 Usage (outside the repository root, so that nothing here is imported by tolray's tools):
-    python3 -m venv /tmp/optvenv && /tmp/optvenv/bin/pip install optiland==0.6.3
-    /tmp/optvenv/bin/python scripts/zmxref/shapes_reference.py > tests/data/zemax/shapes_reference.json
+    python3 -m venv .venv-ref && .venv-ref/bin/pip install -r scripts/requirements.txt
+    .venv-ref/bin/python scripts/zmxref/shapes_reference.py > tests/data/zemax/shapes_reference.json
 
 The lenses are tests/data/zemax/toroid.zmx, oddasphere.zmx and virtual-image.zmx (added
 2026-11-26; the first two entries unchanged), built here in optiland from
