@@ -923,6 +923,12 @@ fn aberration_work(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), Stri
     if let Ok(d) = ab::distortion(l, sys, &f, wl, ab::DistortionKind::FTan, false) {
         finite!("distortion", d[0], d[1]);
     }
+    if let Ok(g) = ab::grid_distortion(l, sys, 3, wl, ab::DistortionKind::FTan, false) {
+        let all = g.real_mm.iter().chain(&g.ideal_mm).flatten();
+        if g.real_mm.len() != 9 || all.chain(&g.distortion_pct).any(|v| !v.is_finite()) {
+            return Err("grid distortion: a ragged or non-finite result".into());
+        }
+    }
     // Relative illumination traces 64² rays per field: left to its tests, to keep the pass short.
     if let Ok(c) = ab::lateral_colour(l, sys, &f, &[wl, wl * 1.1], false) {
         finite!("lateral colour", c[1][0], c[1][1]);

@@ -12,6 +12,9 @@
 //!   near-axis scale (the derivative at the axis, from two chief rays at ±1e-6 of the field);
 //!   `100 (y_real − y_ideal) / y_ideal` %. For a finite object `u` is the object height over its
 //!   distance (f-tan θ only).
+//! - **Grid distortion**: the same for a grid of fields over the sensor, in two dimensions: the
+//!   ideal point `k proj(|t|)` along each field's direction `t` and the real chief ray's
+//!   ([`grid_distortion`]).
 //! - **Lateral colour**: the chief ray's image point at each wavelength minus at the primary
 //!   wavelength, along the field direction, µm.
 //! - **Relative illumination**: the irradiance at the chief ray's image point over that on axis
@@ -24,7 +27,7 @@
 
 use crate::error::{Error, Result};
 use crate::lens::paraxial::LaunchOptics;
-use crate::lens::{Lens, Object, System};
+use crate::lens::{Lens, Object, Paraxial, System};
 use crate::trace::{self, Field, RaySet, TraceOptions};
 use crate::wave::{self, zernike, Sampling, WaveOptions};
 use serde::Serialize;
@@ -193,6 +196,112 @@ fn chief_point(
     })
 }
 
+/// What distortion is measured with: the on-axis chief ray's image point, the paraxial data
+/// of the primary wavelength, and the projection.
+struct Scale<'a> {
+    lens: &'a Lens,
+    sys: &'a System<f64>,
+    para: Paraxial,
+    wavelength_nm: f64,
+    kind: DistortionKind,
+    aim: bool,
+    origin: [f64; 2],
+}
+
+/// A chief ray's image point relative to the on-axis one, its field's direction `u`, and the
+/// ideal image radius along `u` (`k proj(r)`, `k` the near-axis scale along `u`).
+struct Projected {
+    real: [f64; 2],
+    u: [f64; 2],
+    ideal: f64,
+}
+
+impl Projected {
+    /// `100 (y_real − y_ideal) / y_ideal` along the field's direction.
+    fn distortion_pct(&self) -> f64 {
+        let real = self.real[0] * self.u[0] + self.real[1] * self.u[1];
+        100.0 * (real - self.ideal) / self.ideal
+    }
+}
+
+impl<'a> Scale<'a> {
+    fn new(
+        lens: &'a Lens,
+        sys: &'a System<f64>,
+        wavelength_nm: f64,
+        kind: DistortionKind,
+        aim: bool,
+    ) -> Result<Self> {
+        if kind == DistortionKind::FTheta && lens.object != Object::Infinite {
+            return Err(Error::argument(
+                "f-theta distortion needs an object at infinity (a field angle)",
+            ));
+        }
+        let para = lens.paraxial(lens.primary_wavelength_nm)?;
+        let origin = chief_point(lens, sys, Field::fraction(0.0), wavelength_nm, aim)?;
+        Ok(Scale {
+            lens,
+            sys,
+            para,
+            wavelength_nm,
+            kind,
+            aim,
+            origin,
+        })
+    }
+
+    /// [`Projected`] of field `f`; `None` on axis.
+    fn project(&self, f: Field) -> Result<Option<Projected>> {
+        let (lens, sys, wl, aim, origin) = (
+            self.lens,
+            self.sys,
+            self.wavelength_nm,
+            self.aim,
+            self.origin,
+        );
+        let proj = |u: f64| match self.kind {
+            DistortionKind::FTan => u,
+            DistortionKind::FTheta => u.atan(),
+        };
+        let q = f
+            .resolved(lens, &self.para, aim)?
+            .tangents_f64(lens, &self.para)?;
+        let r = q.0.hypot(q.1);
+        if r == 0.0 {
+            return Ok(None);
+        }
+        let u = field_direction(q);
+        let along = |p: [f64; 2]| (p[0] - origin[0]) * u[0] + (p[1] - origin[1]) * u[1];
+        // The scale along this field's direction, from chief rays at ±e.
+        let e = 1e-6 * r;
+        let near = |sgn: f64| {
+            chief_point(
+                lens,
+                sys,
+                Field::of_tangents(lens, [sgn * e * u[0], sgn * e * u[1]]),
+                wl,
+                aim,
+            )
+            .map(along)
+        };
+        let k = (near(1.0)? - near(-1.0)?) / (2.0 * proj(e));
+        let p = chief_point(lens, sys, f, wl, aim)?;
+        let ideal = k * proj(r);
+        if !(ideal.abs() > 0.0) || !ideal.is_finite() {
+            return Err(Error::numerical(format!(
+                "distortion at field {}: the near-axis image scale is {k} (no image to \
+                 distort: an afocal lens?)",
+                f.label()
+            )));
+        }
+        Ok(Some(Projected {
+            real: [p[0] - origin[0], p[1] - origin[1]],
+            u,
+            ideal,
+        }))
+    }
+}
+
 /// Distortion (%) of each of `fields` at `wavelength_nm` against `kind` (see the module's
 /// conventions); 0 on axis.
 ///
@@ -219,52 +328,110 @@ pub fn distortion(
     kind: DistortionKind,
     aim: bool,
 ) -> Result<Vec<f64>> {
-    if kind == DistortionKind::FTheta && lens.object != Object::Infinite {
-        return Err(Error::argument(
-            "f-theta distortion needs an object at infinity (a field angle)",
-        ));
-    }
-    let para = lens.paraxial(lens.primary_wavelength_nm)?;
-    let proj = |u: f64| match kind {
-        DistortionKind::FTan => u,
-        DistortionKind::FTheta => u.atan(),
-    };
-    let origin = chief_point(lens, sys, Field::fraction(0.0), wavelength_nm, aim)?;
+    let scale = Scale::new(lens, sys, wavelength_nm, kind, aim)?;
     fields
         .iter()
-        .map(|&f| {
-            let q = f.resolved(lens, &para, aim)?.tangents_f64(lens, &para)?;
-            let r = q.0.hypot(q.1);
-            if r == 0.0 {
-                return Ok(0.0);
-            }
-            let u = field_direction(q);
-            let along = |p: [f64; 2]| (p[0] - origin[0]) * u[0] + (p[1] - origin[1]) * u[1];
-            // The scale along this field's direction, from chief rays at ±e.
-            let e = 1e-6 * r;
-            let near = |sgn: f64| {
-                chief_point(
-                    lens,
-                    sys,
-                    Field::of_tangents(lens, [sgn * e * u[0], sgn * e * u[1]]),
-                    wavelength_nm,
-                    aim,
-                )
-                .map(along)
-            };
-            let k = (near(1.0)? - near(-1.0)?) / (2.0 * proj(e));
-            let real = along(chief_point(lens, sys, f, wavelength_nm, aim)?);
-            let ideal = k * proj(r);
-            if !(ideal.abs() > 0.0) || !ideal.is_finite() {
-                return Err(Error::numerical(format!(
-                    "distortion at field {}: the near-axis image scale is {k} (no image to \
-                     distort: an afocal lens?)",
-                    f.label()
-                )));
-            }
-            Ok(100.0 * (real - ideal) / ideal)
-        })
+        .map(|&f| Ok(scale.project(f)?.map_or(0.0, |p| p.distortion_pct())))
         .collect()
+}
+
+/// Grid distortion (OpticStudio's): a grid of `n` x `n` fields over the sensor (its rectangle
+/// when the lens has a resolution, else the square inside the image circle), the real chief
+/// rays' image points and the ideal ones, both relative to the on-axis image point.
+#[derive(Clone, Debug, Serialize)]
+pub struct GridDistortion {
+    /// Points per side.
+    pub n: usize,
+    /// Wavelength, nm.
+    pub wavelength_nm: f64,
+    /// The projection of the ideal grid.
+    pub kind: DistortionKind,
+    /// Each point's field, fractions of the full field (row-major from the lower left, x
+    /// fastest).
+    pub fields: Vec<[f64; 2]>,
+    /// Ideal image points, mm: `k proj(|t|)` along the field's direction (see the module's
+    /// conventions).
+    pub ideal_mm: Vec<[f64; 2]>,
+    /// Real chief rays' image points, mm.
+    pub real_mm: Vec<[f64; 2]>,
+    /// Distortion of each point along its field's direction, % (0 at the centre): the value
+    /// [`distortion`] gives for that field.
+    pub distortion_pct: Vec<f64>,
+    /// The largest distortion in magnitude, % (signed).
+    pub max_distortion_pct: f64,
+}
+
+/// Grid distortion of `n` x `n` fields at `wavelength_nm` against `kind` ([`GridDistortion`]).
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for `n` outside 2..=101 or f-θ with a finite object;
+/// [`crate::ErrorKind::Numerical`] when a chief ray does not reach the image.
+///
+/// # Examples
+/// ```
+/// use tolray::analysis::aberrations::{grid_distortion, DistortionKind};
+/// let lens = tolray::Lens::load("lens2")?;
+/// let g = grid_distortion(&lens, &lens.compile(), 5, 587.5618, DistortionKind::FTan, false)?;
+/// assert_eq!(g.real_mm.len(), 25);
+/// assert_eq!(g.distortion_pct[12], 0.0); // the centre
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn grid_distortion(
+    lens: &Lens,
+    sys: &System<f64>,
+    n: usize,
+    wavelength_nm: f64,
+    kind: DistortionKind,
+    aim: bool,
+) -> Result<GridDistortion> {
+    if !(2..=101).contains(&n) {
+        return Err(Error::argument(format!(
+            "a distortion grid of {n} points a side: give 2 to 101"
+        )));
+    }
+    let scale = Scale::new(lens, sys, wavelength_nm, kind, aim)?;
+    let [cols, rows] = lens.sensor.resolution;
+    let (hx, hy) = if cols > 0 && rows > 0 {
+        let d = f64::from(cols).hypot(f64::from(rows));
+        (f64::from(cols) / d, f64::from(rows) / d)
+    } else {
+        (
+            std::f64::consts::FRAC_1_SQRT_2,
+            std::f64::consts::FRAC_1_SQRT_2,
+        )
+    };
+    let at = |k: usize, h: f64| h * (2.0 * k as f64 / (n - 1) as f64 - 1.0);
+    let mut g = GridDistortion {
+        n,
+        wavelength_nm,
+        kind,
+        fields: Vec::with_capacity(n * n),
+        ideal_mm: Vec::with_capacity(n * n),
+        real_mm: Vec::with_capacity(n * n),
+        distortion_pct: Vec::with_capacity(n * n),
+        max_distortion_pct: 0.0,
+    };
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = (at(i, hx), at(j, hy));
+            let (ideal, real, pct) = match scale.project(Field::Fraction { x, y })? {
+                None => ([0.0; 2], [0.0; 2], 0.0),
+                Some(p) => (
+                    [p.ideal * p.u[0], p.ideal * p.u[1]],
+                    p.real,
+                    p.distortion_pct(),
+                ),
+            };
+            if pct.abs() > g.max_distortion_pct.abs() {
+                g.max_distortion_pct = pct;
+            }
+            g.fields.push([x, y]);
+            g.ideal_mm.push(ideal);
+            g.real_mm.push(real);
+            g.distortion_pct.push(pct);
+        }
+    }
+    Ok(g)
 }
 
 /// Lateral colour at each of `fields`: the chief ray's image point at each of

@@ -195,8 +195,22 @@ fn curvature_bounds(row: &SurfaceRow<f64>, r: f64, surface: usize) -> Result<(f6
     Ok((m * 1.001, slope))
 }
 
-/// Radius of the smallest disk holding the 2-D triangle `a, b, c`.
-fn enclosing_radius(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+/// Radius of the smallest disk holding the 2-D triangle `a, b, c` (the `R` of the chord bound).
+///
+/// ```
+/// use tolray::embree::mesh::enclosing_radius;
+/// // Right triangle: half the hypotenuse.
+/// let r = enclosing_radius([0.0, 0.0], [2.0, 0.0], [0.0, 2.0]);
+/// assert!((r - 2f64.sqrt()).abs() < 1e-15);
+/// // Equilateral with side 1: 1/sqrt(3).
+/// let r = enclosing_radius([0.0, 0.0], [1.0, 0.0], [0.5, 0.75f64.sqrt()]);
+/// assert!((r - 1.0 / 3f64.sqrt()).abs() < 1e-15);
+/// // Obtuse: half the longest edge.
+/// let r = enclosing_radius([0.0, 0.0], [4.0, 0.0], [2.0, 0.5]);
+/// assert!((r - 2.0).abs() < 1e-15);
+/// ```
+#[must_use]
+pub fn enclosing_radius(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
     let d2 = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
     let mut e = [d2(b, c), d2(c, a), d2(a, b)];
     e.sort_by(f64::total_cmp);
@@ -859,22 +873,4 @@ fn circumcentre_weights(p: [Vec3<f64>; 3]) -> Option<[f64; 3]> {
     let s = (ux * cy - uy * cx) / det;
     let t = (bx * uy - by * ux) / det;
     (s >= 0.0 && t >= 0.0 && s + t <= 1.0).then_some([1.0 - s - t, s, t])
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn enclosing_radius_of_known_triangles() {
-        // Right triangle: half the hypotenuse.
-        let r = enclosing_radius([0.0, 0.0], [2.0, 0.0], [0.0, 2.0]);
-        assert!((r - 2f64.sqrt()).abs() < 1e-15);
-        // Equilateral with side 1: 1/sqrt(3).
-        let r = enclosing_radius([0.0, 0.0], [1.0, 0.0], [0.5, 0.75f64.sqrt()]);
-        assert!((r - 1.0 / 3f64.sqrt()).abs() < 1e-15);
-        // Obtuse: half the longest edge.
-        let r = enclosing_radius([0.0, 0.0], [4.0, 0.0], [2.0, 0.5]);
-        assert!((r - 2.0).abs() < 1e-15);
-    }
 }

@@ -142,6 +142,7 @@ enum Kind {
     Bars(wave::Bars),
     Curves(wave::Curves),
     Panels(wave::Panels),
+    Grid(grid::Grid),
 }
 
 /// A named, coloured set of points.
@@ -259,6 +260,7 @@ impl Figure {
             Kind::Bars(b) => wave::draw_bars(&body, s, b),
             Kind::Curves(c) => wave::draw_curves(&body, s, c),
             Kind::Panels(p) => wave::draw_panels(&body, s, p),
+            Kind::Grid(g) => grid::draw_grid(&body, s, g),
         }
     }
 }
@@ -807,6 +809,7 @@ mod tests {
 }
 
 // One file per kind of figure (after the house macros, which they use).
+mod grid;
 mod layout;
 mod psf;
 mod spot;
@@ -814,6 +817,7 @@ mod tolerance;
 mod training;
 mod wave;
 
+pub use grid::grid_distortion_figure;
 pub use layout::layout_figure;
 use layout::*;
 use psf::*;

@@ -253,9 +253,13 @@ fn aberrations_command() {
         .iter()
         .all(|x| x.as_f64().unwrap().abs() < 1e-9));
     assert_eq!(v["fans"].as_array().unwrap().len(), 6);
+    let g = &v["grid_distortion"];
+    assert_eq!(g["real_mm"].as_array().unwrap().len(), 121, "{g}");
+    assert_eq!(g["distortion_pct"][60].as_f64().unwrap(), 0.0, "the centre");
     for name in [
         "field-curvature",
         "distortion",
+        "grid-distortion",
         "lateral-colour",
         "relative-illumination",
         "ray-fan",
@@ -270,7 +274,12 @@ fn aberrations_command() {
         out.contains("rel. ill.") && out.contains("Ray fans"),
         "{out}"
     );
-    for bad in [["--points", "1"], ["--fan-points", "2"]] {
+    assert!(out.contains("Grid distortion (11 x 11"), "{out}");
+    for bad in [
+        ["--points", "1"],
+        ["--fan-points", "2"],
+        ["--grid-points", "1"],
+    ] {
         let (code, _, err) = tolray(&["aberrations", "cooke-triplet", bad[0], bad[1]]);
         assert_eq!(code, 2, "{err}");
         assert!(err.contains(bad[0]), "{err}");

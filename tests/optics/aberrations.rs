@@ -8,7 +8,8 @@ use super::wave::{oval_of, N};
 use super::wave_reference::{floats, load};
 use serde_json::Value;
 use tolray::analysis::aberrations::{
-    distortion, fans, field_curvature, lateral_colour, relative_illumination, DistortionKind,
+    distortion, fans, field_curvature, grid_distortion, lateral_colour, relative_illumination,
+    DistortionKind,
 };
 use tolray::trace::Field;
 use tolray::wave::WaveOptions;
@@ -215,4 +216,67 @@ fn relative_illumination_lateral_colour_and_fans_obey_closed_forms() {
 
 fn load_finite() -> Lens {
     Lens::load("lens1").unwrap()
+}
+
+/// Grid distortion is the radial distortion in two dimensions: on a rotationally symmetric lens
+/// every grid point's distortion is the meridional distortion at its field radius, and its real
+/// image point the ideal one scaled by it, in the same direction; the grid covers the sensor's
+/// rectangle.
+#[test]
+fn grid_distortion_is_the_meridional_distortion_at_each_radius() {
+    let mut lens = Lens::load("lens2").unwrap();
+    let wl = 587.5618;
+    for (res, n) in [([600, 600], 5), ([1600, 900], 4)] {
+        lens.sensor.resolution = res;
+        let sys = lens.compile();
+        let g = grid_distortion(&lens, &sys, n, wl, DistortionKind::FTan, false).unwrap();
+        assert_eq!(g.fields.len(), n * n);
+        // The corners are the sensor's: full field along the diagonal, the sensor's aspect.
+        let c = g.fields[n * n - 1];
+        assert!((c[0].hypot(c[1]) - 1.0).abs() < 1e-12, "{c:?}");
+        assert!((c[0] / c[1] - f64::from(res[0]) / f64::from(res[1])).abs() < 1e-12);
+        let mut largest = 0.0f64;
+        for (k, f) in g.fields.iter().enumerate() {
+            let r = f[0].hypot(f[1]);
+            let d = distortion(
+                &lens,
+                &sys,
+                &[Field::fraction(r)],
+                wl,
+                DistortionKind::FTan,
+                false,
+            )
+            .unwrap()[0];
+            assert!(
+                (g.distortion_pct[k] - d).abs() < 1e-6,
+                "field {f:?}: {} % against {d} % along y",
+                g.distortion_pct[k]
+            );
+            let s = 1.0 + d / 100.0;
+            let (i, re) = (g.ideal_mm[k], g.real_mm[k]);
+            assert!(
+                (re[0] - s * i[0]).abs() < 1e-8 && (re[1] - s * i[1]).abs() < 1e-8,
+                "field {f:?}: real {re:?}, ideal {i:?}, scale {s}"
+            );
+            if d.abs() > largest.abs() {
+                largest = d;
+            }
+        }
+        assert!((g.max_distortion_pct - largest).abs() < 1e-6);
+        // An image inverts: a field above the axis lands below it.
+        assert!(g.real_mm[n * n - 1][1] < 0.0 && g.ideal_mm[n * n - 1][1] < 0.0);
+    }
+    let sys = lens.compile();
+    assert!(grid_distortion(&lens, &sys, 1, wl, DistortionKind::FTan, false).is_err());
+    assert!(grid_distortion(&lens, &sys, 102, wl, DistortionKind::FTan, false).is_err());
+    let finite = load_finite();
+    assert!(grid_distortion(
+        &finite,
+        &finite.compile(),
+        3,
+        wl,
+        DistortionKind::FTheta,
+        false
+    )
+    .is_err());
 }

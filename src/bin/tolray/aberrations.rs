@@ -1,5 +1,5 @@
-//! `tolray aberrations`: field curvature, distortion, lateral colour, relative illumination,
-//! ray fans and OPD fans.
+//! `tolray aberrations`: field curvature, distortion (and grid distortion), lateral colour,
+//! relative illumination, ray fans and OPD fans.
 
 use crate::args::{parse_wavelengths, perturbed_system, LensArgs};
 use crate::report::emit_line;
@@ -29,11 +29,15 @@ pub struct AberrationsArgs {
     /// Points across the pupil of each ray and OPD fan.
     #[arg(long, default_value_t = 41)]
     pub fan_points: usize,
+    /// Points a side of the grid-distortion grid (fields over the sensor's rectangle).
+    #[arg(long, default_value_t = 11)]
+    pub grid_points: usize,
     /// Print JSON instead of tables.
     #[arg(long)]
     pub json: bool,
-    /// Write the pictures as PREFIX-field-curvature.png, -distortion, -lateral-colour,
-    /// -relative-illumination, -ray-fan and -opd-fan (SVG when PREFIX ends in .svg).
+    /// Write the pictures as PREFIX-field-curvature.png, -distortion, -grid-distortion,
+    /// -lateral-colour, -relative-illumination, -ray-fan and -opd-fan (SVG when PREFIX ends in
+    /// .svg).
     #[arg(long, value_name = "PREFIX")]
     pub png: Option<PathBuf>,
 }
@@ -56,6 +60,9 @@ pub fn run(a: AberrationsArgs) -> anyhow::Result<()> {
     }
     if !(3..=MAX_SAMPLES).contains(&a.fan_points) {
         usage!("--fan-points {}: give 3 to {MAX_SAMPLES}", a.fan_points);
+    }
+    if !(2..=101).contains(&a.grid_points) {
+        usage!("--grid-points {}: give 2 to 101", a.grid_points);
     }
     let (l, file_fields) = a.lens.load_with_fields()?;
     let fan_fields = a.rays.fields(file_fields)?;
@@ -95,6 +102,7 @@ pub fn run(a: AberrationsArgs) -> anyhow::Result<()> {
         )?),
         Object::Finite { .. } => None,
     };
+    let grid = ab::grid_distortion(&l, &sys, a.grid_points, wl0, DistortionKind::FTan, aim)?;
     let colour = ab::lateral_colour(&l, &sys, &fields, &wls, aim)?;
     let ri = ab::relative_illumination(&l, &sys, &fields, wl0, aim)?;
     let mut fans = Vec::new();
@@ -119,6 +127,7 @@ pub fn run(a: AberrationsArgs) -> anyhow::Result<()> {
             "distortion_wavelength_nm": wl0,
             "distortion_f_tan_percent": f_tan,
             "distortion_f_theta_percent": f_theta,
+            "grid_distortion": grid,
             "lateral_colour": wls.iter().enumerate().map(|(k, wl)| serde_json::json!({
                 "wavelength_nm": wl,
                 "um": colour.iter().map(|c| c[k]).collect::<Vec<_>>(),
@@ -165,6 +174,19 @@ pub fn run(a: AberrationsArgs) -> anyhow::Result<()> {
             }
             emit_line(&row);
         }
+        let worst = grid
+            .distortion_pct
+            .iter()
+            .position(|&d| d == grid.max_distortion_pct)
+            .unwrap_or(0);
+        emit_line(&format!(
+            "\nGrid distortion ({n} x {n} fields over the sensor, f-tan θ, {wl0:.2} nm): largest \
+             {:.5} % at field ({:.3}, {:.3})",
+            grid.max_distortion_pct,
+            grid.fields[worst][0],
+            grid.fields[worst][1],
+            n = grid.n
+        ));
         emit_line(&format!(
             "\nRay fans (transverse error, µm, against the chief ray at {:.2} nm) and OPD fans (waves), \
              {} points across the pupil; the edges and the largest |error|:",
@@ -234,6 +256,17 @@ pub fn run(a: AberrationsArgs) -> anyhow::Result<()> {
                 "field (fraction of full field)",
                 Some(0.0..1.02),
                 &s,
+            ),
+        )?;
+        picture(
+            prefix,
+            "grid-distortion",
+            &figures::grid_distortion_figure(
+                &grid,
+                &format!(
+                    "Grid distortion of {name} at {wl0:.1} nm: largest {:.3} %",
+                    grid.max_distortion_pct
+                ),
             ),
         )?;
         let s: Vec<_> = wls
