@@ -160,14 +160,18 @@ pub fn opd_step_waves(w: &Wavefront, s: usize) -> f64 {
     step
 }
 
-/// Refuses a wavefront too steep for its pupil grid ([`opd_step_waves`] above half a wave),
+/// Refuses a wavefront not traced on the `s x s` pupil grid, or too steep for it
+/// ([`opd_step_waves`] above half a wave),
 /// saying how many samples would do.
 pub(crate) fn check_sampling(w: &Wavefront, s: usize) -> Result<()> {
+    check_grid_sampled(w, s)?;
     let step = opd_step_waves(w, s);
     if step > 0.5 {
         let need = (s as f64 * step / 0.4).ceil() as usize;
         return Err(Error::numerical(format!(
-            "pupil undersampled: the OPD changes by {step:.2} waves between neighbouring samples              of the {s} x {s} pupil grid (at most 0.5 without aliasing); use about {need} pupil              samples or more"
+            "pupil undersampled: the OPD changes by {step:.2} waves between neighbouring samples \
+             of the {s} x {s} pupil grid (at most 0.5 without aliasing); use about {need} pupil \
+             samples or more"
         )));
     }
     Ok(())
@@ -228,7 +232,6 @@ pub(crate) fn pupil_transform(
 /// ```
 pub fn fft_psf(w: &Wavefront, opts: &FftOptions) -> Result<DiffractionPsf> {
     opts.check()?;
-    check_grid_sampled(w, opts.pupil_samples)?;
     check_sampling(w, opts.pupil_samples)?;
     let (s, n) = (opts.pupil_samples, opts.grid);
     let map = direction_map(w)?;
@@ -436,7 +439,8 @@ fn check_grid_sampled(w: &Wavefront, s: usize) -> Result<()> {
         Ok(())
     } else {
         Err(Error::argument(format!(
-            "the FFT PSF needs a wavefront traced on the {s} x {s} pupil grid"
+            "an FFT PSF or MTF needs a wavefront traced on the {s} x {s} pupil grid \
+             (Sampling::Grid({s})), the FFT's own sampling"
         )))
     }
 }

@@ -343,6 +343,27 @@ fn bad_input_is_refused_by_name() {
     let wc = wavefront(&c, &c.compile(), Field::angle(0.0), WL, &grid(64)).unwrap();
     let e = fft_mtf(&wc, &FftOptions::default(), &[10.0, 5000.0]).unwrap_err();
     assert!(e.message().contains("cutoff"), "{}", e.message());
+    // A wavefront on the default quadrature is not the FFT's grid: the MTF refuses it as the
+    // PSF does (it read the quadrature's points as grid cells and gave 0.09 for 0.82).
+    let wq = wavefront(
+        &c,
+        &c.compile(),
+        Field::angle(0.0),
+        WL,
+        &WaveOptions::default(),
+    )
+    .unwrap();
+    for e in [
+        fft_mtf(&wq, &FftOptions::default(), &[10.0]).unwrap_err(),
+        fft_psf(&wq, &FftOptions::default()).unwrap_err(),
+    ] {
+        assert_eq!(e.kind(), ErrorKind::Argument);
+        assert!(
+            e.message().contains("64 x 64 pupil grid"),
+            "{}",
+            e.message()
+        );
+    }
     // A grid that would wrap the MTF, and one too large.
     assert!(fft_psf(
         &w,
