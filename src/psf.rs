@@ -31,6 +31,34 @@ pub enum PsfCentre {
     Centroid,
 }
 
+/// How the PSFs of an image simulation are computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PsfModel {
+    /// Rays splatted on the pixels ([`psf_map`]; the paper's, and what training differentiates).
+    #[default]
+    Geometric,
+    /// The pupil function's FFT deposited on the same pixels
+    /// ([`crate::wave::psf::diffraction_psf_map`]): the Airy disk and the diffraction of an
+    /// aberrated wavefront, which a geometric PSF lacks.
+    Diffraction,
+}
+
+impl PsfModel {
+    /// True for the geometric model (the default, left out of saved settings).
+    pub fn is_geometric(&self) -> bool {
+        *self == PsfModel::Geometric
+    }
+
+    /// The model's name (`geometric` or `diffraction`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            PsfModel::Geometric => "geometric",
+            PsfModel::Diffraction => "diffraction",
+        }
+    }
+}
+
 /// PSF settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PsfOptions {

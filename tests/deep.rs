@@ -839,3 +839,59 @@ fn the_refocused_crop_objective_is_exact_in_f64() {
         assert!(rel < 1e-6, "{v:?}: dual {total} vs FD {fd} (rel {rel:e})");
     }
 }
+
+/// Diffraction PSFs in the evaluation (issue 40): the units are imaged through their wavefront's
+/// FFT PSFs on the same pixels. The maps are unit sum and differ from the rays' (focused lens1's
+/// Airy disk, 5.7 µm at f/3.9, is as large as its spot); the units and their spot sizes are the
+/// same, their scores are not.
+#[test]
+fn evaluation_with_diffraction_psfs() {
+    use tolray::deep::{psf_options, rgb_psf_map, rgb_psf_map_of};
+    use tolray::psf::PsfModel;
+    let lens = focused_lens1();
+    let cfg = small(&lens, DecoderKind::Wiener);
+    let st = DeepState::new(cfg, lens.clone(), None, Phase::Nominal, 1, 0).unwrap();
+    let images = EvalImages::builtin(8 * 16, 1, 3).unwrap();
+    let geometric = EvalConfig {
+        trials: 2,
+        spp: 2048,
+        ks: 51,
+        patch_px: 16,
+        bootstrap: 10,
+        ..EvalConfig::default()
+    };
+    let diffraction = EvalConfig {
+        psf: PsfModel::Diffraction,
+        ..geometric.clone()
+    };
+    let a = evaluate("a", &st.design, &images, &geometric, 0..2).unwrap();
+    let b = evaluate("a", &st.design, &images, &diffraction, 0..2).unwrap();
+    for (x, y) in a
+        .trials
+        .iter()
+        .zip(&b.trials)
+        .chain([(&a.nominal, &b.nominal)])
+    {
+        assert_eq!(x.rms_spot_um, y.rms_spot_um);
+        assert!(
+            y.psnr.is_finite() && (y.psnr - x.psnr).abs() > 1e-3,
+            "{} vs {}",
+            y.psnr,
+            x.psnr
+        );
+    }
+    let opts = psf_options(&lens, 21, 2048, 0);
+    let sys = lens.compile();
+    let wl = lens.rgb_wavelengths_nm;
+    let d = rgb_psf_map_of(PsfModel::Diffraction, &lens, &sys, 2, &wl, &opts).unwrap();
+    let g = rgb_psf_map(&lens, &sys, 2, &wl, &opts).unwrap();
+    assert_eq!(d.len(), g.len());
+    for (tile, geo) in d.chunks(21 * 21).zip(g.chunks(21 * 21)) {
+        assert!((tile.iter().map(|&v| f64::from(v)).sum::<f64>() - 1.0).abs() < 1e-5);
+        let diff: f32 = tile.iter().zip(geo).map(|(a, b)| (a - b).abs()).sum();
+        assert!(
+            diff > 0.05,
+            "a diffraction tile differs from the geometric one: {diff}"
+        );
+    }
+}

@@ -13,13 +13,14 @@
 //! that field: a stratified sample of the sensor, one block per PSF, not the whole 2048-pixel
 //! frame (which is what the paper renders and what `patch = 256` gives).
 
-use super::{psf_options, rgb_psf_map, Design};
+use super::{psf_options, rgb_psf_map_of, Design};
 use crate::decoder::Crop;
 use crate::error::{Error, Result};
 use crate::image::metrics::{paired_bootstrap, pooled_paired_bootstrap, psnr, ssim, YieldTable};
 use crate::image::render::{blur_patch, pad_reflect, SensorNoise};
 use crate::image::Image;
 use crate::lens::{Lens, System};
+use crate::psf::PsfModel;
 use crate::tolerance::analysis::{perturbed_rms, McOptions};
 use crate::tolerance::ToleranceSpec;
 use rayon::prelude::*;
@@ -57,6 +58,9 @@ pub struct EvalConfig {
     pub compensate_focus: bool,
     /// Bootstrap resamples of the paired intervals.
     pub bootstrap: usize,
+    /// The PSFs the units are imaged with: geometric (the paper's, as trained) or diffraction.
+    #[serde(default, skip_serializing_if = "PsfModel::is_geometric")]
+    pub psf: PsfModel,
 }
 
 impl Default for EvalConfig {
@@ -73,6 +77,7 @@ impl Default for EvalConfig {
             patch_px: 48,
             compensate_focus: false,
             bootstrap: 2000,
+            psf: PsfModel::Geometric,
         }
     }
 }
@@ -285,12 +290,19 @@ pub fn evaluate(
     cfg.sensor().validate()?;
     let wavelengths = lens.rgb_wavelengths_nm.to_vec();
     let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
-    let nominal_map = rgb_psf_map(lens, &lens.compile(), cfg.grid, &wavelengths, &opts)?;
+    let nominal_map = rgb_psf_map_of(
+        cfg.psf,
+        lens,
+        &lens.compile(),
+        cfg.grid,
+        &wavelengths,
+        &opts,
+    )?;
     let ks2 = cfg.ks * cfg.ks;
     let score = |k: Option<usize>| -> Result<TrialScore> {
         let (plens, adj, rms) = unit(lens, cfg, k)?;
         let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-        let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
+        let map = rgb_psf_map_of(cfg.psf, lens, &sys, cfg.grid, &wavelengths, &opts)?;
         let sim = nominal_map
             .chunks(ks2)
             .zip(map.chunks(ks2))
@@ -349,7 +361,7 @@ pub fn example_images(
     let opts = psf_options(lens, cfg.ks, cfg.spp, cfg.seed);
     let (plens, adj, _) = unit(lens, cfg, pattern)?;
     let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-    let map = rgb_psf_map(lens, &sys, cfg.grid, &wavelengths, &opts)?;
+    let map = rgb_psf_map_of(cfg.psf, lens, &sys, cfg.grid, &wavelengths, &opts)?;
     let stream = pattern.map_or(0, |k| k as u64 + 1) * 64;
     Ok(image_scores(design, &map, images, cfg, stream, true)?.2)
 }

@@ -30,7 +30,8 @@ use crate::optim::{
     gradient, gradient_with_unit, param_value, set_param, spot_sum, Objective, SpotMeasure,
 };
 use crate::psf::{
-    grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfOptions,
+    grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfModel,
+    PsfOptions,
 };
 use crate::trace::{Bundles, Field, Pupil, PupilPattern, TraceOptions, Traceable};
 use rayon::prelude::*;
@@ -156,6 +157,12 @@ impl DeepConfig {
     /// [`crate::ErrorKind::Argument`] naming the setting.
     pub fn validate(&self) -> Result<()> {
         self.optics.validate()?;
+        if !self.optics.loss.is_spot() {
+            return Err(Error::argument(format!(
+                "loss {}: the image stage trains its optics with the spot loss only",
+                self.optics.loss.name()
+            )));
+        }
         if !(8..=1024).contains(&self.crop_px) || self.crop_px % 8 != 0 {
             return Err(Error::argument(format!(
                 "crop {} px: give a multiple of 8 from 8 to 1024",

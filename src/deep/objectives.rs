@@ -29,11 +29,51 @@ pub fn rgb_psf_map(
     wavelengths_nm: &[f64],
     opts: &PsfOptions,
 ) -> Result<Vec<f32>> {
+    rgb_psf_map_of(PsfModel::Geometric, lens, sys, grid, wavelengths_nm, opts)
+}
+
+/// [`rgb_psf_map`] in the PSF model `model`: geometric ([`crate::psf::psf_map`]) or diffraction
+/// ([`crate::wave::psf::diffraction_psf_tiles`], on the same pixels, centred on each field's
+/// chief ray; a field with no wavefront, its chief ray lost in a vignetted corner of a
+/// perturbed unit, takes its geometric PSF, which falls back to the rays' centroid).
+///
+/// # Errors
+/// As [`rgb_psf_map`]; wavefront errors for the diffraction model.
+pub fn rgb_psf_map_of(
+    model: PsfModel,
+    lens: &Lens,
+    sys: &System<f64>,
+    grid: usize,
+    wavelengths_nm: &[f64],
+    opts: &PsfOptions,
+) -> Result<Vec<f32>> {
     let ks2 = opts.ks * opts.ks;
     let nc = wavelengths_nm.len();
     let mut out = vec![0f32; grid * grid * nc * ks2];
     for (c, &wl) in wavelengths_nm.iter().enumerate() {
-        let map = crate::psf::psf_map(lens, sys, grid, wl, opts)?;
+        let map = match model {
+            PsfModel::Geometric => crate::psf::psf_map(lens, sys, grid, wl, opts)?,
+            PsfModel::Diffraction => {
+                let tiles = crate::wave::psf::diffraction_psf_tiles(
+                    lens,
+                    sys,
+                    grid,
+                    wl,
+                    opts.ks,
+                    opts.pitch_mm,
+                )?;
+                let geometric = if tiles.iter().any(|t| t.is_err()) {
+                    Some(crate::psf::psf_map(lens, sys, grid, wl, opts)?)
+                } else {
+                    None
+                };
+                tiles
+                    .into_iter()
+                    .enumerate()
+                    .map(|(t, r)| r.or_else(|e| geometric.as_ref().map(|g| g[t].clone()).ok_or(e)))
+                    .collect::<Result<Vec<_>>>()?
+            }
+        };
         for (t, p) in map.iter().enumerate() {
             crate::psf::check_landed(p, &format!("PSF of grid cell {t} at {wl} nm"))?;
             let dst = &mut out[(t * nc + c) * ks2..(t * nc + c + 1) * ks2];

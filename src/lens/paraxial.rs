@@ -342,6 +342,41 @@ pub fn efl_lifted<S: Real>(lens: &Lens, wavelength_nm: f64, lift: &dyn Fn(Param,
     Prescription::lifted(lens, wavelength_nm, lift).efl().0
 }
 
+/// The paraxial exit pupil's axial position relative to the image plane, mm (its
+/// [`Paraxial::exit_pupil_z_mm`] minus the image plane's z, up to rounding), of `lens` at
+/// `wavelength_nm` with the aperture stop at surface `stop`, each design parameter passed through
+/// `lift` as [`crate::lens::System::compile`] does; `None` when the exit pupil is at infinity
+/// (telecentric in image space). The reference sphere of a differentiated wavefront moves with
+/// it.
+///
+/// ```
+/// use tolray::lens::paraxial::exit_pupil_from_image_lifted;
+/// let lens = tolray::Lens::load("lens2").unwrap();
+/// let p = lens.paraxial(lens.primary_wavelength_nm).unwrap();
+/// let z_img = *lens.vertex_z_mm().last().unwrap();
+/// let t: f64 = exit_pupil_from_image_lifted(&lens, p.wavelength_nm, p.stop_surface, &|_, v| v).unwrap();
+/// assert!((t - (p.exit_pupil_z_mm - z_img)).abs() < 1e-9);
+/// ```
+pub fn exit_pupil_from_image_lifted<S: Real>(
+    lens: &Lens,
+    wavelength_nm: f64,
+    stop: usize,
+    lift: &dyn Fn(Param, S) -> S,
+) -> Option<S> {
+    let p = Prescription::lifted(lens, wavelength_nm, lift);
+    let last = lens.surfaces.len() - 1;
+    let to_image = p.gap[last];
+    if stop >= last {
+        return Some(-to_image);
+    }
+    // Rays leave the stop vertex (after any refraction there) and meet surface stop + 1.
+    let chief = p.ynu(stop + 1, p.gap[stop], S::cst(1.0));
+    if chief.u_last.value().abs() < 1e-14 {
+        return None;
+    }
+    Some(-(chief.y_last / chief.u_last) - to_image)
+}
+
 /// Paraxial analysis of `lens` at `wavelength_nm`.
 ///
 /// An afocal lens (a parallel beam leaves parallel: a beam expander, a telescope) has no focal

@@ -4,6 +4,9 @@
 pub mod adam;
 mod run;
 pub mod train;
+mod wave;
+
+pub use wave::{WavefrontLoss, LOST_WAVEFRONT_PENALTY_WAVES};
 
 use crate::analysis::spot::root;
 use crate::analysis::SpotMoments;

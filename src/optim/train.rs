@@ -13,7 +13,8 @@ pub use super::run::{
     RunOutcome, TrainReport,
 };
 use super::{
-    gradient, param_value, set_param, spot_size, spot_sum, Objective, SpotMeasure, GRAD_WIDTH,
+    gradient, param_value, set_param, spot_size, spot_sum, value, Objective, SpotMeasure,
+    WavefrontLoss, GRAD_WIDTH,
 };
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, SurfaceRole, System};
@@ -23,6 +24,7 @@ use crate::psf::{
 use crate::real::Real;
 use crate::tolerance::ToleranceSpec;
 use crate::trace::{Bundles, Field, Pupil, PupilPattern, TraceOptions, Traceable};
+use crate::wave::Sampling;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -34,6 +36,69 @@ pub enum Stage {
     Pretrain,
     /// Stage 2: tolerance-aware.
     Tolerance,
+}
+
+/// The optical term of the training loss.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OpticalLoss {
+    /// The paper's: the spot size (RMS radius in stage 1, mean distance from the centroid in
+    /// stage 2), mm.
+    #[default]
+    Spot,
+    /// The RMS wavefront error to centroid over a pupil quadrature
+    /// ([`crate::optim::WavefrontLoss`]), waves, times `mm_per_wave`: weighed as a spot, so that
+    /// the PSF-similarity term and the constraints keep their balance.
+    RmsWavefront {
+        /// Millimetres of spot a wave of RMS wavefront error counts as.
+        mm_per_wave: f64,
+    },
+}
+
+impl OpticalLoss {
+    /// The RMS wavefront loss of `lens` weighed as the RMS spot radius a pure defocus of the same
+    /// RMS wavefront error gives: 4√6 · N · λ mm per wave (N the working F-number, λ the primary
+    /// wavelength in mm), 0.023 mm for an f/4 lens in green light.
+    ///
+    /// ```
+    /// use tolray::optim::train::OpticalLoss;
+    /// let lens = tolray::Lens::load("lens1").unwrap();
+    /// let OpticalLoss::RmsWavefront { mm_per_wave } = OpticalLoss::rms_wavefront_for(&lens).unwrap() else {
+    ///     unreachable!()
+    /// };
+    /// assert!(mm_per_wave > 0.01 && mm_per_wave < 0.03);
+    /// ```
+    ///
+    /// # Errors
+    /// Paraxial errors; [`crate::ErrorKind::Argument`] for an afocal lens (no focus, no
+    /// wavefront to train).
+    pub fn rms_wavefront_for(lens: &Lens) -> Result<OpticalLoss> {
+        let p = lens.paraxial(lens.primary_wavelength_nm)?;
+        let n = p
+            .working_fnum
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .ok_or_else(|| {
+                Error::argument(
+                    "the lens is afocal: it has no focus, so no wavefront error to train",
+                )
+            })?;
+        Ok(OpticalLoss::RmsWavefront {
+            mm_per_wave: 4.0 * 6f64.sqrt() * n * lens.primary_wavelength_nm * 1e-6,
+        })
+    }
+
+    /// True for the paper's spot loss (the default, left out of saved settings).
+    pub fn is_spot(&self) -> bool {
+        *self == OpticalLoss::Spot
+    }
+
+    /// The name `tolray train --loss` takes.
+    pub fn name(&self) -> &'static str {
+        match self {
+            OpticalLoss::Spot => "spot",
+            OpticalLoss::RmsWavefront { .. } => "rms-wavefront",
+        }
+    }
 }
 
 /// Manufacturability constraints.
@@ -124,6 +189,10 @@ pub struct TrainConfig {
     pub constraints: Constraints,
     /// Clip at apertures.
     pub apertures: bool,
+    /// The optical term of both stages (the spot term's place; its weight stays λ_spot in
+    /// stage 2).
+    #[serde(default, skip_serializing_if = "OpticalLoss::is_spot")]
+    pub loss: OpticalLoss,
 }
 
 impl TrainConfig {
@@ -151,6 +220,7 @@ impl TrainConfig {
             psf_spp: 256,
             constraints: Constraints::default(),
             apertures: true,
+            loss: OpticalLoss::Spot,
         }
     }
 }
@@ -209,6 +279,15 @@ impl TrainConfig {
         }
         if self.psf_ks < 3 || self.psf_ks % 2 == 0 || self.psf_ks > 255 {
             return bad("psf_ks", self.psf_ks as f64, "must be odd, 3 to 255");
+        }
+        if let OpticalLoss::RmsWavefront { mm_per_wave } = self.loss {
+            if !(mm_per_wave > 0.0 && mm_per_wave.is_finite()) {
+                return bad(
+                    "the wavefront loss' mm_per_wave",
+                    mm_per_wave,
+                    "must be positive and finite",
+                );
+            }
         }
         if self.fields.is_empty() || self.wavelengths_nm.is_empty() {
             return Err(Error::argument(
@@ -281,19 +360,49 @@ fn penalties<S: Real>(
     p
 }
 
-/// Stage-1 objective: RMS spot (mm) summed over fields and wavelengths, plus penalties.
+/// Stage-1 objective: RMS spot (mm) averaged over fields and wavelengths, or the RMS wavefront
+/// error weighed as a spot ([`OpticalLoss`]), plus penalties.
 struct PretrainObjective<'a> {
     lens: &'a Lens,
     bundles: Bundles,
+    wave: Option<(WavefrontLoss, f64)>,
     trace: TraceOptions,
     constraints: &'a Constraints,
 }
 
 impl Objective for PretrainObjective<'_> {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
-        let total = spot_sum(&self.bundles, sys, lift, SpotMeasure::Rms, self.trace);
-        total * S::cst(1.0 / self.bundles.len() as f64)
-            + penalties(self.lens, sys, lift, self.constraints)
+        let optical = match &self.wave {
+            Some((w, mm_per_wave)) => w.eval(sys, lift) * S::cst(*mm_per_wave),
+            None => {
+                spot_sum(&self.bundles, sys, lift, SpotMeasure::Rms, self.trace)
+                    * S::cst(1.0 / self.bundles.len() as f64)
+            }
+        };
+        optical + penalties(self.lens, sys, lift, self.constraints)
+    }
+}
+
+/// The wavefront loss of `cfg` over `fields` × its wavelengths, launched from `lens`, with its
+/// weight, or `None` for the spot loss.
+fn wave_term(
+    lens: &Lens,
+    cfg: &TrainConfig,
+    fields: &[Field],
+    trace: TraceOptions,
+) -> Result<Option<(WavefrontLoss, f64)>> {
+    match cfg.loss {
+        OpticalLoss::Spot => Ok(None),
+        OpticalLoss::RmsWavefront { mm_per_wave } => {
+            let w = WavefrontLoss::new(
+                lens,
+                fields,
+                &cfg.wavelengths_nm,
+                Sampling::default(),
+                trace,
+            )?;
+            Ok(Some((w, mm_per_wave)))
+        }
     }
 }
 
@@ -301,6 +410,7 @@ impl Objective for PretrainObjective<'_> {
 /// the similarity to the design's own PSFs (which move with it).
 struct PatternObjective<'a> {
     spot: Bundles,
+    wave: Option<(WavefrontLoss, f64)>,
     psf_rays: Bundles,
     psf: PsfOptions,
     cfg: &'a TrainConfig,
@@ -311,7 +421,6 @@ impl Objective for PatternObjective<'_> {
         let trace = TraceOptions {
             apertures: self.cfg.apertures,
         };
-        let spot = spot_sum(&self.spot, sys, lift, SpotMeasure::Mean, trace);
         let optics = self.psf_rays.optics(lift);
         let design = self.psf_rays.launch.design(lift);
         let mut sim = S::cst(0.0);
@@ -322,8 +431,16 @@ impl Objective for PatternObjective<'_> {
             sim += psf_similarity_of(&at(&design), &at(sys), self.psf.ks);
         }
         let nw = S::cst(1.0 / self.psf_rays.len().max(1) as f64);
-        S::cst(self.cfg.lambda_spot / self.spot.len().max(1) as f64) * spot
-            + S::cst(self.cfg.lambda_psf) * (S::cst(1.0) - sim * nw)
+        let optical = match &self.wave {
+            Some((w, mm_per_wave)) => {
+                S::cst(self.cfg.lambda_spot * mm_per_wave) * w.eval(sys, lift)
+            }
+            None => {
+                let spot = spot_sum(&self.spot, sys, lift, SpotMeasure::Mean, trace);
+                S::cst(self.cfg.lambda_spot / self.spot.len().max(1) as f64) * spot
+            }
+        };
+        optical + S::cst(self.cfg.lambda_psf) * (S::cst(1.0) - sim * nw)
     }
 }
 
@@ -358,6 +475,10 @@ pub struct IterLog {
     pub psf_similarity: Option<f64>,
     /// Learning-rate scale of the schedule.
     pub lr_scale: f64,
+    /// Mean RMS wavefront error to centroid of the iteration's fields (and, in stage 2,
+    /// patterns), waves, with the wavefront loss ([`OpticalLoss::RmsWavefront`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wavefront_waves: Option<f64>,
 }
 
 /// The optimizer's full state, enough to continue exactly.
@@ -470,7 +591,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
     let trace = TraceOptions {
         apertures: cfg.apertures,
     };
-    let (loss, grad, spot_um, sim) = match stage {
+    let (loss, grad, spot_um, sim, wavefront_waves) = match stage {
         Stage::Pretrain => {
             let bundles = Bundles::new(
                 &lens,
@@ -481,6 +602,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             let obj = PretrainObjective {
                 lens: &lens,
                 bundles,
+                wave: wave_term(&lens, &cfg, &cfg.fields, trace)?,
                 trace,
                 constraints: &cfg.constraints,
             };
@@ -491,7 +613,8 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                 .map(|k| spot_size(&obj.bundles.sensor_points(&sys, k, trace), SpotMeasure::Rms))
                 .sum::<f64>()
                 / obj.bundles.len() as f64;
-            (v, g, spot * 1e3, None)
+            let wave = obj.wave.as_ref().map(|(w, _)| value(w, &lens, &adj));
+            (v, g, spot * 1e3, None, wave)
         }
         Stage::Tolerance => {
             let fields = grid_fields(&lens, cfg.psf_grid);
@@ -511,7 +634,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             slots_ok?;
             let results = (0..cfg.samples)
                 .into_par_iter()
-                .map(|j| -> Result<(f64, Vec<f64>, f64, f64)> {
+                .map(|j| -> Result<PatternResult> {
                     let field = fields[j % fields.len()];
                     let pattern =
                         cfg.spec
@@ -532,6 +655,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     )?;
                     let obj = PatternObjective {
                         spot,
+                        wave: wave_term(&lens, &cfg, &[field], trace)?,
                         psf_rays,
                         psf,
                         cfg: &cfg,
@@ -554,16 +678,21 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                         })
                         .sum::<f64>()
                         / obj.psf_rays.len() as f64;
-                    Ok((v, g, s, sim))
+                    let wave = obj.wave.as_ref().map(|(w, _)| value(w, &plens, &adj));
+                    Ok((v, g, s, sim, wave))
                 })
                 .collect::<Result<Vec<_>>>()?;
             let m = 1.0 / results.len().max(1) as f64;
             let mut g = vec![0.0; state.vars.len()];
             let (mut v, mut s, mut sim) = (0.0, 0.0, 0.0);
+            let mut wave = (!cfg.loss.is_spot()).then_some(0.0);
             for r in &results {
                 v += r.0 * m;
                 s += r.2 * m;
                 sim += r.3 * m;
+                if let (Some(a), Some(b)) = (wave.as_mut(), r.4) {
+                    *a += b * m;
+                }
                 for (a, b) in g.iter_mut().zip(&r.1) {
                     *a += b * m;
                 }
@@ -581,12 +710,19 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             for (a, b) in g.iter_mut().zip(&pg) {
                 *a += b;
             }
-            (v + pv, g, s * 1e3, Some(sim))
+            (v + pv, g, s * 1e3, Some(sim), wave)
         }
     };
     if !loss.is_finite() {
         return Err(Error::numerical(format!(
             "iteration {it}: the loss is not finite (the design lost its rays?)"
+        )));
+    }
+    if let Some(k) = grad.iter().position(|g| !g.is_finite()) {
+        return Err(Error::numerical(format!(
+            "iteration {it}: the loss' derivative in {:?} is not finite (a ray grazing a \
+             surface?)",
+            state.vars[k]
         )));
     }
     let scale = cosine_schedule(stage_it as u64, stage_len as u64, 0.05)
@@ -616,8 +752,13 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
         spot_um,
         psf_similarity: sim,
         lr_scale: scale,
+        wavefront_waves,
     })
 }
+
+/// One stage-2 pattern's loss, gradient, mean spot (mm), PSF similarity and RMS wavefront error
+/// (waves, with the wavefront loss).
+type PatternResult = (f64, Vec<f64>, f64, f64, Option<f64>);
 
 struct PenaltyObjective<'a> {
     lens: &'a Lens,

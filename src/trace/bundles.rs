@@ -72,6 +72,35 @@ impl Bundles {
         Self::build(lens, launch_nm, &items, pupil)
     }
 
+    /// Rays for every field and wavelength (field-major) through the normalised entrance-pupil
+    /// points `pts` (unit disk), launched from `lens`'s paraxial entrance pupil at its primary
+    /// wavelength (as the wave analyses launch them), aimed at the real stop with `aim`.
+    ///
+    /// ```
+    /// use tolray::trace::{Bundles, Field};
+    /// let lens = tolray::lens::builtin("lens1").unwrap();
+    /// let pts = [[0.0, 0.0], [0.5, 0.0], [0.0, -0.9]];
+    /// let b = Bundles::at_points(&lens, &[Field::fraction(0.5)], &[587.6], &pts, false).unwrap();
+    /// assert_eq!(b.ray_count(), 3);
+    /// ```
+    ///
+    /// # Errors
+    /// Paraxial and ray-generation errors (the first bundle's in order).
+    pub fn at_points(
+        lens: &Lens,
+        fields: &[Field],
+        wavelengths_nm: &[f64],
+        pts: &[[f64; 2]],
+        aim: bool,
+    ) -> Result<Bundles> {
+        let items = fields
+            .iter()
+            .enumerate()
+            .flat_map(|(f, &field)| wavelengths_nm.iter().map(move |&wl| (f, field, wl)))
+            .collect::<Vec<_>>();
+        Self::build_at(lens, lens.primary_wavelength_nm, &items, pts, aim)
+    }
+
     /// Rays for each (field, wavelength) pair (a PSF each), launched from `lens`'s paraxial
     /// entrance pupil at its primary wavelength; [`Bundle::field_index`] is the pair's index.
     ///
@@ -93,15 +122,26 @@ impl Bundles {
         items: &[(usize, Field, f64)],
         pupil: &Pupil,
     ) -> Result<Bundles> {
-        let para = lens.paraxial(launch_nm)?;
         if !items.is_empty() {
             pupil.pattern.check()?;
         }
-        let pts = pupil.points();
+        Self::build_at(lens, launch_nm, items, &pupil.points(), pupil.aim)
+    }
+
+    /// The bundles `(field index, field, wavelength)` through the pupil points `pts`, generated
+    /// in parallel.
+    fn build_at(
+        lens: &Lens,
+        launch_nm: f64,
+        items: &[(usize, Field, f64)],
+        pts: &[[f64; 2]],
+        aim: bool,
+    ) -> Result<Bundles> {
+        let para = lens.paraxial(launch_nm)?;
         let sets: Vec<Result<Bundle>> = items
             .par_iter()
             .map(|&(field_index, field, wl)| {
-                let rays = RaySet::generate_at(lens, &para, field, &pts, pupil.aim, wl)?;
+                let rays = RaySet::generate_at(lens, &para, field, pts, aim, wl)?;
                 Ok(Bundle {
                     field_index,
                     wavelength_nm: wl,

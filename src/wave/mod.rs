@@ -43,11 +43,12 @@
 //! ```
 
 pub mod mtf;
+pub(crate) mod opd;
 pub mod psf;
 pub mod zernike;
 
 use crate::error::{Error, Result};
-use crate::lens::{Lens, Object, System};
+use crate::lens::{Lens, System};
 use crate::math::{Rigid, Vec3};
 use crate::trace::{self, Field, RaySet, TraceOptions};
 use serde::Serialize;
@@ -256,18 +257,6 @@ pub struct WavefrontStats {
     pub zernike_fringe: ZernikeFit,
 }
 
-/// The optical path from the start of the trace to where the ray was launched, added so that
-/// every ray starts on one wavefront: a plane normal to the rays for an object at infinity, the
-/// object point for a finite object, the sphere converging on a virtual object.
-fn start_path(object: Object, n0: f64, o: Vec3<f64>, d: Vec3<f64>) -> f64 {
-    match object {
-        Object::Infinite => n0 * o.dot(d),
-        Object::Finite { distance_mm } if distance_mm > 0.0 => 0.0,
-        // Rays converge on the point at z = -distance_mm: the path still to go there.
-        Object::Finite { distance_mm } => -n0 * (-distance_mm - o.z) / d.z,
-    }
-}
-
 /// Traces the rays of `field` at `wavelength_nm` through `sys` (a compiled, possibly perturbed
 /// form of `lens`) and returns their OPD against the reference sphere.
 ///
@@ -347,84 +336,52 @@ pub(crate) fn trace_wavefront(
     let idx = sys.indices(wavelength_nm);
     let (n0, n_img) = (idx[0], idx[idx.len() - 1].abs());
     let m = pts.len();
-    let chief = batch.get(m);
-    if !chief.status.is_alive() {
-        return Err(Error::numerical(format!(
-            "{}: the chief ray does not reach the image ({}), so there is no reference sphere; \
-             is the field beyond the lens' reach?",
-            what(),
-            chief.status
-        )));
-    }
-    let path = |i: usize| {
-        let r = batch.get(i);
-        let (o, d) = if i < m {
-            (set.origins[i], set.directions[i])
-        } else {
-            set.chief
-        };
-        r.opl + start_path(lens.object, n0, o, d)
-    };
-    let centre = match opts.reference {
-        Reference::Chief => chief.o,
-        Reference::Centroid => {
-            let alive: Vec<Vec3<f64>> = (0..m)
-                .map(|i| batch.get(i))
-                .filter(|r| r.status.is_alive())
-                .map(|r| r.o)
-                .collect();
-            if alive.is_empty() {
-                return Err(Error::numerical(format!(
-                    "{}: no ray reaches the image",
-                    what()
-                )));
-            }
-            let k = 1.0 / alive.len() as f64;
-            alive
-                .iter()
-                .fold(Vec3::cst(0.0, 0.0, 0.0), |a, &p| a + p * k)
-        }
-    };
+    let launch: Vec<(Vec3<f64>, Vec3<f64>)> = set
+        .origins
+        .iter()
+        .copied()
+        .zip(set.directions.iter().copied())
+        .chain(std::iter::once(set.chief))
+        .collect();
+    let img = &sys.image;
     // The exit pupil's centre on the image-space axis, at its axial distance from the image
-    // plane (in the image plane's frame); the last vertex when the pupil is at infinity.
+    // plane (in the image plane's frame); the last vertex when the pupil is at infinity (as
+    // `opd::pupil_from_image` gives it in any number type, to rounding).
     let z = lens.vertex_z_mm();
     let z_img = z[z.len() - 1];
     let mut to_pupil = para.exit_pupil_z_mm - z_img;
     if !to_pupil.is_finite() || to_pupil.abs() > 1e6 * (1.0 + z_img.abs()) {
         to_pupil = z[z.len() - 2] - z_img;
     }
-    let img = &sys.image;
-    let pupil_centre = img.rotation.apply(Vec3::cst(0.0, 0.0, to_pupil)) + img.translation;
-    let axis = pupil_centre - centre;
-    let radius = axis.norm();
-    if !(radius > 0.0) || !radius.is_finite() {
-        return Err(Error::numerical(format!(
-            "{}: the exit pupil lies on the image point, no reference sphere",
-            what()
-        )));
-    }
-    // A ray's point on the sphere: the root of |p + t d - c| = R on the exit pupil's side.
-    let on_sphere = |p: Vec3<f64>, d: Vec3<f64>| -> Option<f64> {
-        let v = p - centre;
-        let b = v.dot(d);
-        let disc = b * b - (v.dot(v) - radius * radius);
-        if !(disc >= 0.0) {
-            return None;
-        }
-        let s = disc.sqrt();
-        let side = |t: f64| (v + d * t).dot(axis);
-        let (t1, t2) = (-b - s, -b + s);
-        Some(if side(t1) >= side(t2) { t1 } else { t2 })
-    };
-    let t_chief = on_sphere(chief.o, chief.d).ok_or_else(|| {
-        Error::numerical(format!(
-            "{}: the chief ray misses the reference sphere",
-            what()
-        ))
+    let sphere = opd::sphere_opd(
+        lens.object,
+        &launch,
+        &batch,
+        n0,
+        n_img,
+        img,
+        to_pupil,
+        opts.reference,
+        wavelength_nm,
+    )
+    .map_err(|f| {
+        Error::numerical(match f {
+            opd::OpdFailure::ChiefLost(status) => format!(
+                "{}: the chief ray does not reach the image ({status}), so there is no \
+                 reference sphere; is the field beyond the lens' reach?",
+                what()
+            ),
+            opd::OpdFailure::NoRay => format!("{}: no ray reaches the image", what()),
+            opd::OpdFailure::PupilOnImage => format!(
+                "{}: the exit pupil lies on the image point, no reference sphere",
+                what()
+            ),
+            opd::OpdFailure::ChiefMissesSphere => {
+                format!("{}: the chief ray misses the reference sphere", what())
+            }
+        })
     })?;
-    let chief_point = chief.o + chief.d * t_chief;
-    let ref_path = path(m) + n_img * t_chief;
-    let lambda_mm = wavelength_nm * 1e-6;
+    let (centre, radius) = (sphere.centre, sphere.radius);
     let r_xp = 0.5 * para.exit_pupil_diameter_mm;
     let r_xp = if r_xp.is_finite() && r_xp > 0.0 {
         r_xp
@@ -452,20 +409,9 @@ pub(crate) fn trace_wavefront(
         radius_mm: radius,
         image_index: n_img,
     };
-    for i in 0..m {
+    for &(i, opd, q) in &sphere.rays {
         let r = batch.get(i);
-        if !r.status.is_alive() {
-            continue;
-        }
-        let Some(t) = on_sphere(r.o, r.d) else {
-            continue;
-        };
-        let opd = (ref_path - (path(i) + n_img * t)) / lambda_mm;
-        if !opd.is_finite() {
-            continue;
-        }
-        let q = r.o + r.d * t;
-        let e = img.rotation.apply_t(q - chief_point);
+        let e = img.rotation.apply_t(q - sphere.chief_point);
         out.pupil.push(pts[i]);
         out.ray_index.push(i);
         out.exit_pupil.push([e.x / r_xp, e.y / r_xp]);

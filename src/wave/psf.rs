@@ -205,6 +205,49 @@ pub(crate) fn pupil_transform(
     (a, count * count)
 }
 
+/// The FFT PSF's grid before its peak is refined: [`fft_psf`]'s values, pixel pitch (mm),
+/// the slopes of the rays' direction cosines over the pupil and the unaberrated peak.
+struct FftGrid {
+    n: usize,
+    values: Vec<f64>,
+    pitch_mm: [f64; 2],
+    slopes: [f64; 2],
+    ideal: f64,
+}
+
+fn fft_intensity(w: &Wavefront, opts: &FftOptions) -> Result<FftGrid> {
+    opts.check()?;
+    check_sampling(w, opts.pupil_samples)?;
+    let (s, n) = (opts.pupil_samples, opts.grid);
+    let map = direction_map(w)?;
+    let (ax, ay) = (map[0][1], map[1][2]);
+    let lambda_mm = w.wavelength_nm * 1e-6;
+    let dp = 2.0 / s as f64;
+    let pitch = [
+        lambda_mm / (n as f64 * dp * ax.abs()),
+        lambda_mm / (n as f64 * dp * ay.abs()),
+    ];
+    let (a, ideal) = pupil_transform(w, opts, true);
+    let half = (n / 2) as isize;
+    let wrap = |k: isize| k.rem_euclid(n as isize) as usize;
+    let mut values = vec![0.0; n * n];
+    for r in 0..n {
+        // Image y = (n/2 - r) pitch; frequency index k_y = sign(a_y) (n/2 - r).
+        let ky = wrap((ay.signum() as isize) * (half - r as isize));
+        for c in 0..n {
+            let kx = wrap((ax.signum() as isize) * (c as isize - half));
+            values[r * n + c] = a[ky * n + kx].norm_sqr() / ideal;
+        }
+    }
+    Ok(FftGrid {
+        n,
+        values,
+        pitch_mm: pitch,
+        slopes: [ax, ay],
+        ideal,
+    })
+}
+
 /// The FFT PSF of a wavefront traced with [`super::Sampling::Grid`]`(opts.pupil_samples)`.
 ///
 /// # Errors
@@ -231,29 +274,11 @@ pub(crate) fn pupil_transform(
 /// # Ok::<(), tolray::Error>(())
 /// ```
 pub fn fft_psf(w: &Wavefront, opts: &FftOptions) -> Result<DiffractionPsf> {
-    opts.check()?;
-    check_sampling(w, opts.pupil_samples)?;
-    let (s, n) = (opts.pupil_samples, opts.grid);
-    let map = direction_map(w)?;
-    let (ax, ay) = (map[0][1], map[1][2]);
+    let g = fft_intensity(w, opts)?;
+    let (n, values, pitch, ideal) = (g.n, g.values, g.pitch_mm, g.ideal);
+    let (ax, ay) = (g.slopes[0], g.slopes[1]);
     let lambda_mm = w.wavelength_nm * 1e-6;
-    let dp = 2.0 / s as f64;
-    let pitch = [
-        lambda_mm / (n as f64 * dp * ax.abs()),
-        lambda_mm / (n as f64 * dp * ay.abs()),
-    ];
-    let (a, ideal) = pupil_transform(w, opts, true);
     let half = (n / 2) as isize;
-    let wrap = |k: isize| k.rem_euclid(n as isize) as usize;
-    let mut values = vec![0.0; n * n];
-    for r in 0..n {
-        // Image y = (n/2 - r) pitch; frequency index k_y = sign(a_y) (n/2 - r).
-        let ky = wrap((ay.signum() as isize) * (half - r as isize));
-        for c in 0..n {
-            let kx = wrap((ax.signum() as isize) * (c as isize - half));
-            values[r * n + c] = a[ky * n + kx].norm_sqr() / ideal;
-        }
-    }
     // The peak between pixels: the continuous PSF by direct summation, refined from the
     // brightest pixel.
     let amp = |x: f64, y: f64| -> f64 {
@@ -476,6 +501,58 @@ pub const MAX_HUYGENS_SIDE: usize = 2048;
 /// # Ok::<(), tolray::Error>(())
 /// ```
 pub fn huygens_psf(w: &Wavefront, opts: &HuygensOptions) -> Result<DiffractionPsf> {
+    huygens_on_grid(&[(w, 1.0)], opts, w.centre_image_mm)
+}
+
+/// The polychromatic Huygens PSF of one field: the weighted sum of the wavelengths' PSFs
+/// (`waves` are `(wavefront, weight)` pairs of one lens, field and image plane; the weights
+/// are normalised to sum 1), each relative to its own unaberrated peak, on one `M x M` grid
+/// centred on the first wavefront's reference point (the primary wavelength's chief ray, when
+/// it comes first), so that lateral colour spreads it. Its Strehl ratio is its peak: 1 for a
+/// lens free of every aberration and of colour.
+///
+/// # Errors
+/// As [`huygens_psf`]; [`crate::ErrorKind::Argument`] for no wavelength, or a weight that is
+/// negative, not finite, or all zero.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::Field;
+/// use tolray::wave::{psf::{huygens_psf, polychromatic_huygens_psf, HuygensOptions}, wavefront, WaveOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("cooke-triplet")?;
+/// let (sys, f, o) = (lens.compile(), Field::fraction(0.0), WaveOptions::default());
+/// let d = wavefront(&lens, &sys, f, 587.5618, &o)?;
+/// let c = wavefront(&lens, &sys, f, 656.2725, &o)?;
+/// let h = HuygensOptions { image_samples: 32, pitch_um: 1.0 };
+/// let poly = polychromatic_huygens_psf(&[(&d, 1.0), (&c, 1.0)], &h)?;
+/// // On axis both grids are centred on the axis: the mean of the two PSFs.
+/// let (pd, pc) = (huygens_psf(&d, &h)?, huygens_psf(&c, &h)?);
+/// for k in [0, 100, 16 * 32 + 16] {
+///     assert!((poly.values[k] - 0.5 * (pd.values[k] + pc.values[k])).abs() < 1e-12);
+/// }
+/// assert!(poly.strehl > 0.0 && poly.strehl <= 0.5 * (pd.strehl + pc.strehl) + 1e-12);
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn polychromatic_huygens_psf(
+    waves: &[(&Wavefront, f64)],
+    opts: &HuygensOptions,
+) -> Result<DiffractionPsf> {
+    let Some((first, _)) = waves.first() else {
+        return Err(Error::argument(
+            "a polychromatic PSF needs at least one wavelength",
+        ));
+    };
+    huygens_on_grid(waves, opts, first.centre_image_mm)
+}
+
+/// The weighted sum of the Huygens PSFs of `waves` on the grid of `opts` centred on `c` (the
+/// image plane's frame, mm), each relative to its own unaberrated peak.
+fn huygens_on_grid(
+    waves: &[(&Wavefront, f64)],
+    opts: &HuygensOptions,
+    c: [f64; 2],
+) -> Result<DiffractionPsf> {
     let m = opts.image_samples;
     if m == 0 || m > MAX_HUYGENS_SIDE {
         return Err(Error::argument(format!(
@@ -488,19 +565,22 @@ pub fn huygens_psf(w: &Wavefront, opts: &HuygensOptions) -> Result<DiffractionPs
             opts.pitch_um
         )));
     }
-    let k = std::f64::consts::TAU / (w.wavelength_nm * 1e-6);
-    let n_img = w.image_index;
-    let pitch = opts.pitch_um * 1e-3;
-    let half = (m / 2) as f64;
-    let c = w.centre_image_mm;
-    let at = |r: usize, col: usize| -> Vec3<f64> {
-        w.image.point_to_global(Vec3::cst(
-            c[0] + (col as f64 - half) * pitch,
-            c[1] + (half - r as f64) * pitch,
-            0.0,
-        ))
-    };
-    let field = |x: Vec3<f64>, aberrated: bool| -> Complex<f64> {
+    if let Some(b) = waves.iter().find(|(_, v)| !(*v >= 0.0 && v.is_finite())) {
+        return Err(Error::argument(format!(
+            "wavelength weight {}: weights must be zero or positive, and finite",
+            b.1
+        )));
+    }
+    let total: f64 = waves.iter().map(|(_, v)| v).sum();
+    if !(total > 0.0) {
+        return Err(Error::argument(
+            "every wavelength weight is zero: give at least one positive weight",
+        ));
+    }
+    let image = waves[0].0.image;
+    // One wavelength's field at a point, and its unaberrated peak.
+    let field = |w: &Wavefront, x: Vec3<f64>, aberrated: bool| -> Complex<f64> {
+        let k = std::f64::consts::TAU / (w.wavelength_nm * 1e-6);
         let mut sum = Complex::new(0.0, 0.0);
         for ((q, &opd), &wt) in w.sphere_points.iter().zip(&w.opd_waves).zip(&w.weight) {
             let d = (x - *q).norm();
@@ -509,24 +589,44 @@ pub fn huygens_psf(w: &Wavefront, opts: &HuygensOptions) -> Result<DiffractionPs
             } else {
                 0.0
             };
-            sum += Complex::from_polar(wt / d, k * n_img * d - lag);
+            sum += Complex::from_polar(wt / d, k * w.image_index * d - lag);
         }
         sum
     };
-    let centre = Vec3::cst(w.centre_mm[0], w.centre_mm[1], w.centre_mm[2]);
-    let ideal = field(centre, false).norm_sqr();
+    // Each wavelength's unaberrated peak and share.
+    let parts: Vec<(&Wavefront, f64, f64)> = waves
+        .iter()
+        .filter(|(_, v)| *v > 0.0)
+        .map(|&(w, v)| {
+            let centre = Vec3::cst(w.centre_mm[0], w.centre_mm[1], w.centre_mm[2]);
+            (w, field(w, centre, false).norm_sqr(), v / total)
+        })
+        .collect();
+    let intensity = |x: Vec3<f64>| -> f64 {
+        parts
+            .iter()
+            .map(|&(w, ideal, share)| field(w, x, true).norm_sqr() / ideal * share)
+            .sum()
+    };
+    let pitch = opts.pitch_um * 1e-3;
+    let half = (m / 2) as f64;
+    let local = |x: f64, y: f64| image.point_to_global(Vec3::cst(c[0] + x, c[1] + y, 0.0));
     let values: Vec<f64> = (0..m)
         .into_par_iter()
         .flat_map_iter(|r| (0..m).map(move |col| (r, col)))
-        .map(|(r, col)| field(at(r, col), true).norm_sqr() / ideal)
+        .map(|(r, col)| {
+            intensity(local(
+                (col as f64 - half) * pitch,
+                (half - r as f64) * pitch,
+            ))
+        })
         .collect();
     let (kmax, _) =
         values.iter().enumerate().fold(
             (0, f64::NEG_INFINITY),
             |b, (i, &v)| if v > b.1 { (i, v) } else { b },
         );
-    let local = |x: f64, y: f64| w.image.point_to_global(Vec3::cst(c[0] + x, c[1] + y, 0.0));
-    let f = |x: f64, y: f64| field(local(x, y), true).norm_sqr() / ideal;
+    let f = |x: f64, y: f64| intensity(local(x, y));
     let x0 = ((kmax % m) as f64 - half) * pitch;
     let y0 = (half - (kmax / m) as f64) * pitch;
     let strehl = refine_peak(&f, x0, y0, [pitch, pitch]).min(1.0);
@@ -537,6 +637,213 @@ pub fn huygens_psf(w: &Wavefront, opts: &HuygensOptions) -> Result<DiffractionPs
         strehl,
         centre_image_mm: c,
     })
+}
+
+/// The diffraction PSF of `w` (traced on the [`super::Sampling::Grid`]`(opts.pupil_samples)`
+/// pupil grid) laid out as [`crate::psf`] lays out a geometric PSF, for image simulation: `ks x
+/// ks` sensor pixels of `pitch_mm`, row 0 at the top, the reference sphere's centre (the chief
+/// ray's image point for [`super::Reference::Chief`]) in pixel `(ks/2, ks/2)`, each FFT sample
+/// deposited bilinearly on the pixel centres as a geometric PSF deposits a ray, unit sum over
+/// what lands in the window. The FFT's pixels should be finer than the sensor's (a grid of
+/// more than twice the pupil samples makes them so) and its image should cover the window.
+///
+/// # Errors
+/// As [`fft_psf`]; [`crate::ErrorKind::Argument`] for an even `ks` or one below 3, or a pitch
+/// that is not positive and finite; [`crate::ErrorKind::Numerical`] when no energy lands in
+/// the window.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::Field;
+/// use tolray::wave::{psf::{pixel_psf, FftOptions}, wavefront, Sampling, WaveOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("cooke-triplet")?;
+/// let o = WaveOptions { sampling: Sampling::Grid(64), ..WaveOptions::default() };
+/// let w = wavefront(&lens, &lens.compile(), Field::fraction(0.0), 587.5618, &o)?;
+/// let p = pixel_psf(&w, &FftOptions { pupil_samples: 64, grid: 128 }, 21, 0.004)?;
+/// assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+/// // On axis the brightest pixel is the centre.
+/// let max = p.iter().copied().fold(0.0, f64::max);
+/// assert_eq!(p[10 * 21 + 10], max);
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn pixel_psf(w: &Wavefront, opts: &FftOptions, ks: usize, pitch_mm: f64) -> Result<Vec<f64>> {
+    check_window(ks, pitch_mm)?;
+    let g = fft_intensity(w, opts)?;
+    deposit(&g, ks, pitch_mm).ok_or_else(|| {
+        Error::numerical(format!(
+            "the diffraction PSF at {} nm puts no energy in its {ks} x {ks} window",
+            w.wavelength_nm
+        ))
+    })
+}
+
+/// Checks a sensor window: `ks` odd, 3 to 255 pixels (as a geometric PSF's), of a positive,
+/// finite pitch up to 10 mm.
+fn check_window(ks: usize, pitch_mm: f64) -> Result<()> {
+    if ks < 3 || ks % 2 == 0 || ks > 255 {
+        return Err(Error::argument(format!(
+            "PSF window of {ks} pixels: give an odd number from 3 to 255"
+        )));
+    }
+    if !(pitch_mm > 0.0 && pitch_mm <= 10.0) {
+        return Err(Error::argument(format!(
+            "pixel pitch {pitch_mm} mm: give a positive pitch up to 10 mm"
+        )));
+    }
+    Ok(())
+}
+
+/// The FFT grid `g` deposited bilinearly on a `ks x ks` window of `pitch_mm` pixels centred on
+/// the grid's centre, unit sum; `None` when nothing lands.
+fn deposit(g: &FftGrid, ks: usize, pitch_mm: f64) -> Option<Vec<f64>> {
+    let n = g.n;
+    let (half_g, half_k) = ((n / 2) as f64, (ks / 2) as f64);
+    let last = (ks - 1) as f64;
+    let mut img = vec![0.0; ks * ks];
+    let mut total = 0.0;
+    for r in 0..n {
+        let v = half_k - (half_g - r as f64) * g.pitch_mm[1] / pitch_mm;
+        if !(v >= 0.0 && v < last) {
+            continue;
+        }
+        let (j, fy) = (v.floor() as usize, v - v.floor());
+        for c in 0..n {
+            let u = (c as f64 - half_g) * g.pitch_mm[0] / pitch_mm + half_k;
+            let e = g.values[r * n + c];
+            if !(u >= 0.0 && u < last) || e == 0.0 {
+                continue;
+            }
+            let (i, fx) = (u.floor() as usize, u - u.floor());
+            img[j * ks + i] += e * (1.0 - fx) * (1.0 - fy);
+            img[j * ks + i + 1] += e * fx * (1.0 - fy);
+            img[(j + 1) * ks + i] += e * (1.0 - fx) * fy;
+            img[(j + 1) * ks + i + 1] += e * fx * fy;
+            total += e;
+        }
+    }
+    if !(total > 0.0) {
+        return None;
+    }
+    for x in &mut img {
+        *x /= total;
+    }
+    Some(img)
+}
+
+/// The pupil samples [`diffraction_psf_map`] starts from, and the most it takes.
+const MAP_SAMPLES: (usize, usize) = (64, 1024);
+
+/// A diffraction PSF map in the layout of [`crate::psf::psf_map`] (the `grid x grid` fields of
+/// [`crate::psf::grid_fields`], each a [`pixel_psf`] of `ks x ks` pixels of `pitch_mm`) for
+/// `sys` (a compiled, possibly perturbed form of `lens`) at `wavelength_nm`. Each field's pupil
+/// grid starts at 64 samples across and doubles (up to 1024) until the FFT's image extent, λ N
+/// times the samples, covers 1.2 times the window and the wavefront is not undersampled; the
+/// FFT grid is twice the pupil samples, or more until its pixels are at most half the sensor's.
+///
+/// # Errors
+/// As [`diffraction_psf_tiles`], the first failing field's.
+///
+/// # Examples
+/// ```
+/// use tolray::wave::psf::diffraction_psf_map;
+/// use tolray::Lens;
+/// let lens = Lens::load("lens1")?;
+/// let map = diffraction_psf_map(&lens, &lens.compile(), 2, 587.5618, 15, 0.0036)?;
+/// assert_eq!(map.len(), 4);
+/// assert!(map.iter().all(|p| p.len() == 225 && (p.iter().sum::<f64>() - 1.0).abs() < 1e-9));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn diffraction_psf_map(
+    lens: &crate::lens::Lens,
+    sys: &crate::lens::System<f64>,
+    grid: usize,
+    wavelength_nm: f64,
+    ks: usize,
+    pitch_mm: f64,
+) -> Result<Vec<Vec<f64>>> {
+    diffraction_psf_tiles(lens, sys, grid, wavelength_nm, ks, pitch_mm)?
+        .into_iter()
+        .collect()
+}
+
+/// [`diffraction_psf_map`] field by field: each field's PSF or why it has none (its chief ray
+/// lost, fewer than three rays through, a wavefront still undersampled or an FFT image smaller
+/// than the window at 1024 pupil samples), so that a caller can stand in for one field.
+///
+/// # Errors
+/// [`crate::ErrorKind::Argument`] for a window [`pixel_psf`] refuses.
+pub fn diffraction_psf_tiles(
+    lens: &crate::lens::Lens,
+    sys: &crate::lens::System<f64>,
+    grid: usize,
+    wavelength_nm: f64,
+    ks: usize,
+    pitch_mm: f64,
+) -> Result<Vec<Result<Vec<f64>>>> {
+    check_window(ks, pitch_mm)?;
+    let window = ks as f64 * pitch_mm;
+    Ok(crate::psf::grid_fields(lens, grid)
+        .par_iter()
+        .map(|&field| {
+            let what = || {
+                format!(
+                    "diffraction PSF of field {} at {wavelength_nm} nm",
+                    field.label()
+                )
+            };
+            let mut s = MAP_SAMPLES.0;
+            loop {
+                let o = super::WaveOptions {
+                    sampling: super::Sampling::Grid(s),
+                    ..super::WaveOptions::default()
+                };
+                let w = super::wavefront(lens, sys, field, wavelength_nm, &o)
+                    .map_err(|e| e.context(what()))?;
+                let mut opts = FftOptions {
+                    pupil_samples: s,
+                    grid: 2 * s,
+                };
+                let more = s < MAP_SAMPLES.1;
+                let mut g = match fft_intensity(&w, &opts) {
+                    Ok(g) => g,
+                    Err(e) if more && e.message().contains("undersampled") => {
+                        s *= 2;
+                        continue;
+                    }
+                    Err(e) => return Err(e.context(what())),
+                };
+                let extent = g.n as f64 * g.pitch_mm[0].min(g.pitch_mm[1]);
+                if extent < 1.2 * window {
+                    if more {
+                        s *= 2;
+                        continue;
+                    }
+                    return Err(Error::numerical(format!(
+                        "{}: the FFT image of {} pupil samples spans {:.3} mm, less than the \
+                         {:.3} mm window",
+                        what(),
+                        s,
+                        extent,
+                        window
+                    )));
+                }
+                // Finer FFT pixels (a larger grid, the same pupil) until they are at most half
+                // the sensor's.
+                while g.pitch_mm[0].max(g.pitch_mm[1]) > 0.5 * pitch_mm && opts.grid * 2 <= MAX_GRID
+                {
+                    opts.grid *= 2;
+                    g = fft_intensity(&w, &opts).map_err(|e| e.context(what()))?;
+                }
+                return deposit(&g, ks, pitch_mm).ok_or_else(|| {
+                    Error::numerical(format!(
+                        "{}: no energy lands in the {ks} x {ks} window",
+                        what()
+                    ))
+                });
+            }
+        })
+        .collect())
 }
 
 /// The fraction of a PSF's energy on its grid within each radius (µm) of pixel (n/2, n/2)

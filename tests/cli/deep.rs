@@ -446,6 +446,14 @@ fn evaluation_defaults_to_the_designs_training_sensor() {
     assert_eq!(c["noise_sigma"], 0.02);
     assert_eq!(c["full_well_electrons"], 500.0);
     assert!(!err.contains("warning"), "{err}");
+    assert!(
+        c.get("psf").is_none(),
+        "the geometric default is not written: {c}"
+    );
+    // Diffraction PSFs (issue 40): the same units imaged through the wavefront's PSFs.
+    let (code, err, config) = run(&["a"], &["--psf", "diffraction"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(config.unwrap()["psf"], "diffraction");
     let (code, err, config) = run(&["a", "old"], &["--noise", "0.01"]);
     assert_eq!(code, 0, "{err}");
     let c = config.unwrap();

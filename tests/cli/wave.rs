@@ -365,3 +365,116 @@ fn cli_reference_is_generated_from_the_parser() {
          TOLRAY_BLESS=1 cargo test --release --test cli reference"
     );
 }
+
+/// `tolray train --loss rms-wavefront` (issue 40): stage 1 lowers lens2's RMS wavefront error
+/// (its sensor sits 20 waves of defocus from the best focus), every iteration logs the
+/// wavefront, stage 2 runs with it, the checkpoint keeps the loss so that a resume trains the
+/// same objective, and the image stage refuses it.
+#[test]
+fn train_on_the_rms_wavefront() {
+    let dir = tmp("train-wavefront");
+    let out = dir.join("run");
+    let (code, _, err) = tolray(&[
+        "train",
+        "lens2",
+        "--loss",
+        "rms-wavefront",
+        "--pretrain-iters",
+        "12",
+        "--iters",
+        "2",
+        "--samples",
+        "2",
+        "--psf-spp",
+        "64",
+        "--eval-trials",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let log: Vec<serde_json::Value> = std::fs::read_to_string(out.join("log.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(log.len(), 14);
+    let w: Vec<f64> = log
+        .iter()
+        .map(|l| l["wavefront_waves"].as_f64().unwrap())
+        .collect();
+    assert!(w.iter().all(|v| v.is_finite() && *v > 0.0), "{w:?}");
+    assert!(
+        w[11] < 0.7 * w[0],
+        "stage 1 lowers the wavefront error: {w:?}"
+    );
+    let ck: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("checkpoint.json")).unwrap())
+            .unwrap();
+    let per_wave = ck["config"]["loss"]["rms-wavefront"]["mm_per_wave"]
+        .as_f64()
+        .unwrap();
+    assert!(per_wave > 0.0 && per_wave < 0.1, "{per_wave}");
+    let (code, _, err) = tolray(&[
+        "train",
+        "lens2",
+        "--loss",
+        "rms-wavefront",
+        "--decoder",
+        "wiener",
+        "--out",
+        dir.join("x").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--loss rms-wavefront"), "{err}");
+    let (code, _, err) = tolray(&["train", "lens2", "--loss", "strehl", "--out", "x"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("strehl"), "{err}");
+}
+
+/// `tolray psf --method huygens --polychromatic`: the polychromatic PSF in the JSON and the
+/// picture, on axis the mean of the wavelengths' PSFs on one pitch; refused with the FFT.
+#[test]
+fn polychromatic_huygens_psf_command() {
+    let png = tmp("poly-psf.png");
+    let (code, out, err) = tolray(&[
+        "psf",
+        "cooke-triplet",
+        "--method",
+        "huygens",
+        "--wavelengths",
+        "F,d,C",
+        "--polychromatic",
+        "--ks",
+        "17",
+        "--pitch-um",
+        "1",
+        "--pupil-samples",
+        "32",
+        "--grid",
+        "128",
+        "--json",
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("polychromatic huygens PSF"), "{out}");
+    let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    let poly = &v["polychromatic"];
+    let p: Vec<f64> = serde_json::from_value(poly["psf"].clone()).unwrap();
+    let mono: Vec<Vec<f64>> = serde_json::from_value(v["psf"].clone()).unwrap();
+    assert_eq!(p.len(), 17 * 17);
+    for k in 0..p.len() {
+        let mean = (mono[0][k] + mono[1][k] + mono[2][k]) / 3.0;
+        assert!((p[k] - mean).abs() < 1e-12, "pixel {k}: {} vs {mean}", p[k]);
+    }
+    let s = poly["strehl"].as_f64().unwrap();
+    assert!(s > 0.0 && s < 1.0, "{s}");
+    assert!(png.exists());
+    let (code, _, err) = tolray(&["psf", "lens2", "--method", "fft", "--polychromatic"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("--polychromatic needs --method huygens"),
+        "{err}"
+    );
+}

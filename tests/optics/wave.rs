@@ -392,3 +392,90 @@ fn bad_input_is_refused_by_name() {
         .iter()
         .all(|v| v.is_finite()));
 }
+
+/// The polychromatic Huygens PSF: the oval's glass has one index at every wavelength, so the
+/// oval is perfect in any light (Strehl 1, the Airy pattern of each wavelength summed); moving
+/// its sensor adds defocus in each colour alike and lowers it below 1; weights are checked.
+#[test]
+fn a_polychromatic_huygens_psf_of_a_lens_without_colour() {
+    use tolray::wave::psf::polychromatic_huygens_psf;
+    let waves = |l: &Lens| -> Vec<tolray::wave::Wavefront> {
+        [WL, 486.1327, 656.2725]
+            .iter()
+            .map(|&wl| wavefront(l, &l.compile(), Field::angle(0.0), wl, &grid(48)).unwrap())
+            .collect()
+    };
+    let h = HuygensOptions {
+        image_samples: 15,
+        pitch_um: 1.0,
+    };
+    let sharp = waves(&oval(0.0));
+    let refs: Vec<(&tolray::wave::Wavefront, f64)> = sharp.iter().zip([1.0, 2.0, 0.5]).collect();
+    let p = polychromatic_huygens_psf(&refs, &h).unwrap();
+    assert!((p.strehl - 1.0).abs() < 1e-6, "Strehl {}", p.strehl);
+    // The weighted mean of the monochromatic PSFs, pixel for pixel (one centre: the axis).
+    let mono: Vec<_> = sharp.iter().map(|w| huygens_psf(w, &h).unwrap()).collect();
+    for k in 0..p.values.len() {
+        let mean = (mono[0].values[k] + 2.0 * mono[1].values[k] + 0.5 * mono[2].values[k]) / 3.5;
+        assert!((p.values[k] - mean).abs() < 1e-12, "pixel {k}");
+    }
+    let soft = waves(&oval(0.05));
+    let refs: Vec<(&tolray::wave::Wavefront, f64)> = soft.iter().map(|w| (w, 1.0)).collect();
+    let q = polychromatic_huygens_psf(&refs, &h).unwrap();
+    assert!(
+        q.strehl < 0.9 && q.strehl > 0.1,
+        "defocused Strehl {}",
+        q.strehl
+    );
+    // Weights: one zero is allowed, a negative or all-zero set is refused by name.
+    let one = polychromatic_huygens_psf(&[(&soft[0], 1.0), (&soft[1], 0.0)], &h).unwrap();
+    assert_eq!(one.values, huygens_psf(&soft[0], &h).unwrap().values);
+    for bad in [-1.0, f64::NAN] {
+        let e = polychromatic_huygens_psf(&[(&soft[0], bad)], &h).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Argument);
+        assert!(e.message().contains("weight"), "{}", e.message());
+    }
+    let e = polychromatic_huygens_psf(&[(&soft[0], 0.0)], &h).unwrap_err();
+    assert!(e.message().contains("every wavelength weight is zero"));
+    assert!(polychromatic_huygens_psf(&[], &h).is_err());
+}
+
+/// The diffraction PSF on sensor pixels (image simulation's, issue 40): the oval's Airy pattern
+/// deposited on pixels of a quarter of its first dark ring's radius holds 83.8 % of its energy
+/// inside that ring (to 0.03: the window's cut and the pixels' tent widen it), symmetrically
+/// about the centre pixel; a diffraction PSF map of one cell is the same PSF.
+#[test]
+fn a_perfect_focus_on_sensor_pixels_holds_the_airy_energy() {
+    use tolray::wave::psf::{diffraction_psf_map, pixel_psf};
+    let h = 1.0;
+    let l = oval_of(0.0, h);
+    let na = N * marginal_sine(h);
+    let r0 = 3.831_705_970_2 / std::f64::consts::TAU * WL * 1e-6 / na;
+    let (ks, pitch) = (81, r0 / 4.0);
+    let w = wavefront(&l, &l.compile(), Field::angle(0.0), WL, &grid(64)).unwrap();
+    let fft = FftOptions {
+        pupil_samples: 64,
+        grid: 512,
+    };
+    let p = pixel_psf(&w, &fft, ks, pitch).unwrap();
+    assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    let c = (ks / 2) as f64;
+    let ee: f64 = (0..ks * ks)
+        .filter(|k| ((k % ks) as f64 - c).hypot((k / ks) as f64 - c) * pitch <= r0)
+        .map(|k| p[k])
+        .sum();
+    assert!((ee - 0.8378).abs() < 0.03, "EE {ee}");
+    let mid = (ks / 2) * ks + ks / 2;
+    assert!(
+        (p[mid - 3] - p[mid + 3]).abs() < 1e-9 && (p[mid - 3 * ks] - p[mid + 3 * ks]).abs() < 1e-9
+    );
+    assert!(p[mid] == p.iter().copied().fold(0.0, f64::max));
+    // A 1 x 1 map of the oval's sensor is the on-axis PSF, sampled as the map samples it.
+    let map = diffraction_psf_map(&l, &l.compile(), 1, WL, ks, pitch).unwrap();
+    assert_eq!(map.len(), 1);
+    let e: f64 = (0..ks * ks)
+        .filter(|k| ((k % ks) as f64 - c).hypot((k / ks) as f64 - c) * pitch <= r0)
+        .map(|k| map[0][k])
+        .sum();
+    assert!((e - 0.8378).abs() < 0.03, "map EE {e}");
+}

@@ -9,7 +9,7 @@ use tolray::decoder::DecoderKind;
 use tolray::deep::eval::{evaluate, example_images, report, EvalConfig, EvalImages, Report};
 use tolray::deep::html::{render as render_html, Examples};
 use tolray::deep::study::{self, StudyConfig};
-use tolray::deep::{psf_options, rgb_psf_map, DeepConfig};
+use tolray::deep::{psf_options, rgb_psf_map_of, DeepConfig};
 use tolray::image::render::{render, Blend, PsfMap, SensorNoise};
 use tolray::image::source::TrainImages;
 use tolray::image::Image;
@@ -43,6 +43,11 @@ pub struct EvalArgs {
     /// Tolerance spec (default: the paper's Table A1).
     #[arg(long, value_name = "SPEC.json")]
     pub spec: Option<PathBuf>,
+    /// The PSFs the evaluated units are imaged with: geometric (rays on pixels, as training
+    /// sees them) or diffraction (the pupil function's FFT on the same pixels: Airy disk and
+    /// diffraction of the aberrated wavefront).
+    #[arg(long = "psf", default_value = "geometric", value_parser = ["geometric", "diffraction"])]
+    pub psf_model: String,
 }
 
 impl EvalArgs {
@@ -57,6 +62,7 @@ impl EvalArgs {
             eval_images: None,
             compensate: None,
             spec,
+            psf_model: "geometric".into(),
         }
     }
 
@@ -93,6 +99,11 @@ impl EvalArgs {
             patch_px: self.patch,
             compensate_focus: self.compensate.is_some(),
             bootstrap: 2000,
+            psf: if self.psf_model == "diffraction" {
+                tolray::psf::PsfModel::Diffraction
+            } else {
+                tolray::psf::PsfModel::Geometric
+            },
         };
         let side = grid * self.patch;
         let images = match &self.eval_images {
@@ -690,6 +701,10 @@ pub struct RenderArgs {
     /// evaluation) or `bilinear` (blended between the four surrounding field centres; ~4x slower).
     #[arg(long, value_enum, default_value = "tiles")]
     pub blend: BlendArg,
+    /// PSF model: geometric (rays on pixels) or diffraction (the pupil function's FFT on the
+    /// same pixels).
+    #[arg(long = "psf", default_value = "geometric", value_parser = ["geometric", "diffraction"])]
+    pub psf_model: String,
 }
 
 /// `--blend`.
@@ -715,7 +730,12 @@ pub fn render_cmd(a: &RenderArgs) -> anyhow::Result<()> {
     };
     let opts = psf_options(&lens, a.ks, a.spp, a.seed);
     tolray::psf::check_options(&opts)?;
-    let psfs = rgb_psf_map(&lens, &sys, a.grid, &lens.rgb_wavelengths_nm, &opts)?;
+    let model = if a.psf_model == "diffraction" {
+        tolray::psf::PsfModel::Diffraction
+    } else {
+        tolray::psf::PsfModel::Geometric
+    };
+    let psfs = rgb_psf_map_of(model, &lens, &sys, a.grid, &lens.rgb_wavelengths_nm, &opts)?;
     let map = PsfMap::new(a.grid, a.ks, psfs)?;
     let blend = match a.blend {
         BlendArg::Tiles => Blend::Tiles,

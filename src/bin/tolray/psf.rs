@@ -47,6 +47,12 @@ pub struct PsfCmdArgs {
     /// grid; the central --ks x --ks pixels are written).
     #[arg(long, default_value_t = 256)]
     pub grid: usize,
+    /// With --method huygens, add the polychromatic PSF: the wavelengths' PSFs (equal weights,
+    /// each relative to its own unaberrated peak) summed on one grid centred on the primary
+    /// wavelength's chief ray (the first wavelength's when the primary is not listed), so that
+    /// lateral colour spreads it; its pitch is that wavelength's unless --pitch-um is given.
+    #[arg(long)]
+    pub polychromatic: bool,
 }
 
 /// Runs `tolray psf`.
@@ -63,7 +69,14 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
         method: a_method,
         pupil_samples,
         grid,
+        polychromatic,
     } = a;
+    if polychromatic && a_method != "huygens" {
+        usage!(
+            "--polychromatic needs --method huygens: the {a_method} PSFs of different wavelengths \
+             have different pixels"
+        );
+    }
     if a_method != "geometric" {
         return run_diffraction(DiffractionArgs {
             lens: &lens,
@@ -78,6 +91,7 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
             grid,
             pitch_um: psf.pitch_um,
             image_samples: psf.ks,
+            polychromatic,
         });
     }
     let l = lens.load()?;
@@ -238,6 +252,7 @@ struct DiffractionArgs<'a> {
     grid: usize,
     pitch_um: Option<f64>,
     image_samples: usize,
+    polychromatic: bool,
 }
 
 /// The central `k x k` pixels of `p` (all of it when `k` is 0 or not smaller), pixel (k/2, k/2)
@@ -280,6 +295,8 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
         ..WaveOptions::default()
     };
     let mut psfs = Vec::new();
+    // Each wavelength's wavefront and Huygens pitch, for the polychromatic PSF.
+    let mut waves = Vec::new();
     for &wl in &wls {
         let what = format!("field {}, {wl} nm", field.label());
         let trace = |fft: &FftOptions| {
@@ -305,21 +322,25 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
                 );
             }
             // The FFT PSF's pitch unless given, so that the two compare pixel for pixel.
-            let (p, _) =
+            let ((p, w, pitch), _) =
                 crate::wave::with_fine_enough_pupil(a.pupil_samples, a.grid, &what, &mut |fft| {
                     let w = trace(fft)?;
                     let pitch = match a.pitch_um {
                         Some(p) => p,
                         None => fft_psf(&w, fft)?.pitch_um[0],
                     };
-                    huygens_psf(
+                    let p = huygens_psf(
                         &w,
                         &HuygensOptions {
                             image_samples: a.image_samples,
                             pitch_um: pitch,
                         },
-                    )
+                    )?;
+                    Ok((p, w, pitch))
                 })?;
+            if a.polychromatic {
+                waves.push((w, pitch));
+            }
             p
         };
         emit_line(&format!(
@@ -335,8 +356,39 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
         ));
         psfs.push(p);
     }
+    let poly = if a.polychromatic {
+        // The primary wavelength first: the grid is centred on its chief ray.
+        let first = wls
+            .iter()
+            .position(|&w| w == l.primary_wavelength_nm)
+            .unwrap_or(0);
+        let mut refs: Vec<(&tolray::wave::Wavefront, f64)> =
+            waves.iter().map(|(w, _)| (w, 1.0)).collect();
+        refs.swap(0, first);
+        let p = tolray::wave::psf::polychromatic_huygens_psf(
+            &refs,
+            &HuygensOptions {
+                image_samples: a.image_samples,
+                pitch_um: a.pitch_um.unwrap_or(waves[first].1),
+            },
+        )?;
+        emit_line(&format!(
+            "polychromatic huygens PSF at field {} ({} wavelengths, equal weights, centred on \
+             {:.2} nm): {}x{} px of {:.4} µm, Strehl {:.5}",
+            field.label(),
+            wls.len(),
+            wls[first],
+            p.n,
+            p.n,
+            p.pitch_um[0],
+            p.strehl
+        ));
+        Some(p)
+    } else {
+        None
+    };
     if a.json {
-        emit_line(&serde_json::to_string(&serde_json::json!({
+        let mut v = serde_json::json!({
             "method": a.method,
             "field": a.field,
             "wavelengths_nm": wls,
@@ -345,8 +397,18 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
             "strehl": psfs[0].strehl,
             "strehl_per_wavelength": psfs.iter().map(|p| p.strehl).collect::<Vec<_>>(),
             "psf": psfs.iter().map(|p| &p.values).collect::<Vec<_>>(),
-        }))?);
+        });
+        if let Some(p) = &poly {
+            v["polychromatic"] = serde_json::json!({
+                "strehl": p.strehl,
+                "pitch_um": p.pitch_um,
+                "centre_image_mm": p.centre_image_mm,
+                "psf": p.values,
+            });
+        }
+        emit_line(&serde_json::to_string(&v)?);
     }
+    psfs.extend(poly);
     let tiles: Vec<Vec<f64>> = psfs.iter().map(|p| p.values.clone()).collect();
     let n = psfs[0].n;
     if let Some(p) = a.png {

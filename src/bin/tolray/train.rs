@@ -15,7 +15,9 @@ use tolray::decoder::DecoderKind;
 use tolray::deep::study::{self, StudyConfig};
 use tolray::deep::DeepConfig;
 use tolray::image::source::TrainImages;
-use tolray::optim::train::{run_to_report, RunEnd, RunOptions, TrainConfig, TrainState};
+use tolray::optim::train::{
+    run_to_report, OpticalLoss, RunEnd, RunOptions, TrainConfig, TrainState,
+};
 use tolray::tolerance::ToleranceSpec;
 use tolray::{Lens, Object};
 
@@ -66,6 +68,11 @@ pub struct TrainArgs {
     /// Weight of the PSF-similarity loss [default: 1; with --decoder 0.01]; 0 turns it off.
     #[arg(long)]
     pub lambda_psf: Option<f64>,
+    /// The optical term of both stages: spot (the paper's spot size) or rms-wavefront (the RMS
+    /// wavefront error to centroid in waves, weighed as the RMS spot of a defocus with that
+    /// error: 4√6·N·λ mm a wave). Not with --decoder.
+    #[arg(long, default_value = "spot", value_parser = ["spot", "rms-wavefront"])]
+    pub loss: String,
     /// Rays per PSF in stage 2.
     #[arg(long, default_value_t = 256)]
     pub psf_spp: usize,
@@ -187,6 +194,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
         spec,
         lambda_spot,
         lambda_psf,
+        loss,
         psf_spp,
         tolerance_lr_scale,
         max_track,
@@ -226,6 +234,9 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             cfg.lambda_spot = lambda_spot.unwrap_or(10.0);
             cfg.lambda_psf = lambda_psf.unwrap_or(1.0);
             cfg.psf_spp = psf_spp;
+            if loss == "rms-wavefront" {
+                cfg.loss = OpticalLoss::rms_wavefront_for(&l)?;
+            }
             let tolerance_lr_scale = tolerance_lr_scale.unwrap_or(0.1);
             if !(tolerance_lr_scale > 0.0 && tolerance_lr_scale.is_finite()) {
                 usage!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
@@ -275,6 +286,13 @@ fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
             dir,
             a.checkpoint_every,
             "tolray train",
+        );
+    }
+    if a.loss != "spot" {
+        usage!(
+            "--loss {}: the image stage trains its optics with the spot loss; leave --loss out \
+             with --decoder",
+            a.loss
         );
     }
     if a.tolerance_lr_scale.is_some() {
@@ -422,10 +440,12 @@ fn train(
     };
     let end = run_to_report(&mut state, out, opts, eval_trials, |l| {
         bar.set_message(format!(
-            "{:?} loss {:.5} spot {:.2} µm{}",
+            "{:?} loss {:.5} spot {:.2} µm{}{}",
             l.stage,
             l.loss,
             l.spot_um,
+            l.wavefront_waves
+                .map_or(String::new(), |w| format!(" wavefront {w:.4} waves")),
             l.psf_similarity
                 .map_or(String::new(), |s| format!(" sim {s:.4}"))
         ));
