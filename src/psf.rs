@@ -39,7 +39,7 @@ pub enum PsfModel {
     #[default]
     Geometric,
     /// The pupil function's FFT deposited on the same pixels
-    /// ([`crate::wave::psf::diffraction_psf_map`]): the Airy disk and the diffraction of an
+    /// (`wave::psf::diffraction_psf_map`): the Airy disk and the diffraction of an
     /// aberrated wavefront, which a geometric PSF lacks.
     Diffraction,
 }

@@ -185,7 +185,12 @@ pub(crate) fn rms_about_plane<S: Real>(pupil: &[[f64; 2]], w: &[f64], opd: &[S])
         let r = v - coef[0] - coef[1] * S::cst(p[0]) - coef[2] * S::cst(p[1]);
         ss += r * r * S::cst(wi);
     }
-    Some(crate::analysis::spot::root(ss))
+    // √ss, 0 with derivative 0 at a perfect wavefront (sqrt's chain rule would give NaN).
+    Some(if ss.value() > 0.0 {
+        ss.sqrt()
+    } else {
+        S::cst(0.0)
+    })
 }
 
 /// The inverse of a 3 × 3 matrix, `None` when it is (nearly) singular.
