@@ -260,6 +260,7 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
         "qcon.zmx",
         ASL5040,
         "thinlens.zmx",
+        "curved-image.zmx",
         "real/optiland/curved_transmission_grating.zmx",
         "real/optiland/curved_reflective_grating.zmx",
     ] {

@@ -775,7 +775,8 @@ pub fn check_system(
         }
         surfaces.push(check);
     }
-    // Image plane (flat, exact) for the Embree traces.
+    // The image plane or curved image surface, crossed analytically (exactly, as the kernel
+    // does) for the Embree traces: the check is of the lens surfaces' meshes.
     let n_img = sys.rows.len() as u32;
     for st in states.iter_mut().flatten().flatten() {
         if !st.status.is_alive() {
@@ -783,11 +784,12 @@ pub fn check_system(
         }
         let p = sys.image.point_to_local(st.o);
         let dl = sys.image.rotation.apply_t(st.d);
-        if dl.z == 0.0 {
+        let (t, hit) = crate::trace::image_root(sys, p, dl);
+        if !hit {
             st.status = RayStatus::Missed(n_img);
             continue;
         }
-        st.o = sys.image.point_to_global(p + dl * (-p.z / dl.z));
+        st.o = sys.image.point_to_global(p + dl * t);
     }
     // The analytic traces of the same rays: the f64 kernel (compared) and the scalar reference
     // (timed only), one thread each.

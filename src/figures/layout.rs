@@ -21,13 +21,27 @@ pub fn layout_figure(
     let mut ray_height = vec![0.0f64; lens.surfaces.len()];
     // The axial extent of every vertex and the image (a mirror system folds back: a
     // Cassegrain's secondary lies before its primary, at negative z).
-    // The image plane's meridional section (decentred or tilted with the lens' image plane).
+    // The image surface's meridional section (decentred or tilted with the lens' image plane;
+    // a curved one drawn to its rim when that is nearer than the sensor's corner).
     let h = lens.sensor.half_diagonal_mm();
-    let end = |y: f64| {
-        let p = sys.image.point_to_global(Vec3::new(0.0, y, 0.0));
-        (p.z, p.y)
+    let ip = &lens.image_plane;
+    let (c, k1) = (ip.curvature_per_mm, 1.0 + ip.conic);
+    let rim = if c != 0.0 && k1 > 0.0 {
+        h.min(0.999_999 / (c.abs() * k1.sqrt()))
+    } else {
+        h
     };
-    let ends = [end(-h), end(h)];
+    let sensor: Vec<(f64, f64)> = (0..=64)
+        .map(|i| {
+            let y = -rim + 2.0 * rim * i as f64 / 64.0;
+            let a = (1.0 - k1 * c * c * y * y).max(0.0);
+            let p = sys
+                .image
+                .point_to_global(Vec3::new(0.0, y, c * y * y / (1.0 + a.sqrt())));
+            (p.z, p.y)
+        })
+        .collect();
+    let ends = [sensor[0], sensor[64]];
     let z_lo = z
         .iter()
         .copied()
@@ -214,7 +228,7 @@ pub fn layout_figure(
             rays,
             fields: legend,
             outlines,
-            sensor: ends,
+            sensor,
         },
     })
 }
@@ -240,7 +254,7 @@ pub(super) fn draw_layout<DB: DrawingBackend>(
     rays: &[(Rgb, Vec<(f64, f64)>)],
     fields: &[(String, Rgb)],
     outlines: &[Vec<(f64, f64)>],
-    sensor: [(f64, f64); 2],
+    sensor: &[(f64, f64)],
 ) -> DrawResult<DB> {
     let (m, labels) = (px(10.0, s), (px(42.0, s), px(58.0, s)));
     let (xr, yr) = equal_aspect(body, m, labels, x.clone(), y.clone());
@@ -275,7 +289,21 @@ pub(super) fn draw_layout<DB: DrawingBackend>(
     }
     chart
         .draw_series(line(sensor.to_vec(), RGBColor(200, 0, 0), 2.0, s))?
-        .label("image plane")
+        .label(if bends(sensor) {
+            "image surface"
+        } else {
+            "image plane"
+        })
         .legend(line_glyph(RGBColor(200, 0, 0), s));
     legend_box(&mut chart, s, SeriesLabelPosition::UpperLeft)
+}
+
+/// True when the drawn image section bends (a curved image surface).
+fn bends(section: &[(f64, f64)]) -> bool {
+    let (a, b) = (section[0], section[section.len() - 1]);
+    let m = section[section.len() / 2];
+    // Distance of the middle point from the chord.
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let len = dx.hypot(dy).max(1e-300);
+    ((m.0 - a.0) * dy - (m.1 - a.1) * dx).abs() / len > 1e-9 * (1.0 + len)
 }

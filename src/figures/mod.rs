@@ -113,7 +113,7 @@ enum Kind {
         rays: Vec<(Rgb, Vec<(f64, f64)>)>,
         fields: Vec<(String, Rgb)>,
         outlines: Vec<Vec<(f64, f64)>>,
-        sensor: [(f64, f64); 2],
+        sensor: Vec<(f64, f64)>,
     },
     Tolerance {
         values: Vec<f64>,
@@ -241,7 +241,7 @@ impl Figure {
                 fields,
                 outlines,
                 sensor,
-            } => draw_layout(&body, s, x, y, rays, fields, outlines, *sensor),
+            } => draw_layout(&body, s, x, y, rays, fields, outlines, sensor),
             Kind::Tolerance {
                 values,
                 nominal,

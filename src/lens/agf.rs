@@ -68,7 +68,8 @@ pub fn broken_in_range(g: &AgfGlass) -> Option<(f64, f64)> {
     (0..=64).find_map(|k| {
         let um = lo + (hi - lo) * k as f64 / 64.0;
         let n = g.dispersion.index(um);
-        (!(n.is_finite() && (super::material::MIN_INDEX..=5.0).contains(&n))).then_some((um, n))
+        (!(n.is_finite() && (super::material::MIN_INDEX..=super::material::MAX_INDEX).contains(&n)))
+            .then_some((um, n))
     })
 }
 
@@ -234,7 +235,13 @@ impl AgfCatalog {
                     p.line, glass.name, glass.formula, glass.vd
                 ));
             }
-            if let Some((um, n)) = broken_in_range(&glass) {
+            if let Some(why) = super::material::unnameable_glass(&glass.name) {
+                warnings.push(format!(
+                    "line {}: glass \"{}\" {why} in a lens file, so no lens could name it; \
+                     the glass is skipped (rename it in the catalog)",
+                    p.line, glass.name
+                ));
+            } else if let Some((um, n)) = broken_in_range(&glass) {
                 warnings.push(format!(
                     "line {}: glass {}: formula {} gives n = {n} at {um:.4} µm, inside its range \
                      {}–{} µm; the glass is skipped (check the coefficients)",

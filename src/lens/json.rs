@@ -30,7 +30,8 @@
 //! described unfolded.
 //!
 //! A top-level `"image_plane"` (`{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`)
-//! places a decentred, tilted or rolled image plane ([`super::ImagePlane`]).
+//! places a decentred, tilted or rolled image plane ([`super::ImagePlane`]); `"c"` (1/mm) and
+//! `"k"` make it a curved (conic) image surface.
 //!
 //! A top-level `"object_medium"` (a medium written as `mat2` is) names the object space's
 //! medium when it is not air (a .zmx `GLAS` on `SURF 0`, immersion optics).
@@ -210,8 +211,9 @@ fn aperture(s: &Map<String, Value>, at: &str) -> Result<Option<Aperture>> {
 
 /// tolray's top-level `"fields"` key: the lens file's field points (see the module
 /// documentation); absent: none.
-/// tolray's top-level `"image_plane"`: `{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`
-/// (each optional; absent: centred, perpendicular to the axis).
+/// tolray's top-level `"image_plane"`: `{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r,
+/// "c": 1/mm, "k": conic}` (each optional; absent: a plane centred on and perpendicular to the
+/// axis; `c` and `k` make it a curved image surface).
 fn image_plane(top: &Map<String, Value>) -> Result<ImagePlane> {
     let Some(v) = top.get("image_plane") else {
         return Ok(ImagePlane::default());
@@ -223,7 +225,7 @@ fn image_plane(top: &Map<String, Value>) -> Result<ImagePlane> {
             format!("{at}must be an object like {{\"normal\": [0, -0.05, 1]}}, found {v}"),
         ));
     };
-    if let Some(m) = unknown_key(obj, &["decenter", "normal", "roll_deg"]) {
+    if let Some(m) = unknown_key(obj, &["decenter", "normal", "roll_deg", "c", "k"]) {
         return Err(Error::invalid(format!("{at}{m}")));
     }
     let d = ImagePlane::default();
@@ -232,6 +234,14 @@ fn image_plane(top: &Map<String, Value>) -> Result<ImagePlane> {
         normal: num_array::<3>(obj, "normal", at)?.unwrap_or(d.normal),
         roll_deg: match num(obj, "roll_deg", at)? {
             Some(r) => finite(r, at, "roll_deg")?,
+            None => 0.0,
+        },
+        curvature_per_mm: match num(obj, "c", at)? {
+            Some(c) => finite(c, at, "c")?,
+            None => 0.0,
+        },
+        conic: match num(obj, "k", at)? {
+            Some(k) => finite(k, at, "k")?,
             None => 0.0,
         },
     })
@@ -828,10 +838,13 @@ pub fn to_value(lens: &Lens) -> Value {
     }
     if !lens.image_plane.is_default() {
         let ip = &lens.image_plane;
-        top.insert(
-            "image_plane".into(),
-            json!({"decenter": ip.decenter_mm, "normal": ip.normal, "roll_deg": ip.roll_deg}),
-        );
+        let mut v =
+            json!({"decenter": ip.decenter_mm, "normal": ip.normal, "roll_deg": ip.roll_deg});
+        if ip.is_curved() || ip.conic != 0.0 {
+            v["c"] = json!(ip.curvature_per_mm);
+            v["k"] = json!(ip.conic);
+        }
+        top.insert("image_plane".into(), v);
     }
     let surfaces: Vec<Value> = lens
         .surfaces

@@ -331,10 +331,15 @@ impl Material {
                 }
             }
             Material::Agf(g) => g.name.to_ascii_lowercase(),
-            Material::Perturbed { nd_new, scale, .. } => {
+            Material::Perturbed { nd_new, .. } => {
                 let disp = self.index(LAMBDA_F_NM) - self.index(LAMBDA_C_NM);
-                let _ = scale;
-                format!("{nd_new}/{}", (nd_new - 1.0) / disp)
+                let vd = (nd_new - 1.0) / disp;
+                // A dispersion that rounds to nothing is a constant index, never "n/inf".
+                if disp > 0.0 && vd.is_finite() {
+                    format!("{nd_new}/{vd}")
+                } else {
+                    format!("{nd_new}")
+                }
             }
         }
     }
@@ -435,13 +440,20 @@ impl Material {
     /// ```
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Invalid`] if `nd` is below [`MIN_INDEX`], `vd` is negative, or either
-    /// is NaN.
+    /// [`crate::ErrorKind::Invalid`] if `nd` is outside [`MIN_INDEX`] to [`MAX_INDEX`] (below 1
+    /// for a glass that disperses: the model's dispersion (n_d - 1) / V_d would turn over),
+    /// `vd` is negative, or either is NaN.
     pub fn model(nd: f64, vd: f64) -> Result<Material> {
         check_index(nd, &format!("{nd}/{vd}"))?;
         if !(vd >= 0.0) {
             return Err(Error::invalid(format!(
                 "material \"{nd}/{vd}\": Abbe number must be positive (or 0 for no dispersion)"
+            )));
+        }
+        if nd < 1.0 && vd > 0.0 && vd < 1e30 {
+            return Err(Error::invalid(format!(
+                "material \"{nd}/{vd}\": a model glass that disperses needs n_d of at least 1 \
+                 (below 1 only a constant index, V_d 0, is accepted)"
             )));
         }
         // OpticStudio writes V_d = 0 and DeepLens 1e38 for a dispersion-free medium.
@@ -609,13 +621,35 @@ impl GlassCatalogs {
 /// purge gases (as in lithography lenses) sit just below 1.
 pub const MIN_INDEX: f64 = 0.9;
 
+/// The largest refractive index tolray accepts (germanium, the densest common infrared
+/// material, has about 4).
+pub const MAX_INDEX: f64 = 5.0;
+
 fn check_index(n: f64, s: &str) -> Result<()> {
-    if !(n >= MIN_INDEX) || !n.is_finite() {
+    if !(MIN_INDEX..=MAX_INDEX).contains(&n) {
         return Err(Error::invalid(format!(
-            "material \"{s}\": refractive index {n} is below {MIN_INDEX} or not finite"
+            "material \"{s}\": refractive index {n} is not a number from {MIN_INDEX} to {MAX_INDEX}"
         )));
     }
     Ok(())
+}
+
+/// Why a glass called `name` could not be named in a lens file: `Some` when [`Material::parse`]
+/// would read the name as something else (a number, a model glass `n_d/V_d`, air), so a lens
+/// written with it would read back with another medium.
+pub fn unnameable_glass(name: &str) -> Option<&'static str> {
+    let lower = name.trim().to_ascii_lowercase();
+    if matches!(lower.as_str(), "air" | "vacuum" | "occluder") {
+        Some("reads as air")
+    } else if lower.parse::<f64>().is_ok() {
+        Some("reads as a constant index")
+    } else if lower.contains('/') {
+        Some("reads as a model glass n_d/V_d")
+    } else if lower.ends_with(')') && lower.contains(" (") {
+        Some("reads as a built-in glass with its vendor")
+    } else {
+        None
+    }
 }
 
 /// Short names DeepLens' material table accepts, and the catalog glass it uses for each

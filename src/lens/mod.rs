@@ -176,6 +176,14 @@ pub struct ImagePlane {
     pub normal: [f64; 3],
     /// Turn of the plane's x and y axes about its normal, degrees (as [`Surface::roll_deg`]).
     pub roll_deg: f64,
+    /// Curvature of the image surface at its vertex, 1/mm (OpticStudio's `CURV` on the image
+    /// surface; 0: a plane). A curved image surface is a conic of revolution about the plane's
+    /// normal through its centre; what lands on it is reported as the x, y of each ray's
+    /// crossing in the surface's frame, as OpticStudio reports it.
+    pub curvature_per_mm: f64,
+    /// Conic constant of a curved image surface (OpticStudio's `CONI`; 0 a sphere, -1 a
+    /// paraboloid).
+    pub conic: f64,
 }
 
 impl Default for ImagePlane {
@@ -184,14 +192,31 @@ impl Default for ImagePlane {
             decenter_mm: [0.0; 2],
             normal: [0.0, 0.0, 1.0],
             roll_deg: 0.0,
+            curvature_per_mm: 0.0,
+            conic: 0.0,
         }
     }
 }
 
 impl ImagePlane {
-    /// True for the plane centred on the axis and perpendicular to it, unrolled.
+    /// True for the plane centred on the axis and perpendicular to it, unrolled and flat.
     pub fn is_default(&self) -> bool {
         *self == ImagePlane::default()
+    }
+
+    /// True when the pose differs from the default (decentred, tilted or rolled), whatever the
+    /// curvature.
+    pub fn is_moved(&self) -> bool {
+        ImagePlane {
+            curvature_per_mm: 0.0,
+            conic: 0.0,
+            ..*self
+        } != ImagePlane::default()
+    }
+
+    /// True for a curved image surface.
+    pub fn is_curved(&self) -> bool {
+        self.curvature_per_mm != 0.0
     }
 }
 
@@ -499,10 +524,12 @@ impl Lens {
             if let Some(a) = &s.aperture {
                 a.validate().map_err(|e| at(e.full_message()))?;
             }
-            let n = s.vec_local;
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if !(n[2] > 0.0) || !(len > 0.0) {
-                return Err(at("vec_local must point along +z".into()));
+            if !turned_less_than_90_deg(s.vec_local) {
+                return Err(at(format!(
+                    "vec_local {:?} must be a finite direction turned less than 90 degrees from +z \
+                     (a normal whose squared length overflows or underflows has no direction)",
+                    s.vec_local
+                )));
             }
             if s.role == SurfaceRole::Aperture && (s.c != 0.0 || s.is_aspheric()) {
                 return Err(at("an aperture surface must be flat".into()));
@@ -573,17 +600,15 @@ impl Lens {
         }
         let ip = &self.image_plane;
         let n = ip.normal;
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        // (A normal whose squares underflow to a zero length has no direction.)
-        let ok = n[2] > 0.0
-            && len.is_finite()
-            && len > 0.0
+        let ok = turned_less_than_90_deg(n)
             && ip.decenter_mm.iter().all(|d| d.abs() <= 1e6)
-            && ip.roll_deg.abs() <= 360.0;
+            && ip.roll_deg.abs() <= 360.0
+            && ip.curvature_per_mm.abs() <= 1000.0
+            && ip.conic.abs() <= 1e6;
         if !ok {
             return Err(Error::invalid(format!(
-                "image plane: normal {n:?} must point along +z, decenter {:?} mm be finite, roll {} degrees within ±360",
-                ip.decenter_mm, ip.roll_deg
+                "image plane: normal {n:?} must be a finite direction turned less than 90 degrees from +z, decenter {:?} mm be finite, roll {} degrees within ±360, curvature {} 1/mm within ±1000 and conic {} within ±1e6",
+                ip.decenter_mm, ip.roll_deg, ip.curvature_per_mm, ip.conic
             )));
         }
         for (k, p) in self.fields.iter().enumerate() {
@@ -624,7 +649,7 @@ impl Lens {
     /// [`crate::ErrorKind::Invalid`] naming the surface, the material, the wavelength and the index.
     pub fn check_indices(&self, wavelength_nm: f64) -> Result<()> {
         let n = self.object_medium.index(wavelength_nm);
-        if !(material::MIN_INDEX..=5.0).contains(&n) {
+        if !(material::MIN_INDEX..=material::MAX_INDEX).contains(&n) {
             return Err(Error::invalid(format!(
                 "the object medium ({}) has index {n} at {wavelength_nm} nm; a usable index is \
                  finite and between 0.9 and 5",
@@ -633,7 +658,7 @@ impl Lens {
         }
         for (i, s) in self.surfaces.iter().enumerate() {
             let n = s.material.index(wavelength_nm);
-            if !(material::MIN_INDEX..=5.0).contains(&n) {
+            if !(material::MIN_INDEX..=material::MAX_INDEX).contains(&n) {
                 return Err(Error::invalid(format!(
                     "surface {i}: the medium after it ({}) has index {n} at {wavelength_nm} nm; \
                      a usable index is finite and between 0.9 and 5",
@@ -793,4 +818,16 @@ impl Lens {
     pub fn paraxial(&self, wavelength_nm: f64) -> Result<Paraxial> {
         paraxial::analyze(self, wavelength_nm)
     }
+}
+
+/// The cosine a surface normal (or the image plane's) keeps with the axis: a lens turned further
+/// (within 1e-6 of 90 degrees) would be written to a .zmx file as coordinate breaks its reader
+/// refuses.
+pub const MIN_AXIS_COSINE: f64 = 1e-6;
+
+/// True when `n` is a direction (finite, with a squared length that neither overflows nor
+/// underflows) whose angle to +z has a cosine above [`MIN_AXIS_COSINE`].
+fn turned_less_than_90_deg(n: [f64; 3]) -> bool {
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    len.is_finite() && len > 0.0 && n[2] / len > MIN_AXIS_COSINE
 }

@@ -14,8 +14,19 @@ pub struct Paraxial {
     pub wavelength_nm: f64,
     /// Optical power Φ = 1 / EFL, 1/mm: 0 for an afocal lens.
     pub power_per_mm: f64,
-    /// Effective focal length, mm; `None` for an afocal lens (no focal length).
+    /// Effective focal length 1/Φ, mm: OpticStudio's "Effective Focal Length (in air)"; `None`
+    /// for an afocal lens (no focal length).
     pub efl_mm: Option<f64>,
+    /// Effective focal length in image space n'/Φ, mm: OpticStudio's "Effective Focal Length
+    /// (in image space)", with the image-space index n' signed as OpticStudio signs it
+    /// (negative after an odd number of mirrors), so 1.333 times [`Paraxial::efl_mm`] for an
+    /// image in water and negative for a single concave mirror; `None` for an afocal lens.
+    ///
+    /// ```
+    /// let p = tolray::Lens::load("lens1").unwrap().paraxial(587.5618).unwrap();
+    /// assert_eq!(p.efl_image_space_mm, p.efl_mm); // an image in air
+    /// ```
+    pub efl_image_space_mm: Option<f64>,
     /// Back focal distance: last vertex to the paraxial infinity focus, mm; `None` for an
     /// afocal lens.
     pub bfd_mm: Option<f64>,
@@ -514,6 +525,7 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         wavelength_nm,
         power_per_mm: power,
         efl_mm: efl,
+        efl_image_space_mm: efl.map(|f| n_last * f),
         bfd_mm: bfd,
         image_distance_mm: image_distance,
         entrance_pupil_z_mm: enp_z,

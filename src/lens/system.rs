@@ -219,6 +219,10 @@ pub struct System<S> {
     /// True when the last gap runs against the travel (a virtual image plane; see
     /// [`SurfaceRow::virtual_ok`]).
     pub image_virtual: bool,
+    /// Vertex curvature of a curved image surface, 1/mm (0: the plane).
+    pub image_c: S,
+    /// 1 + the conic constant of a curved image surface.
+    pub image_k1: S,
     /// Medium in front of the first surface (object space).
     pub object_medium: Material,
     /// Medium after each surface.
@@ -412,6 +416,8 @@ impl<S: Real> System<S> {
                 .surfaces
                 .last()
                 .is_some_and(|s| s.d_next_mm * dirs[dirs.len() - 1] < 0.0),
+            image_c: S::cst(ip.curvature_per_mm),
+            image_k1: S::cst(1.0 + ip.conic),
             object_medium: lens.object_medium.clone(),
             materials: lens.surfaces.iter().map(|s| s.material.clone()).collect(),
             model_glass: lens
@@ -484,6 +490,8 @@ impl<S: Real> System<S> {
             },
             image_rotated: self.image_rotated,
             image_virtual: self.image_virtual,
+            image_c: T::cst(self.image_c.value()),
+            image_k1: T::cst(self.image_k1.value()),
             object_medium: self.object_medium.clone(),
             materials: self.materials.clone(),
             model_glass: self

@@ -65,6 +65,11 @@ pub enum Pivot {
     Center,
 }
 
+/// The largest refractive-index error Δn_d a pattern may give an element's glass.
+pub const MAX_INDEX_ERROR: f64 = 1.0;
+/// The largest Abbe-number error ΔV_d a pattern may give an element's glass.
+pub const MAX_ABBE_ERROR: f64 = 1000.0;
+
 /// Perturbation of one element.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -152,6 +157,14 @@ impl Perturbation {
                 return Err(Error::invalid(format!(
                     "element {}: a value is not finite",
                     e.element
+                )));
+            }
+            // Glass errors beyond these are not fabrication errors, and larger Abbe offsets
+            // leave a dispersion that rounds to nothing.
+            if !(e.index.abs() <= MAX_INDEX_ERROR && e.abbe.abs() <= MAX_ABBE_ERROR) {
+                return Err(Error::invalid(format!(
+                    "element {}: index error {} (at most ±{MAX_INDEX_ERROR}) or Abbe-number error {} (at most ±{MAX_ABBE_ERROR}) out of range",
+                    e.element, e.index, e.abbe
                 )));
             }
         }
@@ -280,6 +293,12 @@ fn perturbed_material(base: &Material, dn: f64, dv: f64) -> std::result::Result<
     let nd2 = nd + dn;
     if !(nd2 >= 1.0) {
         return Err(format!("index error {dn} takes n_d below 1"));
+    }
+    if nd2 > crate::lens::material::MAX_INDEX {
+        return Err(format!(
+            "index error {dn} takes n_d above {}",
+            crate::lens::material::MAX_INDEX
+        ));
     }
     if disp == 0.0 {
         return Ok(Material::Constant(nd2));

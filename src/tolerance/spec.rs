@@ -228,6 +228,17 @@ impl ToleranceSpec {
                     op.max
                 )));
             }
+            let limit = match op.kind {
+                OperandKind::Index => super::MAX_INDEX_ERROR,
+                OperandKind::Abbe => super::MAX_ABBE_ERROR,
+                _ => f64::INFINITY,
+            };
+            if op.max > limit {
+                return Err(Error::invalid(format!(
+                    "{at}: range max {} is beyond the ±{limit} a pattern may hold",
+                    op.max
+                )));
+            }
             let targets: Vec<usize> = if op.kind.per_element() {
                 if op.surfaces.is_some() {
                     return Err(Error::invalid(format!(

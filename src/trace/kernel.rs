@@ -285,10 +285,11 @@ fn shaped<S: Real>(
 /// The image-plane pass.
 #[inline(always)]
 fn image<S: Real>(sys: &System<S>, n_last: S, code: u32, src: &[Block<S>], dst: &mut [Block<S>]) {
-    if sys.image_rotated {
-        image_lanes::<S, true>(sys, n_last, code, src, dst);
-    } else {
-        image_lanes::<S, false>(sys, n_last, code, src, dst);
+    match (sys.image_rotated, !sys.image_c.is_zero()) {
+        (true, false) => image_lanes::<S, true, false>(sys, n_last, code, src, dst),
+        (false, false) => image_lanes::<S, false, false>(sys, n_last, code, src, dst),
+        (true, true) => image_lanes::<S, true, true>(sys, n_last, code, src, dst),
+        (false, true) => image_lanes::<S, false, true>(sys, n_last, code, src, dst),
     }
 }
 
@@ -504,6 +505,13 @@ fn cylinder_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bo
 /// vertex plane: (t, ok).
 #[inline(always)]
 fn quadric_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
+    conic_root(row.c, row.k1, p, d)
+}
+
+/// As [`quadric_root`] for the quadric of curvature `c` and `k1` = 1 + conic (a curved image
+/// surface's, in its own frame).
+#[inline(always)]
+pub(crate) fn conic_root<S: Real>(c: S, k1: S, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
     // Solved from the ray's crossing of the vertex plane (where the constant term is small). Of
     // the two roots this takes the one nearest that crossing, without cancellation; it tends to
     // the plane solution as c -> 0. The crossing (x0, y0) and the coefficients are kept
@@ -511,7 +519,6 @@ fn quadric_root<S: Real>(row: &SurfaceRow<S>, p: Vec3<S>, d: Vec3<S>) -> (S, boo
     // C = cc d.z², D = den d.z, t = t0 - cc / den = -(z D + C) / (d.z D).
     let zero = S::cst(0.0);
     let one = S::cst(1.0);
-    let (c, k1) = (row.c, row.k1);
     let mut ok = !d.z.is_zero();
     let (x0, y0) = (p.x * d.z - d.x * p.z, p.y * d.z - d.y * p.z);
     let a = c * (d.x * d.x + d.y * d.y + k1 * d.z * d.z);
@@ -690,9 +697,23 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     }
 }
 
-/// The image plane for every lane of a group of blocks, from `src` into `dst`.
+/// Where the ray at `p` going `d` (both in the image surface's frame) crosses the image plane
+/// or the curved image surface: (t, hit). The scalar tracers' form of what
+/// [`image_lanes`] does per lane.
 #[inline(always)]
-fn image_lanes<S: Real, const ROT: bool>(
+pub(crate) fn image_root<S: Real>(sys: &System<S>, p: Vec3<S>, d: Vec3<S>) -> (S, bool) {
+    if sys.image_c.is_zero() {
+        let hit = !d.z.is_zero();
+        (-p.z / S::pick(hit, d.z, S::cst(1.0)), hit)
+    } else {
+        conic_root(sys.image_c, sys.image_k1, p, d)
+    }
+}
+
+/// The image plane (or, `CURVED`, the curved image surface) for every lane of a group of
+/// blocks, from `src` into `dst`.
+#[inline(always)]
+fn image_lanes<S: Real, const ROT: bool, const CURVED: bool>(
     sys: &System<S>,
     n_last: S,
     code: u32,
@@ -709,8 +730,12 @@ fn image_lanes<S: Real, const ROT: bool>(
                 p = img.rotation.apply_t(p);
                 d = img.rotation.apply_t(d);
             }
-            let hit = !d.z.is_zero();
-            let t = -p.z / S::pick(hit, d.z, S::cst(1.0));
+            let (t, hit) = if CURVED {
+                conic_root(sys.image_c, sys.image_k1, p, d)
+            } else {
+                let hit = !d.z.is_zero();
+                (-p.z / S::pick(hit, d.z, S::cst(1.0)), hit)
+            };
             let backward = !sys.image_virtual & behind(t, p);
             let h = p + d * t;
             let og = if ROT {
@@ -718,8 +743,15 @@ fn image_lanes<S: Real, const ROT: bool>(
             } else {
                 h + img.translation
             };
+            // A ray that reaches the image with positions past the range of the numbers (a
+            // surface term that overflows far from the axis) lands nowhere: a miss, never an
+            // alive ray with NaN coordinates.
+            let finite = og.x.value().is_finite()
+                & og.y.value().is_finite()
+                & og.z.value().is_finite()
+                & t.value().is_finite();
             let why = select_u32(backward, CODE_BACKWARD | code, 0);
-            let why = select_u32(hit, why, CODE_MISSED | code);
+            let why = select_u32(hit & finite, why, CODE_MISSED | code);
             commit(s, b, l, why, og, d0, n_last * t);
         }
     }

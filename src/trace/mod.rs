@@ -8,6 +8,8 @@
 
 mod bundles;
 mod kernel;
+#[cfg(feature = "embree")]
+pub(crate) use kernel::image_root;
 pub mod raw;
 pub mod rays;
 pub mod reference;

@@ -291,7 +291,10 @@ pub fn trace_ray(
     }
     let p = sys.image.point_to_local(o);
     let dl = sys.image.rotation.apply_t(d);
-    if dl.z == 0.0 {
+    let (t, hit) = crate::trace::kernel::image_root(sys, p, dl);
+    let g = sys.image.point_to_global(p + dl * t);
+    // (As the kernel: a crossing past the range of the numbers is a miss.)
+    if !(hit && t.is_finite() && g.x.is_finite() && g.y.is_finite() && g.z.is_finite()) {
         return RefRay {
             o,
             d,
@@ -299,7 +302,6 @@ pub fn trace_ray(
             status: RayStatus::Missed(sys.rows.len() as u32),
         };
     }
-    let t = -p.z / dl.z;
     if !sys.image_virtual && crate::trace::kernel::behind(t, p) {
         return RefRay {
             o,
@@ -310,7 +312,7 @@ pub fn trace_ray(
     }
     opl += n.last().copied().unwrap_or(1.0) * t;
     RefRay {
-        o: sys.image.point_to_global(p + dl * t),
+        o: g,
         d,
         opl,
         status: RayStatus::Alive,

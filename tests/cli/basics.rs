@@ -56,7 +56,12 @@ fn info_prints_the_reference_first_order_data() {
     let (code, out, _) = tolray(&["info", &file]);
     assert_eq!(code, 0);
     assert!(
-        out.contains("effective focal length                                 afocal")
+        ["(in air, 1/Φ)", "(in image space, n'/Φ)"]
+            .iter()
+            .all(|k| out
+                .lines()
+                .any(|l| l.contains(&format!("effective focal length {k}"))
+                    && l.trim_end().ends_with("afocal")))
             && out.contains("angular magnification (afocal)                       1.000000"),
         "{out}"
     );

@@ -201,6 +201,7 @@ fn gradients_match_finite_differences_nominal() {
     check("virtual object", &zmx("virtual-object.zmx"), false);
     check("Q-type aspheres", &zmx("qbfs.zmx"), false);
     check("Qcon aspheres", &zmx("qcon.zmx"), false);
+    check("curved image", &zmx("curved-image.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or

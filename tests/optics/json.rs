@@ -126,7 +126,7 @@ fn errors_say_what_and_where() {
 
     let mut v = lens1_value();
     v["surfaces"][0]["mat2"] = json!("0.8/40");
-    assert!(err(v).contains("below 0.9"));
+    assert!(err(v).contains("from 0.9 to 5"));
 
     let mut v = lens1_value();
     v["surfaces"][5]["mat2"] = json!("N-BK77");
@@ -321,6 +321,9 @@ fn a_model_glass_set_through_the_c_abi_stays_readable() {
         );
         for (kind, value, ok) in [
             (TOLRAY_PARAM_GLASS_ND, 0.85, false),
+            // A model glass that disperses needs n_d of at least 1, as in a .zmx file.
+            (TOLRAY_PARAM_GLASS_ND, 0.95, false),
+            (TOLRAY_PARAM_GLASS_ND, 6.0, false),
             (TOLRAY_PARAM_GLASS_VD, -5.0, false),
             (TOLRAY_PARAM_GLASS_VD, 0.0, false),
             (TOLRAY_PARAM_GLASS_ND, 1.7, true),
@@ -475,4 +478,78 @@ fn q_type_aspheres_read_and_malformed_ones_are_refused() {
         m.contains("unknown \"shape\" \"qted\"") && m.contains("qcon"),
         "{m}"
     );
+}
+
+/// Issue 41's silent wrong results: a surface normal whose squared length overflows passed
+/// validation and was traced as untilted; one turned within 1e-6 of 90 degrees was written as
+/// coordinate breaks the .zmx reader refuses; a model glass "1e308/4" was a material with a NaN
+/// index; an AGF glass named "1.5" was written to JSON as "1.5" and read back as a constant
+/// index. Each is now refused (or, for the glass, skipped with a warning) where it comes in.
+#[test]
+fn directions_and_names_that_cannot_round_trip_are_refused() {
+    use tolray::lens::{agf::AgfCatalog, Material};
+    for (k, n) in [
+        (0usize, json!([0.0, -1e308, 1.0])),
+        (0, json!([1e200, 0.0, 1e200])),
+        (2, json!([0.0, 1.0, 1e-7])),
+        (2, json!([0.0, 0.0, -1.0])),
+    ] {
+        let mut v = lens1_value();
+        v["surfaces"][k]["vec_local"] = n.clone();
+        let m = err(v);
+        assert!(
+            m.contains(&format!("surface {k}")) && m.contains("turned less than 90 degrees"),
+            "{n}: {m}"
+        );
+    }
+    // Tilted but well within 90 degrees: accepted.
+    let mut v = lens1_value();
+    v["surfaces"][2]["vec_local"] = json!([0.0, 0.01, 1.0]);
+    assert!(from_value(&v).is_ok());
+    for bad in ["1e308/4", "7/40", "0.95/40", "1e308", "6"] {
+        let e = Material::parse(bad).unwrap_err();
+        assert!(
+            e.message().contains("from 0.9 to 5") || e.message().contains("at least 1"),
+            "{bad}: {}",
+            e.message()
+        );
+    }
+    assert_eq!(Material::parse("0.95").unwrap(), Material::Constant(0.95));
+    let agf = "NM 1.5 2 0 1.5168 64.17 0 1\nCD 1.03961212 6.00069867E-003 2.31792344E-001 2.00179144E-002 1.01046945 1.03560653E+002\nLD 0.3 2.5\n\
+               NM GOOD 2 0 1.5168 64.17 0 1\nCD 1.03961212 6.00069867E-003 2.31792344E-001 2.00179144E-002 1.01046945 1.03560653E+002\nLD 0.3 2.5\n";
+    let (cat, warnings) = AgfCatalog::from_str(agf, "T").unwrap();
+    assert_eq!(cat.glasses.len(), 1);
+    assert_eq!(cat.glasses[0].name, "GOOD");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("line 1") && w.contains("\"1.5\" reads as a constant index")),
+        "{warnings:?}"
+    );
+}
+
+/// Issue 41: OpticStudio prints the EFL "in air" (1/Φ, tolray's `efl_mm`) and "in image space"
+/// (n'/Φ, the image-space index signed negative after an odd number of mirrors). Closed forms:
+/// a concave mirror of radius -400 mm has 1/Φ = 200 mm and -200 mm in image space; a lens
+/// imaging into water (n' = 1.333) has n'/Φ = 1.333/Φ; the Cassegrain (two mirrors) 800 mm in
+/// both.
+#[test]
+fn focal_lengths_in_air_and_in_image_space() {
+    let mirror = r#"{"info": "concave mirror", "primary_wvln": 0.5875618, "r_sensor": 1,
+        "sensor_res": [512, 512],
+        "surfaces": [{"type": "Mirror", "r": 20, "c": -0.0025, "d_next": -200, "mat2": "air",
+        "is_aperture": true}]}"#;
+    let p = from_str(mirror).unwrap().paraxial(LAMBDA_D_NM).unwrap();
+    assert!((p.efl_mm.unwrap() - 200.0).abs() < 1e-9, "{:?}", p.efl_mm);
+    assert!((p.efl_image_space_mm.unwrap() + 200.0).abs() < 1e-9);
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/cassegrain.json");
+    let p = Lens::load(path).unwrap().paraxial(LAMBDA_D_NM).unwrap();
+    assert!((p.efl_mm.unwrap() - 800.0).abs() < 1e-6, "{:?}", p.efl_mm);
+    assert_eq!(p.efl_image_space_mm, p.efl_mm);
+    let mut v = lens1_value();
+    let last = v["surfaces"].as_array().unwrap().len() - 1;
+    v["surfaces"][last]["mat2"] = json!("1.333");
+    let p = from_value(&v).unwrap().paraxial(LAMBDA_D_NM).unwrap();
+    let f = p.efl_mm.unwrap();
+    assert!((p.efl_image_space_mm.unwrap() - 1.333 * f).abs() < 1e-9 * f.abs());
 }

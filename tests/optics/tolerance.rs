@@ -220,6 +220,38 @@ fn bad_specs_and_patterns_are_clear_errors() {
         r#"{"elements": [{"element": 0, "decentre": [0, 1]}]}"#
     )
     .is_err());
+    // Issue 41: an Abbe offset of 1.8e19 was accepted, left a dispersion that rounds to
+    // nothing, and was written to a .zmx file as "V_d inf" that tolray then refused to read.
+    for (field, value) in [("abbe", 1.8e19), ("index", 2.0), ("abbe", -1001.0)] {
+        let p: Perturbation = serde_json::from_str(&format!(
+            r#"{{"elements": [{{"element": 1, "{field}": {value}}}]}}"#
+        ))
+        .unwrap();
+        let m = p.validate(&l).unwrap_err().message().to_string();
+        assert!(m.contains("element 1") && m.contains("out of range"), "{m}");
+    }
+    let spec: ToleranceSpec =
+        serde_json::from_str(r#"{"operands": [{"type": "abbe", "max": 5000}]}"#).unwrap();
+    let m = spec.validate(&l).unwrap_err().message().to_string();
+    assert!(m.contains("beyond the ±1000"), "{m}");
+    // The largest accepted Abbe offset still writes a glass that reads back.
+    let p: Perturbation =
+        serde_json::from_str(r#"{"elements": [{"element": 1, "abbe": 1000}]}"#).unwrap();
+    let (bent, _) = p.apply(&l).unwrap();
+    let zmx = tolray::lens::zemax::to_string(&bent, None);
+    let back = tolray::lens::zemax::from_str(&zmx, &tolray::lens::GlassCatalogs::builtin())
+        .unwrap_or_else(|e| panic!("{}\n{zmx}", e.message()));
+    let json = tolray::lens::json::from_str(&tolray::lens::json::to_string(&bent)).unwrap();
+    // (A perturbed glass is written as a model glass: the same n_d and n_F - n_C.)
+    let (d, f, c) = (587.5618, 486.1327, 656.2725);
+    for m in [&back.lens, &json] {
+        for (a, b) in m.surfaces.iter().zip(&bent.surfaces) {
+            let (a, b) = (&a.material, &b.material);
+            assert!((a.index(d) - b.index(d)).abs() < 1e-9);
+            let disp = |m: &tolray::lens::Material| m.index(f) - m.index(c);
+            assert!((disp(a) - disp(b)).abs() < 1e-9);
+        }
+    }
 }
 
 fn mc_options(trials: usize, compensate: bool) -> McOptions {

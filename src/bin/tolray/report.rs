@@ -33,7 +33,12 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
     );
     // None: an afocal lens' focal quantities (and its image of an object at infinity).
     let mut rows: Vec<(&str, Option<f64>, &str)> = vec![
-        ("effective focal length", p.efl_mm, "mm"),
+        ("effective focal length (in air, 1/Φ)", p.efl_mm, "mm"),
+        (
+            "effective focal length (in image space, n'/Φ)",
+            p.efl_image_space_mm,
+            "mm",
+        ),
         ("back focal distance", p.bfd_mm, "mm"),
         (
             "paraxial image distance (from last vertex)",
@@ -189,10 +194,17 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
         }
     }
     let ip = &lens.image_plane;
-    if !ip.is_default() {
+    if ip.is_moved() {
         s.push_str(&format!(
             "  image plane: centre ({:.6}, {:.6}) mm from the axis, normal ({:.8}, {:.8}, {:.8}), roll {:.6} degrees (spots are in its own frame)\n",
             ip.decenter_mm[0], ip.decenter_mm[1], ip.normal[0], ip.normal[1], ip.normal[2], ip.roll_deg
+        ));
+    }
+    if ip.is_curved() {
+        s.push_str(&format!(
+            "  image surface: curved, radius {:.6} mm, conic {} (spots are the x, y of each ray's crossing)\n",
+            1.0 / ip.curvature_per_mm,
+            ip.conic
         ));
     }
     if !lens.fields.is_empty() {

@@ -539,13 +539,20 @@ impl Walker {
                 format!("image surface type {ty} is not supported: the image is a plane"),
             ));
         }
-        if img.curv.as_ref().is_some_and(|c| c.v != 0.0)
-            || (ty == "EVENASPH" && img.parm.iter().any(|p| p.1 != 0.0))
-        {
+        if let Some(&(_, _, l)) = img.parm.iter().find(|p| ty == "EVENASPH" && p.1 != 0.0) {
+            return Err(invalid(
+                l,
+                "the image surface has asphere terms; tolray's image surface is a plane or a conic",
+            ));
+        }
+        // A curved image surface: a conic about the image frame's axis.
+        let curvature_per_mm = img.curv.as_ref().map_or(0.0, |c| c.v) / self.scale;
+        let conic = img.coni.as_ref().map_or(0.0, |k| k.v);
+        if !(curvature_per_mm.abs() <= 1000.0 && conic.abs() <= 1e6) {
             let l = img.curv.as_ref().map_or(img.line, |c| c.line);
             return Err(invalid(
                 l,
-                "the image surface is curved; tolray's image is a plane",
+                format!("the image surface's curvature {curvature_per_mm} 1/mm (within ±1000) or conic {conic} (within ±1e6) is out of range"),
             ));
         }
         if let Some(l) = img.stop {
@@ -570,6 +577,8 @@ impl Walker {
             decenter_mm: [origin.x, origin.y],
             normal,
             roll_deg: crate::lens::system::roll_of(&rot, normal),
+            curvature_per_mm,
+            conic,
         };
         // An image surface before the last lens surface along the light's path is a virtual
         // image (OpticStudio's negative image thickness): the rays are extended backwards to it.

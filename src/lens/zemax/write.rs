@@ -111,7 +111,13 @@ pub(super) fn glas_line(m: &Material) -> Option<String> {
         Material::Perturbed { nd_new, .. } => {
             use crate::lens::material::{LAMBDA_C_NM, LAMBDA_F_NM};
             let disp = m.index(LAMBDA_F_NM) - m.index(LAMBDA_C_NM);
-            Some(model(*nd_new, (nd_new - 1.0) / disp))
+            // A dispersion that rounds to nothing is a constant index (V_d 0), never V_d inf.
+            let vd = if disp > 0.0 {
+                (nd_new - 1.0) / disp
+            } else {
+                0.0
+            };
+            Some(model(*nd_new, if vd.is_finite() { vd } else { 0.0 }))
         }
     }
 }
@@ -405,7 +411,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
     }
     // A decentred, tilted or rolled image plane: one coordinate break before it.
     let ip = &lens.image_plane;
-    if !ip.is_default() {
+    if ip.is_moved() {
         let (a, b, g) = tilt_angles(ip.normal, ip.roll_deg);
         let [dx, dy] = ip.decenter_mm;
         surf(&mut w, coordinate_break(0.0, [dx, dy, a, b, g], 0));
@@ -414,7 +420,8 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         &mut w,
         vec![
             "TYPE STANDARD".into(),
-            "CURV 0".into(),
+            format!("CURV {}", fmt(ip.curvature_per_mm)),
+            format!("CONI {}", fmt(ip.conic)),
             "DISZ 0".into(),
             format!("DIAM {} 1 0 0 1 \"\"", fmt(lens.sensor.half_diagonal_mm())),
         ],

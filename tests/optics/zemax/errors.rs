@@ -317,6 +317,7 @@ fn skipped_and_approximated_input_gives_warnings_that_name_the_line() {
         decenter_mm: [0.2, 0.0],
         normal: [0.0, -a.sin(), a.cos()],
         roll_deg: 0.0,
+        ..Default::default()
     };
     assert_eq!(z.lens.surfaces, want.surfaces);
     let ip = z.lens.image_plane;

@@ -96,9 +96,19 @@ fn an_overflowing_r2_term_is_refused_not_a_nan_pupil() {
 /// `PARM 7 -1e308` on the cylinder's flat back), whose spot centroid came out NaN with every
 /// ray counted valid: now every spot statistic is finite or the field has no ray, and kernel
 /// and reference tracer stop the same rays.
+///
+/// Also `overflow-qcon.zmx` (the Qcon singlet with its back's a_2 = -1e300, a fuzz finding of
+/// 2026-11-28): a ray whose crossing runs past the range of the numbers reached the image alive
+/// with NaN coordinates; it is now a miss in the kernel and the reference tracer alike.
 #[test]
 fn an_overflowing_asphere_term_is_a_miss_not_a_nan() {
-    let z = read("overflow-term.zmx");
+    for file in ["overflow-term.zmx", "overflow-qcon.zmx"] {
+        overflowing_term(file);
+    }
+}
+
+fn overflowing_term(file: &str) {
+    let z = read(file);
     let lens = &z.lens;
     let sys = lens.compile();
     let n = sys.indices(LAMBDA_D_NM);
@@ -137,7 +147,35 @@ fn an_overflowing_asphere_term_is_a_miss_not_a_nan() {
         assert_eq!(r.status.is_alive(), k.status.is_alive(), "ray {i}");
         assert!(
             !k.status.is_alive() || (k.o.x.is_finite() && k.o.y.is_finite()),
-            "ray {i}"
+            "{file} ray {i}"
+        );
+    }
+    // The fuzzer's fan: 5 x 5 rays parallel to the axis over half the first semi-diameter.
+    let r = 0.5 * lens.surfaces[0].semi_aperture_mm;
+    let mut b = RayBatch::<f64>::new();
+    for i in -2..=2 {
+        for j in -2..=2 {
+            b.push(
+                Vec3::new(r * i as f64 / 2.0, r * j as f64 / 2.0, -1.0),
+                Vec3::new(0.0, 0.0, 1.0),
+            );
+        }
+    }
+    let start = b.clone();
+    trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions { apertures: true });
+    for i in 0..25 {
+        let k = b.get(i);
+        let s = start.get(i);
+        let r = tolray::trace::reference::trace_ray(&sys, &n, LAMBDA_D_NM, s.o, s.d, true, None);
+        assert_eq!(
+            r.status.is_alive(),
+            k.status.is_alive(),
+            "{file} fan ray {i}"
+        );
+        assert!(
+            !k.status.is_alive() || [k.o.x, k.o.y, k.o.z].iter().all(|v| v.is_finite()),
+            "{file} fan ray {i}: {:?}",
+            k.o
         );
     }
 }

@@ -566,3 +566,115 @@ fn q_type_surfaces_tolray_cannot_trace_are_refused() {
         );
     }
 }
+
+/// A curved image surface (issue 41: telescopes whose image surface has a radius were refused):
+/// a concave conic (R -30 mm, k -0.5) and a convex sphere (R 60 mm) behind a singlet, read from
+/// hand-made .zmx files, trace every ray as optiland 0.6.3 does with the same surfaces
+/// (tests/data/zemax/curved_image_reference.json, scripts/zmxref/curved_image_reference.py; 147
+/// rays in three directions): positions on the curved surface to 1e-9 mm, directions to 1e-11;
+/// the scalar reference tracer agrees with the kernel to 1e-12 mm; spots are the local x, y of
+/// each crossing; the surface survives .zmx and JSON; the paraxial data are the plane's.
+#[test]
+fn curved_image_surfaces_trace_as_optiland_ray_by_ray() {
+    use tolray::trace::reference::trace_ray;
+    let doc: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(fixture("curved_image_reference.json")).unwrap(),
+    )
+    .unwrap();
+    for (file, rays) in doc["lenses"].as_object().unwrap() {
+        let z = zemax::read_file(&fixture(file), &GlassCatalogs::builtin()).unwrap();
+        assert!(z.warnings.is_empty(), "{file}: {:?}", z.warnings);
+        let lens = &z.lens;
+        let ip = lens.image_plane;
+        let (c, k) = if file == "curved-image.zmx" {
+            (-1.0 / 30.0, -0.5)
+        } else {
+            (1.0 / 60.0, 0.0)
+        };
+        assert!(
+            (ip.curvature_per_mm - c).abs() < 1e-15 && ip.conic == k,
+            "{file}: {ip:?}"
+        );
+        assert!(ip.is_curved() && !ip.is_moved());
+        let rays = rays.as_array().unwrap();
+        assert_eq!(rays.len(), 147, "{file}");
+        let (worst, b) = worst_against(lens, LAMBDA_D_NM, rays, file);
+        assert!(
+            worst.0 < 1e-9 && worst.1 < 1e-11,
+            "{file}: worst position {:e} mm, direction {:e}",
+            worst.0,
+            worst.1
+        );
+        // The rays end on the conic: z = 43 + c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)).
+        for i in 0..rays.len() {
+            let o = b.get(i).o;
+            let r2 = o.x * o.x + o.y * o.y;
+            let sag = c * r2 / (1.0 + (1.0 - (1.0 + k) * c * c * r2).sqrt());
+            let z0 = if file == "curved-image.zmx" {
+                43.0
+            } else {
+                41.0
+            };
+            assert!((o.z - z0 - sag).abs() < 1e-12, "{file} ray {i}");
+        }
+        // The scalar reference tracer crosses the same surface.
+        let sys = lens.compile();
+        let n = sys.indices(LAMBDA_D_NM);
+        for (i, r) in rays.iter().enumerate() {
+            let rr = trace_ray(
+                &sys,
+                &n,
+                LAMBDA_D_NM,
+                v3(&r["start"]),
+                v3(&r["dir"]),
+                false,
+                None,
+            );
+            assert!(
+                (rr.o - b.get(i).o).norm() < 1e-12,
+                "{file} ray {i}: reference {:?}",
+                rr.o
+            );
+        }
+        // Spots are the crossings' x, y: a 3 degree field's chief ray (through the stop's
+        // centre, at the origin) lands on the curved surface where the kernel's ray does.
+        let spots = spot_diagram(
+            lens,
+            &sys,
+            &SpotOptions {
+                fields: vec![Field::AngleDeg { x: 0.0, y: -3.0 }],
+                wavelengths_nm: vec![LAMBDA_D_NM],
+                pupil: Pupil::grid(8),
+                trace: TraceOptions { apertures: false },
+            },
+        )
+        .unwrap();
+        let (sn, cs) = 3f64.to_radians().sin_cos();
+        let mut one = RayBatch::<f64>::new();
+        one.push(Vec3::new(0.0, -sn / cs, -1.0), Vec3::new(0.0, sn, cs));
+        trace(
+            &sys,
+            LAMBDA_D_NM,
+            &mut one,
+            TraceOptions { apertures: false },
+        );
+        let want = one.get(0).o;
+        let got = spots[0].chief_mm.unwrap();
+        assert!(
+            (got[0] - want.x).abs() < 1e-9 && (got[1] - want.y).abs() < 1e-9,
+            "{file}: {got:?} {want:?}"
+        );
+        // The paraxial model sees the vertex: the same first-order data as the flat image.
+        let mut flat = lens.clone();
+        flat.image_plane = tolray::lens::ImagePlane::default();
+        assert_eq!(
+            lens.paraxial(LAMBDA_D_NM).unwrap(),
+            flat.paraxial(LAMBDA_D_NM).unwrap()
+        );
+        // Both formats keep the surface.
+        let back = parse(&zemax::to_string(lens, None)).unwrap().lens;
+        assert_eq!(back.image_plane, ip, "{file}");
+        let j = json::from_str(&json::to_string(lens)).unwrap();
+        assert_eq!(j.image_plane, ip, "{file}");
+    }
+}
