@@ -29,6 +29,10 @@
 //!   work each value feeds.
 //! - `decoder`: `decoder.bin` bytes; then decoding a crop.
 
+#[path = "fuzz/roundtrip.rs"]
+mod roundtrip;
+
+use roundtrip::{round_trip, same_lens};
 use std::collections::BTreeMap;
 use std::panic::{self, AssertUnwindSafe};
 use std::path::PathBuf;
@@ -43,7 +47,6 @@ use tolray::decoder::{Crop, Decoder, DecoderKind};
 use tolray::lens::agf::AgfCatalog;
 use tolray::lens::material::{GlassCatalogs, Material};
 use tolray::lens::{json, zemax};
-use tolray::math::Vec3;
 use tolray::psf::{psf_of, PsfOptions};
 use tolray::tolerance::{Perturbation, ToleranceSpec};
 use tolray::trace::{raw, Field, Pupil, PupilPattern, TraceOptions};
@@ -819,179 +822,6 @@ fn lens_work(l: &Lens, round_trips: bool) -> Verdict {
         round_trip(l, &sys)?;
     }
     Ok(Outcome::Accepted)
-}
-
-/// What tolray writes it reads back as the same lens: the JSON always (a lens that validates
-/// is one its JSON can hold), the .zmx file unless the writer refused it (a name clash between
-/// vendors) or the reader refuses it with a reason.
-fn round_trip(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), String> {
-    let back = json::from_str(&json::to_string(l))
-        .map_err(|e| format!("JSON round trip: tolray refuses the JSON it wrote: {e}"))?;
-    same_lens(l, sys, &back, "JSON round trip", true)?;
-    let text = zemax::to_string(l, None);
-    match zemax::from_str(&text, &GlassCatalogs::builtin()) {
-        // (A lens with fold mirrors is checked for its surface count only: mutated folds are
-        // still written as coordinate breaks that read back as another lens; docs/fuzzing.md.)
-        Ok(z) if l.surfaces.iter().any(|s| s.fold.is_some()) => {
-            if z.lens.surfaces.len() == l.surfaces.len() {
-                Ok(())
-            } else {
-                Err("zmx round trip changed the surface count of a folded lens".into())
-            }
-        }
-        Ok(z) => same_lens(l, sys, &z.lens, "zmx round trip", true),
-        // The writer leaves what the format cannot say for the reader to refuse by name;
-        // an error that does not say which line would be a finding of its own.
-        Err(e) if e.message().contains("line") || e.message().contains("SURF") => Ok(()),
-        Err(e) => Err(format!(
-            "zmx round trip: the file tolray wrote is refused without a line: {e}"
-        )),
-    }
-}
-
-/// `b` is `a` (compiled as `sys_a`) as far as the light can tell: the same media at the
-/// lens' wavelengths, the same first-order data (when `first_order`), and the same path for a fan of rays entering
-/// the first surface at two angles and three wavelengths (to 1e-7 mm and 1e-9 in direction,
-/// what writing angles and positions as decimal text may cost; one ray may change its fate at
-/// an aperture's edge).
-fn same_lens(
-    a: &Lens,
-    sys_a: &tolray::lens::System<f64>,
-    b: &Lens,
-    what: &str,
-    first_order: bool,
-) -> Result<(), String> {
-    if a.surfaces.len() != b.surfaces.len() {
-        return Err(format!(
-            "{what}: {} surfaces became {}",
-            a.surfaces.len(),
-            b.surfaces.len()
-        ));
-    }
-    let mut wavelengths = vec![a.primary_wavelength_nm];
-    wavelengths.extend(a.rgb_wavelengths_nm);
-    let close = |x: f64, y: f64, tol: f64| (x - y).abs() <= tol * (1.0 + x.abs().max(y.abs()));
-    for &wl in &wavelengths {
-        for (k, (sa, sb)) in a.surfaces.iter().zip(&b.surfaces).enumerate() {
-            let (na, nb) = (sa.material.index(wl), sb.material.index(wl));
-            if !close(na, nb, 1e-9) {
-                return Err(format!(
-                    "{what}: surface {k}'s medium {} (n = {na} at {wl} nm) became {} (n = {nb})",
-                    sa.material.json_name(),
-                    sb.material.json_name()
-                ));
-            }
-        }
-        let (na, nb) = (a.object_medium.index(wl), b.object_medium.index(wl));
-        if !close(na, nb, 1e-9) {
-            return Err(format!(
-                "{what}: the object medium's index {na} became {nb}"
-            ));
-        }
-    }
-    let wl = a.primary_wavelength_nm;
-    let paraxial = |l: &Lens| {
-        if first_order {
-            l.paraxial(wl).map(Some)
-        } else {
-            Ok(None)
-        }
-    };
-    match (paraxial(a), paraxial(b)) {
-        (Ok(None), Ok(None)) => {}
-        (Ok(Some(pa)), Ok(Some(pb))) => {
-            let pairs = [
-                ("EFL", pa.efl_mm.unwrap_or(0.0), pb.efl_mm.unwrap_or(0.0)),
-                (
-                    "image distance",
-                    pa.image_distance_mm.unwrap_or(0.0),
-                    pb.image_distance_mm.unwrap_or(0.0),
-                ),
-                (
-                    "entrance pupil diameter",
-                    pa.entrance_pupil_diameter_mm,
-                    pb.entrance_pupil_diameter_mm,
-                ),
-                ("magnification", pa.magnification, pb.magnification),
-                ("total track", pa.total_track_mm, pb.total_track_mm),
-            ];
-            for (name, x, y) in pairs {
-                if !close(x, y, 1e-7) {
-                    return Err(format!("{what}: paraxial {name} {x} became {y}"));
-                }
-            }
-        }
-        (Err(_), Err(_)) => {}
-        (ra, rb) => {
-            return Err(format!(
-                "{what}: paraxial data {} became {}",
-                if ra.is_ok() { "computed" } else { "refused" },
-                if rb.is_ok() { "computed" } else { "refused" }
-            ))
-        }
-    }
-    let sys_b = b.compile();
-    let r = 0.5 * a.surfaces[0].semi_aperture_mm;
-    let mut rays = Vec::new();
-    for &wl in &wavelengths {
-        for deg in [0.0f64, 1.0] {
-            let (sn, cs) = deg.to_radians().sin_cos();
-            for i in -2..=2 {
-                for j in -2..=2 {
-                    rays.push(raw::RawRay {
-                        ox: r * i as f64 / 2.0,
-                        oy: r * j as f64 / 2.0,
-                        oz: -1.0,
-                        dx: 0.0,
-                        dy: sn,
-                        dz: cs,
-                        wavelength_nm: wl,
-                    });
-                }
-            }
-        }
-    }
-    let opts = TraceOptions { apertures: true };
-    let (ha, hb) = (
-        raw::trace_raw(sys_a, &rays, opts),
-        raw::trace_raw(&sys_b, &rays, opts),
-    );
-    // Where each ray lands as a user sees it: x, y in the image surface's own frame, and the
-    // direction there.
-    let on_sensor = |sys: &tolray::lens::System<f64>, h: &raw::RawHit| {
-        let p = sys.image.point_to_local(Vec3::new(h.x, h.y, h.z));
-        let d = sys.image.rotation.apply_t(Vec3::new(h.dx, h.dy, h.dz));
-        [p.x, p.y, d.x, d.y, d.z]
-    };
-    // A ray meeting a surface at its edge or at t = 0 (coincident surfaces) may change its fate
-    // with the last digit of a written number; a lens read back as another changes many.
-    let mut fates = 0;
-    for (k, (x, y)) in ha.iter().zip(&hb).enumerate() {
-        if x.status != y.status {
-            fates += 1;
-            if fates > rays.len() / 20 {
-                return Err(format!(
-                    "{what}: ray {k} {} became {} ({fates} rays changed their fate)",
-                    x.status, y.status
-                ));
-            }
-            continue;
-        }
-        if x.status != "alive" {
-            continue;
-        }
-        let (p, q) = (on_sensor(sys_a, x), on_sensor(&sys_b, y));
-        let ok = close(p[0], q[0], 1e-7)
-            && close(p[1], q[1], 1e-7)
-            && (2..5).all(|i| (p[i] - q[i]).abs() < 1e-9);
-        if !ok {
-            return Err(format!(
-                "{what}: ray {k} lands at ({}, {}) mm on the image surface, read back at ({}, {})",
-                p[0], p[1], q[0], q[1]
-            ));
-        }
-    }
-    Ok(())
 }
 
 /// `tolray wavefront`, `mtf` and `psf --method fft|huygens` on a loaded lens: every number a
