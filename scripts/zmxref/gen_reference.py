@@ -10,7 +10,9 @@ Usage (from the repository root; nothing in tolray runs this, tests read its out
 writes tests/data/zemax/real/reference.json for every tests/data/zemax/real/<source>/*.zmx.
 `... gen_reference.py --only rayoptics/HoO-V2C18Ex46.zmx` regenerates just the entries named
 (paths as in the JSON) and keeps the others as they are (so used on 2026-11-27 for patch 7,
-optiland 0.6.3), and for patch 8 on optiland/complicated_fold_mirrors_setup_v2.zmx.
+optiland 0.6.3), and for patch 8 on optiland/complicated_fold_mirrors_setup_v2.zmx; on
+2026-11-29 for patch 9 on the two files whose glasses are LightPath's and RPO's, with
+ZEMAXGLASS_AGF set (see ZemaxAgfGlass).
 
 Per file:
   * feature inventory (scan_zmx.scan, pure python)
@@ -173,6 +175,50 @@ class ZemaxMiscSilica(IdealMaterial):
         return be.sqrt(n2)
 
 
+class ZemaxAgfGlass(IdealMaterial):
+    """A glass of a Zemax AGF catalog that optiland's database lacks (LightPath's D-ZK3M, RPO's
+    L-TIM28_MOLD), evaluated from the AGF's own formula and coefficients: 1 (Schott) or
+    2 (Sellmeier 1). The AGF files are those tolray's built-in table is generated from
+    (scripts/glass/generate_agf_catalogs.py): set ZEMAXGLASS_AGF to that checkout's AGF_files."""
+
+    def __init__(self, name, formula, cd):
+        super().__init__(n=1.0)
+        self.name, self.formula, self.cd = name, formula, cd
+
+    def _calculate_n(self, wavelength, **kwargs):
+        l2 = be.asarray(wavelength) ** 2
+        c = self.cd
+        if self.formula == 1:
+            n2 = c[0] + c[1] * l2 + c[2] / l2 + c[3] / l2 ** 2 + c[4] / l2 ** 3 + c[5] / l2 ** 4
+        elif self.formula == 2:
+            n2 = 1.0 + sum(c[2 * k] * l2 / (l2 - c[2 * k + 1]) for k in range(3))
+        else:
+            raise ValueError(f"AGF formula {self.formula} not evaluated here")
+        return be.sqrt(n2)
+
+
+AGF_FILES = {"LIGHTPATH": ("lightpath.agf", "latin-1"), "RPO": ("rpo.agf", "latin-1")}
+
+
+def agf_glass(name, gcat):
+    """The ZemaxAgfGlass `name` of the first GCAT catalog in AGF_FILES that has it, or None."""
+    root = os.environ.get("ZEMAXGLASS_AGF")
+    if not root:
+        return None
+    for g in gcat:
+        if g.upper() not in AGF_FILES:
+            continue
+        fname, enc = AGF_FILES[g.upper()]
+        cur = None
+        for ln in open(os.path.join(root, fname), "rb").read().decode(enc).splitlines():
+            t = ln.split()
+            if t and t[0] == "NM":
+                cur = t if t[1].upper() == name.upper() else None
+            elif t and t[0] == "CD" and cur is not None:
+                return ZemaxAgfGlass(cur[1], int(float(cur[2])), [float(x) for x in t[1:]])
+    return None
+
+
 def load_optic(path, feat):
     """Parse + convert with optiland.  Returns (optic, patches, parser_model)."""
     patches = []
@@ -219,12 +265,26 @@ def load_optic(path, feat):
             s["material"] = ZemaxMiscSilica()
             patches.append(f"surface {i}: {name[0]} -> Zemax MISC.AGF fused silica (Sellmeier 1, "
                            "C given squared to 10 digits as the AGF writes them)")
+    # Patch 9: a glass that only an AGF catalog the file's GCAT names has (LIGHTPATH, RPO), which
+    # optiland replaced by the GLAS line's n_d / V_d (see ZemaxAgfGlass).
+    for i, s in model.surfaces.items():
+        m = s.get("material")
+        name = raw.get(int(i), "").split()[1:2]
+        if not name or not isinstance(m, AbbeMaterial):
+            continue
+        if exact_glass_file(name[0], feat.get("gcat") or []):
+            continue
+        agf = agf_glass(name[0], feat.get("gcat") or [])
+        if agf is not None:
+            s["material"] = agf
+            patches.append(f"surface {i}: GLAS {name[0]} -> {agf.name} of the file's GCAT "
+                           f"catalog, AGF formula {agf.formula} (optiland chose {material_desc(m)})")
     # Patch 4: exact glass names in GCAT order (see exact_glass_file).
     from optiland.materials import MaterialFile
     for i, s in model.surfaces.items():
         m = s.get("material")
         name = raw.get(int(i), "").split()[1:2]
-        if not name or isinstance(m, (str, AbbeMaterial, IdealMaterial, ZemaxMiscSilica)):
+        if not name or isinstance(m, (str, AbbeMaterial, IdealMaterial, ZemaxMiscSilica, ZemaxAgfGlass)):
             continue
         if name[0].upper() in ("SILICA", "F_SILICA"):
             continue

@@ -485,12 +485,22 @@ pub struct GlassCatalogs {
 
 /// The built-in vendors in the order a glass name is resolved when a file does not say
 /// (names shared by two vendors, such as Schott's and Hikari's `BAF10`, resolve to the first).
-pub const VENDOR_ORDER: [&str; 7] = [
-    "Schott", "Ohara", "Hoya", "CDGM", "Hikari", "Sumita", "Misc",
+pub const VENDOR_ORDER: [&str; 10] = [
+    "Schott",
+    "Ohara",
+    "Hoya",
+    "CDGM",
+    "Hikari",
+    "Sumita",
+    "Misc",
+    "Infrared",
+    "LightPath",
+    "RPO",
 ];
 
 /// The built-in vendor a Zemax `GCAT` catalog name stands for (`SCHOTT`, `OHARA`,
-/// `NIKON-HIKARI`/`HIKARI`, `CDGM`, `HOYA`, `SUMITA`, `MISC`; case-insensitive).
+/// `NIKON-HIKARI`/`HIKARI`, `CDGM`, `HOYA`, `SUMITA`, `MISC`, `INFRARED`, `LIGHTPATH`, `RPO`;
+/// case-insensitive).
 pub fn vendor_of_gcat(name: &str) -> Option<&'static str> {
     let n = name.to_ascii_uppercase();
     let n = n.trim_end_matches(".AGF");
@@ -705,12 +715,22 @@ pub fn find_in_vendors(name: &str, vendors: &[&str]) -> Option<&'static CatalogG
     })
 }
 
-/// The built-in catalog: the generated table (`catalog_data.rs`) and the hand-kept glasses
-/// (`catalog_extra.rs`), sorted by vendor then name (ignoring case).
+/// The built-in catalog: the table generated from the vendor pages (`catalog_data.rs`), the one
+/// generated from Zemax AGF files (`catalog_agf.rs`: INFRARED, MISC, LightPath, RPO, Hoya's legacy
+/// names) and the hand-kept glasses (`catalog_extra.rs`), sorted by vendor then name (ignoring
+/// case).
+///
+/// ```
+/// use tolray::lens::material::catalog;
+/// let ge = catalog().iter().find(|g| g.name == "GERMANIUM").unwrap();
+/// assert_eq!(ge.vendor, "Infrared");
+/// assert!(catalog().iter().any(|g| g.name == "WATER" && g.vendor == "Misc"));
+/// ```
 pub fn catalog() -> &'static [CatalogGlass] {
     static ALL: std::sync::LazyLock<Vec<CatalogGlass>> = std::sync::LazyLock::new(|| {
         let mut all = [
             crate::lens::catalog_data::CATALOG,
+            crate::lens::catalog_agf::AGF,
             crate::lens::catalog_extra::EXTRA,
         ]
         .concat();
@@ -810,13 +830,40 @@ mod tests {
 
     #[test]
     fn catalog_glasses_reproduce_their_nominal_nd_vd() {
+        let (mut infrared, mut bad) = (0, Vec::new());
         for g in catalog() {
             let m = Material::Catalog(g);
+            if g.range_um.0 > LAMBDA_F_NM * 1e-3 || g.range_um.1 < LAMBDA_C_NM * 1e-3 - 1e-5 {
+                // An infrared material (germanium: 2 to 15 µm): a real index across its range.
+                infrared += 1;
+                let (lo, hi) = g.range_um;
+                for um in [lo, (lo * hi).sqrt(), hi] {
+                    let n = m.index(um * 1e3);
+                    if !(1.0..=MAX_INDEX).contains(&n) {
+                        bad.push(format!("{} ({}): n({um} µm) = {n}", g.name, g.vendor));
+                    }
+                }
+                continue;
+            }
             let nd = m.index(LAMBDA_D_NM);
-            let vd = (nd - 1.0) / (m.index(LAMBDA_F_NM) - m.index(LAMBDA_C_NM));
-            assert!((nd - g.nd).abs() < 5e-5, "{}: n_d {nd} vs {}", g.name, g.nd);
-            assert!((vd - g.vd).abs() < 0.1, "{}: V_d {vd} vs {}", g.name, g.vd);
+            let dispersion = m.index(LAMBDA_F_NM) - m.index(LAMBDA_C_NM);
+            if g.vd == 0.0 {
+                // A catalog's V_d 0 is a constant index (MISC's N15).
+                if (nd - g.nd).abs() >= 5e-5 || dispersion != 0.0 {
+                    bad.push(format!("{} ({}): not constant", g.name, g.vendor));
+                }
+                continue;
+            }
+            let vd = (nd - 1.0) / dispersion;
+            if (nd - g.nd).abs() >= 5e-5 || (vd - g.vd).abs() >= 0.1 {
+                bad.push(format!(
+                    "{} ({}): n_d {nd}, V_d {vd}; catalog {}, {}",
+                    g.name, g.vendor, g.nd, g.vd
+                ));
+            }
         }
+        assert!(bad.is_empty(), "{bad:#?}");
+        assert!(infrared >= 20, "{infrared} infrared-only materials");
     }
 
     #[test]

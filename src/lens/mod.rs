@@ -10,6 +10,7 @@
 
 pub mod agf;
 mod builtin;
+mod catalog_agf;
 mod catalog_data;
 mod catalog_extra;
 pub mod field;
