@@ -9,6 +9,8 @@ all its patches), and the numbers are compared with the reference.json entry of 
 Usage (from any directory outside the repository; optiland may write logs into the cwd):
     .venv-ref/bin/python scripts/zmxref/roundtrip_check.py \
         --tolray /path/to/tolray --json OUT.json [--keep DIR]
+with ZEMAXGLASS_AGF set as for gen_reference.py (its patch 9: the LightPath and RPO glasses of
+two corpus files, which optiland's database lacks).
 
 Quantities and tolerances (those of tests/optics/zemax/, corpus_mismatches; lengths in mm, the
 reference's file units converted by its UNIT):
