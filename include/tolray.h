@@ -18,7 +18,7 @@
  *   is at z = 0.
  * - Tracing runs on a rayon thread pool (set RAYON_NUM_THREADS to size it); results do not
  *   depend on the thread count.
- * - Every wavelength argument must be finite and strictly between 100 and 20000 nm
+ * - Every wavelength argument must be finite and strictly between 100 nm and 10 mm (1e7 nm)
  *   (TOLRAY_ERROR_ARGUMENT otherwise, which catches micrometres given for nanometres).
  */
 
@@ -74,7 +74,7 @@
  *   object is at infinity. A finite object plane lies at z = -distance.
  * - "primary_wvln": design wavelength, um (default 0.5875618); "wvln_rgb": [r, g, b], um
  *   (default [0.656, 0.587, 0.486]), the channels of tolray_render. Each strictly between 0.1
- *   and 20 um.
+ *   um and 10 mm (10000 um).
  * - "info": free text. Legacy "d_sensor": the sensor's z, with absolute "d" on the surfaces.
  * Surfaces (each is an interface and the medium after it):
  * - "type": "Spheric", "Aspheric" or "Plane" (refracting; all three read "roc"/"c", "k" and
@@ -1037,7 +1037,7 @@ tolray_status tolray_lens_param_get(const struct tolray_lens *lens,
                                     double *value_out);
 
 /**
- * Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
+ * Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 nm to 10 mm).
  * `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 0.9 and 5;
  * `TOLRAY_ERROR_NUMERICAL` for a lens whose entrance pupil is at infinity or whose first-order
  * numbers are not finite. An afocal lens is an answer (`afocal` = 1), not an error.
@@ -1180,7 +1180,7 @@ tolray_status tolray_pattern_to_json(const struct tolray_pattern *pattern,
                                      size_t *len_out);
 
 /**
- * The geometric PSF of one field at one wavelength (finite, 100 to 20000 nm): `kernel_px`^2
+ * The geometric PSF of one field at one wavelength (finite, 100 nm to 10 mm): `kernel_px`^2
  * values, row-major with row 0 at +y and column 0 at -x, summing to 1.
  *
  * The rays of `opts->pupil` and the chief ray are launched from the nominal lens' paraxial
@@ -1326,7 +1326,7 @@ tolray_status tolray_spec_load(const char *path, struct tolray_spec **out);
 
 /**
  * Spot statistics of one field over `n_wavelengths` wavelengths (at least 1, else
- * `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 to 20000 nm), polychromatic when more than
+ * `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 nm to 10 mm), polychromatic when more than
  * one: all arriving rays together, about the first wavelength's chief ray. The rays are
  * launched from the nominal lens' paraxial pupil at the first wavelength ("Ray bundles" at the
  * top of tolray.h) and traced through `system`; apertures clip when `apertures` is nonzero.
@@ -1419,8 +1419,8 @@ tolray_status tolray_system_new(const struct tolray_lens *lens,
 
 /**
  * Traces `n` caller rays of one wavelength through `system` (its tolerance pattern applied), in
- * parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 to
- * 20000 nm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
+ * parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 nm
+ * to 10 mm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
  * `TOLRAY_ERROR_ARGUMENT`). Every output array receives `n` values, one status per ray; rays
  * that did not arrive keep the position and direction where they stopped, and their status says
  * why and where. `n` may be 0 (nothing is read or written; the arrays may be NULL); otherwise
@@ -1498,7 +1498,7 @@ const char *tolray_version(void);
 tolray_status tolray_wave_options_default(struct tolray_wave_options *out);
 
 /**
- * Wavefront error of one field at one wavelength (finite, 100 to 20000 nm): the OPD of each
+ * Wavefront error of one field at one wavelength (finite, 100 nm to 10 mm): the OPD of each
  * ray against the reference sphere (centred on the chief ray's image point, or the centroid,
  * through the paraxial exit pupil's centre at the primary wavelength; OpticStudio's
  * convention), integrated over the pupil quadrature of `opts`, in `*out`; and the Zernike

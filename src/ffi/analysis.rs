@@ -290,14 +290,14 @@ impl tolray_psf_options {
     }
 }
 
-fn wavelengths(p: *const f64, n: usize) -> FfiResult<Vec<f64>> {
+fn wavelengths(p: *const f64, n: usize, lens: &crate::Lens) -> FfiResult<Vec<f64>> {
     // SAFETY: caller's promise of `n` readable doubles.
     let w = unsafe { c_slice(p, n, "wavelengths_nm") }?;
     if w.is_empty() {
         return Err(FfiError::size("n_wavelengths is 0"));
     }
     for &wl in w {
-        check_wavelength(wl)?;
+        check_wavelength(wl, lens)?;
     }
     Ok(w.to_vec())
 }
@@ -328,8 +328,8 @@ fn params(
 }
 
 /// Traces `n` caller rays of one wavelength through `system` (its tolerance pattern applied), in
-/// parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 to
-/// 20000 nm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
+/// parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 nm
+/// to 10 mm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
 /// `TOLRAY_ERROR_ARGUMENT`). Every output array receives `n` values, one status per ray; rays
 /// that did not arrive keep the position and direction where they stopped, and their status says
 /// why and where. `n` may be 0 (nothing is read or written; the arrays may be NULL); otherwise
@@ -354,7 +354,7 @@ pub unsafe extern "C" fn tolray_trace(
         let rin = unsafe { nonnull(rays, "rays") }?;
         // SAFETY: `out` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let rout = unsafe { nonnull(out, "out") }?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         if flags & !(TOLRAY_TRACE_APERTURES | TOLRAY_TRACE_SENSOR_FRAME) != 0 {
             return Err(FfiError::argument(format!(
                 "unknown trace flags {flags:#x}"
@@ -423,7 +423,7 @@ pub unsafe extern "C" fn tolray_trace(
 }
 
 /// Spot statistics of one field over `n_wavelengths` wavelengths (at least 1, else
-/// `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 to 20000 nm), polychromatic when more than
+/// `TOLRAY_ERROR_BUFFER_SIZE`; each finite and 100 nm to 10 mm), polychromatic when more than
 /// one: all arriving rays together, about the first wavelength's chief ray. The rays are
 /// launched from the nominal lens' paraxial pupil at the first wavelength ("Ray bundles" at the
 /// top of tolray.h) and traced through `system`; apertures clip when `apertures` is nonzero.
@@ -450,7 +450,7 @@ pub unsafe extern "C" fn tolray_spot(
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
         // SAFETY: `pupil` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
-        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths, &s.lens)?;
         if out.is_null() {
             return Err(FfiError::null("out"));
         }
@@ -527,7 +527,7 @@ pub unsafe extern "C" fn tolray_psf_options_default(
     })
 }
 
-/// The geometric PSF of one field at one wavelength (finite, 100 to 20000 nm): `kernel_px`^2
+/// The geometric PSF of one field at one wavelength (finite, 100 nm to 10 mm): `kernel_px`^2
 /// values, row-major with row 0 at +y and column 0 at -x, summing to 1.
 ///
 /// The rays of `opts->pupil` and the chief ray are launched from the nominal lens' paraxial
@@ -563,7 +563,7 @@ pub unsafe extern "C" fn tolray_psf(
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
         // SAFETY: `opts` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         if out.is_null() {
             return Err(FfiError::null("out"));
         }
@@ -658,7 +658,7 @@ pub unsafe extern "C" fn tolray_spot_loss_gradient(
         // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
         let f = self::fields(fields, n_fields)?;
-        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths, &s.lens)?;
         // SAFETY: `pupil` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let pupil = unsafe { nonnull(pupil, "pupil") }?.to_pupil()?;
         let measure = match measure {
@@ -726,7 +726,7 @@ pub unsafe extern "C" fn tolray_psf_loss_gradient(
         // SAFETY: `system` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let s = unsafe { nonnull(system, "system") }?;
         let f = self::fields(fields, n_fields)?;
-        let wl = wavelengths(wavelengths_nm, n_wavelengths)?;
+        let wl = wavelengths(wavelengths_nm, n_wavelengths, &s.lens)?;
         // SAFETY: `opts` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let opts = unsafe { nonnull(opts, "opts") }?.to_options()?;
         let vars = params(vars, n_vars, s)?;

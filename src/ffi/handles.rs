@@ -242,7 +242,7 @@ pub unsafe extern "C" fn tolray_lens_free(lens: *mut tolray_lens) {
     unsafe { free(lens) }
 }
 
-/// Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 to 20000 nm).
+/// Paraxial (first-order) data of the lens at `wavelength_nm` (finite, 100 nm to 10 mm).
 /// `TOLRAY_ERROR_INVALID_INPUT` when a medium's index at that wavelength is not between 0.9 and 5;
 /// `TOLRAY_ERROR_NUMERICAL` for a lens whose entrance pupil is at infinity or whose first-order
 /// numbers are not finite. An afocal lens is an answer (`afocal` = 1), not an error.
@@ -258,7 +258,7 @@ pub unsafe extern "C" fn tolray_lens_paraxial(
     boundary("tolray_lens_paraxial", || {
         // SAFETY: `lens` is NULL or readable, as # Safety says; `nonnull` refuses NULL.
         let lens = unsafe { nonnull(lens, "lens") }?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &lens.lens)?;
         if out.is_null() {
             return Err(FfiError::null("out"));
         }
@@ -567,8 +567,12 @@ pub unsafe extern "C" fn tolray_system_free(system: *mut tolray_system) {
     unsafe { free(system) }
 }
 
-/// Checks a wavelength in nm (see [`crate::lens::material::check_wavelength_nm`]).
-pub(crate) fn check_wavelength(wl: f64) -> FfiResult<()> {
+/// Checks a wavelength in nm (see [`crate::lens::material::check_wavelength_nm`]) and, beyond
+/// 20 µm, that every medium of `lens` is defined there ([`Lens::check_indices`]).
+pub(crate) fn check_wavelength(wl: f64, lens: &Lens) -> FfiResult<()> {
     crate::lens::material::check_wavelength_nm(wl)?;
+    if wl > crate::lens::material::DEFINED_MEDIA_BEYOND_NM {
+        lens.check_indices(wl)?;
+    }
     Ok(())
 }

@@ -128,7 +128,7 @@ pub unsafe extern "C" fn tolray_wave_options_default(
     })
 }
 
-/// Wavefront error of one field at one wavelength (finite, 100 to 20000 nm): the OPD of each
+/// Wavefront error of one field at one wavelength (finite, 100 nm to 10 mm): the OPD of each
 /// ray against the reference sphere (centred on the chief ray's image point, or the centroid,
 /// through the paraxial exit pupil's centre at the primary wavelength; OpticStudio's
 /// convention), integrated over the pupil quadrature of `opts`, in `*out`; and the Zernike
@@ -159,7 +159,7 @@ pub unsafe extern "C" fn tolray_wavefront(
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
         // SAFETY: as above.
         let (o, terms, coords) = wave_options(unsafe { nonnull(opts, "opts") }?)?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         if out.is_null() {
             return Err(FfiError::null("out"));
         }
@@ -239,7 +239,7 @@ pub unsafe extern "C" fn tolray_opd_map(
         let s = unsafe { nonnull(system, "system") }?;
         // SAFETY: as above.
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         if !(2..=2048).contains(&n) {
             return Err(FfiError::argument(format!(
                 "OPD map side {n}: give 2 to 2048"
@@ -343,7 +343,7 @@ pub unsafe extern "C" fn tolray_diffraction_psf(
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
         // SAFETY: as above.
         let o = *unsafe { nonnull(opts, "opts") }?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         for (p, what) in [
             (out.is_null(), "out"),
             (strehl_out.is_null(), "strehl_out"),
@@ -463,7 +463,7 @@ pub unsafe extern "C" fn tolray_mtf(
         let field = unsafe { nonnull(field, "field") }?.to_field()?;
         // SAFETY: as above.
         let o = *unsafe { nonnull(opts, "opts") }?;
-        check_wavelength(wavelength_nm)?;
+        check_wavelength(wavelength_nm, &s.lens)?;
         if n_freqs == 0 {
             return Err(FfiError::size("n_freqs is 0: give at least one frequency"));
         }

@@ -502,13 +502,15 @@ pub fn from_value_with(v: &Value, catalogs: &GlassCatalogs) -> Result<Lens> {
     let ok = crate::lens::material::wavelength_um_ok;
     if !ok(primary_um) {
         return Err(Error::invalid(format!(
-            "\"primary_wvln\" {primary_um} must be in micrometres (between 0.1 and 20)"
+            "\"primary_wvln\" {primary_um} must be in micrometres ({})",
+            crate::lens::material::WAVELENGTH_RANGE_TEXT
         )));
     }
     let rgb_um = num_array::<3>(top, "wvln_rgb", "")?.unwrap_or([0.656, 0.587, 0.486]);
     if rgb_um.iter().any(|&w| !ok(w)) {
         return Err(Error::invalid(format!(
-            "\"wvln_rgb\" {rgb_um:?} must be in micrometres (between 0.1 and 20)"
+            "\"wvln_rgb\" {rgb_um:?} must be in micrometres ({})",
+            crate::lens::material::WAVELENGTH_RANGE_TEXT
         )));
     }
     let lens = Lens {

@@ -13,8 +13,22 @@ pub const LAMBDA_F_NM: f64 = 486.1327;
 /// The C line (hydrogen), nm.
 pub const LAMBDA_C_NM: f64 = 656.2725;
 
-/// The wavelengths tolray accepts at its interfaces (CLI, C ABI), nm, exclusive bounds.
-pub const WAVELENGTH_RANGE_NM: (f64, f64) = (100.0, 20_000.0);
+/// The wavelengths tolray accepts at its interfaces (CLI, C ABI, lens files), nm, exclusive
+/// bounds: 100 nm (the vacuum ultraviolet) to 10 mm (millimetre-wave refractors). Whether a lens
+/// can be traced at a wavelength is its materials' business: every medium must have an index
+/// between 0.9 and 5 there ([`crate::Lens::check_indices`]), and a catalog glass used outside the
+/// range its formula was fitted on is named in [`crate::Lens::warnings`].
+pub const WAVELENGTH_RANGE_NM: (f64, f64) = (100.0, 1.0e7);
+
+/// [`WAVELENGTH_RANGE_NM`] in words, for messages: "0.1 µm to 10 mm".
+pub const WAVELENGTH_RANGE_TEXT: &str = "0.1 µm to 10 mm";
+
+/// Beyond this wavelength (20 µm, nm) a lens is traced only where each of its media is defined
+/// ([`Material::defined_at`]): air, constant indices, and catalog glasses whose formula's range
+/// reaches it (millimetre-wave refractors of HDPE or PTFE given as constant indices, infrared
+/// crystals). A dispersive model glass (a law fitted to the visible) or a glass fitted to 2.5 µm
+/// is refused there, which also catches nanometres given where micrometres belong (`WAVM 587.56`).
+pub const DEFINED_MEDIA_BEYOND_NM: f64 = 20_000.0;
 
 /// Checks a wavelength given at an interface: finite and inside [`WAVELENGTH_RANGE_NM`] (which
 /// catches micrometres given for nanometres).
@@ -27,7 +41,7 @@ pub fn check_wavelength_nm(wavelength_nm: f64) -> Result<f64> {
         Ok(wavelength_nm)
     } else {
         Err(Error::argument(format!(
-            "wavelength {wavelength_nm} nm is outside {lo} to {hi} nm (give nanometres, e.g. 587.56)"
+            "wavelength {wavelength_nm} nm is outside {lo} to {hi:e} nm, {WAVELENGTH_RANGE_TEXT} (give nanometres, e.g. 587.56)"
         )))
     }
 }
@@ -350,6 +364,28 @@ impl Material {
             Material::Catalog(g) => Some(g.name),
             Material::Agf(g) => Some(&g.name),
             _ => None,
+        }
+    }
+
+    /// Whether the material has data at `wavelength_nm`: air and constant indices everywhere,
+    /// a catalog or AGF glass inside its formula's range, a dispersive model glass (a law
+    /// through the F, d and C lines) up to [`DEFINED_MEDIA_BEYOND_NM`].
+    ///
+    /// ```
+    /// use tolray::lens::material::Material;
+    /// assert!(Material::Constant(1.52).defined_at(3.0e6)); // HDPE at 3 mm
+    /// assert!(!Material::parse("N-BK7").unwrap().defined_at(3.0e6));
+    /// assert!(Material::parse("N-BK7").unwrap().defined_at(1550.0));
+    /// ```
+    pub fn defined_at(&self, wavelength_nm: f64) -> bool {
+        let um = wavelength_nm * 1e-3;
+        match self {
+            Material::Air | Material::Constant(_) => true,
+            Material::Model { .. } => wavelength_nm <= DEFINED_MEDIA_BEYOND_NM,
+            Material::Perturbed { base, .. } => base.defined_at(wavelength_nm),
+            _ => self
+                .range_um()
+                .is_some_and(|(lo, hi)| (lo..=hi).contains(&um)),
         }
     }
 

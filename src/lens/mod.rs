@@ -591,6 +591,11 @@ impl Lens {
             return Err(Error::invalid("primary wavelength must be positive"));
         }
         self.check_indices(self.primary_wavelength_nm)?;
+        for w in self.rgb_wavelengths_nm {
+            if w > material::DEFINED_MEDIA_BEYOND_NM {
+                self.check_indices(w)?;
+            }
+        }
         // A negative distance is a virtual object behind the first vertex (a converging beam).
         if let Object::Finite { distance_mm } = self.object {
             if distance_mm == 0.0 || !distance_mm.is_finite() {
@@ -649,6 +654,32 @@ impl Lens {
     /// # Errors
     /// [`crate::ErrorKind::Invalid`] naming the surface, the material, the wavelength and the index.
     pub fn check_indices(&self, wavelength_nm: f64) -> Result<()> {
+        if wavelength_nm > material::DEFINED_MEDIA_BEYOND_NM {
+            let media = std::iter::once(("the object medium".to_string(), &self.object_medium))
+                .chain(
+                    self.surfaces
+                        .iter()
+                        .enumerate()
+                        .map(|(i, s)| (format!("surface {i}: the medium after it"), &s.material)),
+                );
+            for (what, m) in media {
+                if !m.defined_at(wavelength_nm) {
+                    let range = m
+                        .range_um()
+                        .map(|(lo, hi)| format!(", defined from {lo} to {hi} µm"))
+                        .unwrap_or_else(|| ", a law fitted to the visible".into());
+                    return Err(Error::invalid(format!(
+                        "{what} ({}{range}) has no index at {} µm; beyond 20 µm only media \
+                         defined there are traced (air, constant indices, glasses whose range \
+                         reaches it): give wavelengths in micrometres (nanometres on the \
+                         command line)",
+                        m.catalog_name()
+                            .map_or_else(|| m.json_name(), str::to_string),
+                        wavelength_nm * 1e-3
+                    )));
+                }
+            }
+        }
         let n = self.object_medium.index(wavelength_nm);
         if !(material::MIN_INDEX..=material::MAX_INDEX).contains(&n) {
             return Err(Error::invalid(format!(

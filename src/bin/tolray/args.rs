@@ -322,10 +322,15 @@ pub fn parse_wavelengths(list: &[String], lens: &Lens) -> anyhow::Result<Vec<f64
             "C" => out.push(LAMBDA_C_NM),
             "rgb" => out.extend(lens.rgb_wavelengths_nm),
             s => match s.parse::<f64>() {
-                Ok(v) => out.push(
+                Ok(v) => {
                     material::check_wavelength_nm(v)
-                        .with_context(|| format!("wavelength \"{s}\""))?,
-                ),
+                        .with_context(|| format!("wavelength \"{s}\""))?;
+                    if v > material::DEFINED_MEDIA_BEYOND_NM {
+                        lens.check_indices(v)
+                            .with_context(|| format!("wavelength \"{s}\" nm"))?;
+                    }
+                    out.push(v);
+                }
                 _ => usage!(
                     "wavelength \"{s}\": give nanometres (e.g. 587.56) or primary, d, F, C, rgb"
                 ),

@@ -258,6 +258,23 @@ pub(super) fn build(
         }
     }
 
+    // Beyond 20 µm every medium must be defined at each of the file's wavelengths (millimetre-wave
+    // refractors in constant indices; `WAVM 587.56`, nanometres for micrometres, is refused).
+    for w in &spec.wavelengths {
+        let nm = w.um * 1e3;
+        if nm > crate::lens::material::DEFINED_MEDIA_BEYOND_NM {
+            let line = h
+                .wavm
+                .iter()
+                .find(|x| x.1 == w.um)
+                .map(|x| x.3)
+                .or(h.wavl.as_ref().map(|l| l.line))
+                .unwrap_or(0);
+            lens.check_indices(nm)
+                .map_err(|e| invalid(line, format!("wavelength {} µm: {}", w.um, e.message())))?;
+        }
+    }
+
     // Each semi-diameter, checked with its line; then the stop is sized by the aperture.
     // Surfaces without one (no DIAM, MEMA or FLAP value) hold a placeholder until the paraxial
     // beam sizes them below.
@@ -579,8 +596,9 @@ pub(super) fn wavelengths(
             return Err(invalid(
                 *line,
                 format!(
-                    "wavelength {} µm: give micrometres between 0.1 and 20",
-                    w.um
+                    "wavelength {} µm: give micrometres, {}",
+                    w.um,
+                    crate::lens::material::WAVELENGTH_RANGE_TEXT
                 ),
             ));
         }

@@ -695,17 +695,26 @@ fn a_stop_between_two_media_refracts() {
     );
 }
 
-/// Both readers accept the same wavelengths (0.1 to 20 µm, exclusive), so `convert` never writes
-/// a file that tolray then refuses (the JSON reader used to stop at 10 µm, the .zmx one at 20).
+/// Both readers accept the same wavelengths (0.1 µm to 10 mm, exclusive), so `convert` never
+/// writes a file that tolray then refuses (the JSON reader used to stop at 10 µm, the .zmx one at
+/// 20). Beyond 20 µm only media defined there are traced: a lens of constant indices opens at
+/// 3 mm, the same lens in N-BK7 or in a dispersive model glass is refused naming the medium.
 #[test]
 fn json_and_zmx_readers_accept_the_same_wavelengths() {
-    let base = Lens::load("lens1").unwrap();
+    let mut base = Lens::load("lens1").unwrap();
+    for s in &mut base.surfaces {
+        if s.material != Material::Air {
+            s.material = Material::Constant(1.525); // HDPE at millimetre waves
+        }
+    }
     for (um, ok) in [
         (0.1, false),
         (0.1001, true),
         (12.0, true),
-        (19.9, true),
-        (20.0, false),
+        (20.0, true),
+        (3000.0, true),
+        (9999.0, true),
+        (10000.0, false),
     ] {
         let mut v: serde_json::Value = serde_json::from_str(&json::to_string(&base)).unwrap();
         v["primary_wvln"] = serde_json::json!(um);
@@ -726,6 +735,42 @@ fn json_and_zmx_readers_accept_the_same_wavelengths() {
             assert!(parse(&zemax::to_string(&a, None)).is_ok(), "{um} µm");
         }
     }
+    // Beyond 20 µm, a glass fitted to 2.5 µm and a model glass fitted to the visible have no
+    // index: refused naming the WAVM line and the medium (the same catches `WAVM 1 587.56`).
+    for (glass, says) in [
+        ("N-BK7", "N-BK7, defined from 0.3 to 2.5 µm"),
+        ("1.5168/64.17", "a law fitted to the visible"),
+    ] {
+        let mut l = base.clone();
+        let first_glass = l.surfaces.iter().position(|s| s.material != Material::Air);
+        l.surfaces[first_glass.unwrap()].material = Material::parse(glass).unwrap();
+        let text = zemax::to_string(&l, None);
+        let at_3mm = replace_line(&text, "WAVM 1 ", "WAVM 1 3000 1");
+        let e = err(&at_3mm);
+        let line = line_of(&at_3mm, "WAVM 1 ");
+        for want in [
+            format!("line {line}: "),
+            says.to_string(),
+            "micrometres".into(),
+        ] {
+            assert!(e.contains(&want), "missing {want:?}: {e}");
+        }
+        assert!(parse(&text).is_ok(), "{glass} at its own wavelength");
+        let mut v: serde_json::Value = serde_json::from_str(&json::to_string(&l)).unwrap();
+        v["primary_wvln"] = serde_json::json!(3000.0);
+        let e = json::from_str(&v.to_string()).unwrap_err();
+        assert!(e.message().contains(says), "{}", e.message());
+    }
+    // A millimetre-wave singlet: its focal length at 3 mm is the thick-lens closed form.
+    let mut v: serde_json::Value = serde_json::from_str(&json::to_string(&base)).unwrap();
+    v["primary_wvln"] = serde_json::json!(3000.0);
+    let l = json::from_str(&v.to_string()).unwrap();
+    let p = l.paraxial(3.0e6).unwrap();
+    let p_d = l.paraxial(LAMBDA_D_NM).unwrap();
+    assert_eq!(
+        p.efl_mm, p_d.efl_mm,
+        "constant indices: the same lens at every wavelength"
+    );
 }
 
 /// A lens with no marked stop is written with STOP on the surface tolray's paraxial model takes
