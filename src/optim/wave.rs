@@ -1,14 +1,20 @@
 //! The RMS wavefront error as a differentiable loss: the OPD of [`crate::wave::wavefront`]
 //! computed in any number type, so that dual numbers carry its exact gradient (the rays'
 //! launch, the reference sphere's centre on the chief ray and the paraxial exit pupil it passes
-//! through all move with the design).
+//! through all move with the design), and the diffraction MTF at one frequency likewise
+//! ([`MtfLoss`]).
 
 use super::Objective;
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::lens::paraxial::{launch_optics, LaunchOptics};
 use crate::lens::{Lens, Param, System};
-use crate::trace::{trace_serial, Bundles, Field, TraceOptions, Traceable};
-use crate::wave::opd::{pupil_from_image, rms_about_plane, sphere_opd};
-use crate::wave::{Reference, Sampling};
+use crate::math::Vec3;
+use crate::tolerance::MtfDirection;
+use crate::trace::rays::Beam;
+use crate::trace::{trace_serial, Bundles, Field, LaunchSource, RayBatch, TraceOptions, Traceable};
+use crate::wave::opd::{plane_fit, pupil_from_image, rms_about_plane, sphere_opd};
+use crate::wave::psf::direction_map;
+use crate::wave::{mtf, wavefront, Reference, Sampling, WaveOptions};
 
 /// The wavefront term of a bundle whose chief ray is lost or through which fewer than three
 /// rays pass, waves: far above any wavefront a design is trained to, so that losing a bundle is
@@ -128,5 +134,261 @@ impl Objective for WavefrontLoss {
             total += self.bundle(sys, k, optics.as_ref(), to_pupil);
         }
         total * S::cst(1.0 / self.bundles.len().max(1) as f64)
+    }
+}
+
+/// The diffraction MTF at one frequency as a differentiable loss: the mean over fields and
+/// wavelengths of `1 − MTF` (tangential, sagittal or their mean), the MTF computed as
+/// [`crate::wave::mtf::direct_mtf`] computes it (the pupil's autocorrelation summed over rays
+/// traced exactly through the pupil and through the pupil shifted by `δ = λ ν u / a`), in any
+/// number type.
+///
+/// Everything the evaluated number depends on moves with the design variables, so that the
+/// gradient ([`super::gradient`]) is that of the loss as evaluated: the rays are launched
+/// through the design's paraxial entrance pupil, the reference sphere passes through its
+/// paraxial exit pupil, the slopes `a` (the image-space direction cosines' least-squares plane
+/// over the pupil) and the tangential direction (toward the chief ray's image point) are
+/// computed from the traced rays, and the sheared rays are launched through the shifted pupil
+/// points `p − δ` in the same number type. Which sheared points fall inside the pupil (and which
+/// rays an aperture stops) is decided on the values: the loss is piecewise smooth.
+///
+/// A bundle whose chief ray is lost, or whose rays cannot determine the slopes, counts as MTF 0
+/// (loss 1), never as a gain.
+///
+/// # Examples
+/// ```
+/// use tolray::lens::{Adjustments, Param};
+/// use tolray::optim::{gradient, value, MtfLoss};
+/// use tolray::tolerance::MtfDirection;
+/// use tolray::trace::{Field, TraceOptions};
+/// use tolray::wave::{mtf::direct_mtf, Sampling, WaveOptions};
+/// use tolray::Lens;
+/// let lens = Lens::load("cooke-triplet")?;
+/// let fields = [Field::fraction(0.7)];
+/// let loss = MtfLoss::new(&lens, &fields, &[587.5618], 30.0, MtfDirection::Tangential,
+///                         Sampling::Grid(16), TraceOptions::default())?;
+/// let opts = WaveOptions { sampling: Sampling::Grid(16), ..WaveOptions::default() };
+/// let m = direct_mtf(&lens, &lens.compile(), fields[0], 587.5618, &opts, &[30.0])?;
+/// let adj = Adjustments::none(lens.surfaces.len());
+/// assert!((value(&loss, &lens, &adj) - (1.0 - m.tangential[0])).abs() < 1e-9);
+/// let (_, g) = gradient::<_, 2>(&loss, &lens, &adj, &[Param::Curvature(0), Param::Gap(5)])?;
+/// assert!(g.iter().all(|d| d.is_finite() && *d != 0.0));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct MtfLoss {
+    /// The design the rays are launched from.
+    pub launch: LaunchSource,
+    /// Each field as given (its vignetting factors are looked up by it) and as launched (a
+    /// real image height resolved to an angle, held: the solve is not differentiated).
+    pub fields: Vec<(Field, Field)>,
+    /// Wavelengths, nm.
+    pub wavelengths_nm: Vec<f64>,
+    /// Frequency, cycles/mm.
+    pub freq_lpmm: f64,
+    /// Tangential, sagittal or their mean.
+    pub direction: MtfDirection,
+    /// The normalised entrance-pupil points (unit disk) of the unsheared pupil.
+    pub points: Vec<[f64; 2]>,
+    /// The weight of each point.
+    pub weights: Vec<f64>,
+    /// Trace options.
+    pub trace: TraceOptions,
+}
+
+impl MtfLoss {
+    /// The loss of `lens` at `freq_lpmm` cycles/mm along `direction` over `fields` ×
+    /// `wavelengths_nm` (field-major) through the pupil `sampling`, launched as
+    /// [`crate::wave::wavefront`] launches its rays (no aiming).
+    ///
+    /// # Errors
+    /// A sampling [`Sampling::check`] refuses; paraxial, ray-generation and wavefront errors of
+    /// the design; [`crate::ErrorKind::Argument`] for a frequency that is not finite and
+    /// positive or not below the design's cutoff at some field and wavelength (named).
+    pub fn new(
+        lens: &Lens,
+        fields: &[Field],
+        wavelengths_nm: &[f64],
+        freq_lpmm: f64,
+        direction: MtfDirection,
+        sampling: Sampling,
+        trace: TraceOptions,
+    ) -> Result<MtfLoss> {
+        sampling.check()?;
+        if !(freq_lpmm > 0.0 && freq_lpmm.is_finite()) {
+            return Err(Error::argument(format!(
+                "MTF loss frequency {freq_lpmm} cycles/mm: give a finite frequency above 0"
+            )));
+        }
+        let para = lens.paraxial(lens.primary_wavelength_nm)?;
+        let opts = WaveOptions {
+            sampling,
+            trace,
+            ..WaveOptions::default()
+        };
+        let sys = lens.compile();
+        let mut launched = Vec::with_capacity(fields.len());
+        for &f in fields {
+            launched.push((f, f.resolved(lens, &para, false)?));
+            // The design's cutoff, so that a frequency it cannot pass is refused by name.
+            for &wl in wavelengths_nm {
+                let w = wavefront(lens, &sys, f, wl, &opts)?;
+                let map = direction_map(&w)?;
+                let (t, s) = mtf::directions(&w);
+                mtf::check_freqs(
+                    &[freq_lpmm],
+                    [
+                        mtf::cutoff_along(&w, &map, t),
+                        mtf::cutoff_along(&w, &map, s),
+                    ],
+                )
+                .map_err(|e| e.context(format!("field {}, {wl} nm", f.label())))?;
+            }
+        }
+        let (points, weights) = sampling.points();
+        Ok(MtfLoss {
+            launch: LaunchSource::new(lens, &para),
+            fields: launched,
+            wavelengths_nm: wavelengths_nm.to_vec(),
+            freq_lpmm,
+            direction,
+            points,
+            weights,
+            trace,
+        })
+    }
+
+    /// The MTF of field `f` at `wl` along the chosen direction through `sys`, the launch's
+    /// first-order numbers `optics` and the exit pupil `to_pupil` mm from the image plane, or
+    /// `None` when the bundle is lost.
+    fn bundle<S: Traceable>(
+        &self,
+        sys: &System<S>,
+        f: usize,
+        wl: f64,
+        optics: &LaunchOptics<S>,
+        to_pupil: S,
+    ) -> Option<S> {
+        let lens = &*self.launch.lens;
+        let (given, field) = self.fields[f];
+        let beam = Beam::launch(lens, optics, field).ok()?;
+        let vig = lens.vignetting_of(given);
+        // The vignetted pupil is an affine map of the normalised one.
+        let ray = |q: [S; 2]| {
+            let x = S::cst(vig.decenter_x) + q[0] * S::cst(1.0 - vig.compress_x);
+            let y = S::cst(vig.decenter_y) + q[1] * S::cst(1.0 - vig.compress_y);
+            beam.ray(x * beam.r_ep, y * beam.r_ep)
+        };
+        let chief = ray([S::cst(0.0); 2]);
+        let idx = sys.indices(wl);
+        let (n0, n_img) = (idx[0], idx[idx.len() - 1].abs());
+        // Traces rays (the chief ray appended) and returns their OPD against the sphere.
+        let opd = |rays: Vec<(Vec3<S>, Vec3<S>)>| {
+            let mut launch = rays;
+            launch.push(chief);
+            let mut batch = RayBatch::collect_unit(launch.iter().copied());
+            trace_serial(sys, wl, &mut batch, self.trace);
+            let s = sphere_opd(
+                lens.object,
+                &launch,
+                &batch,
+                n0,
+                n_img,
+                &sys.image,
+                to_pupil,
+                Reference::Chief,
+                wl,
+            )
+            .ok()?;
+            Some((s, batch))
+        };
+        let pts = &self.points;
+        let (base, batch) = opd(pts.iter().map(|p| ray(p.map(S::cst))).collect::<Vec<_>>())?;
+        if base.rays.len() < 3 {
+            return None;
+        }
+        let p: Vec<[f64; 2]> = base.rays.iter().map(|r| pts[r.0]).collect();
+        let total: f64 = base.rays.iter().map(|r| self.weights[r.0]).sum();
+        let w: Vec<f64> = base
+            .rays
+            .iter()
+            .map(|r| self.weights[r.0] / total)
+            .collect();
+        // The slopes of n' times the image-space direction cosines over the pupil.
+        let img = &sys.image;
+        let dirs: Vec<Vec3<S>> = base
+            .rays
+            .iter()
+            .map(|r| img.rotation.apply_t(batch.get(r.0).d) * n_img)
+            .collect();
+        let ax = plane_fit(&p, &w, &dirs.iter().map(|d| d.x).collect::<Vec<_>>())?[1];
+        let ay = plane_fit(&p, &w, &dirs.iter().map(|d| d.y).collect::<Vec<_>>())?[2];
+        if !(ax.value().abs() > 0.0 && ay.value().abs() > 0.0) {
+            return None;
+        }
+        // Tangential: toward the chief ray's image point (y on axis); sagittal across it.
+        let c = img.point_to_local(base.centre);
+        let r = (c.x * c.x + c.y * c.y).sqrt();
+        let t = if r.value() > 1e-9 {
+            [c.x / r, c.y / r]
+        } else {
+            [S::cst(0.0), S::cst(1.0)]
+        };
+        let lambda_mm = S::cst(wl * 1e-6);
+        let otf = |u: [S; 2]| -> Option<S> {
+            let k = S::cst(self.freq_lpmm) * lambda_mm;
+            let shift = [k * u[0] / ax, k * u[1] / ay];
+            let mut owner = Vec::with_capacity(p.len());
+            let mut rays = Vec::with_capacity(p.len());
+            for (i, q) in p.iter().enumerate() {
+                let q = [S::cst(q[0]) - shift[0], S::cst(q[1]) - shift[1]];
+                if q[0].value().powi(2) + q[1].value().powi(2) <= 1.0 {
+                    owner.push(i);
+                    rays.push(ray(q));
+                }
+            }
+            let (mut re, mut im) = (S::cst(0.0), S::cst(0.0));
+            if !rays.is_empty() {
+                let (sheared, _) = opd(rays)?;
+                for &(k, v, _) in &sheared.rays {
+                    let i = owner[k];
+                    let phase = (base.rays[i].1 - v) * S::cst(std::f64::consts::TAU);
+                    re += phase.cos() * S::cst(w[i]);
+                    im += phase.sin() * S::cst(w[i]);
+                }
+            }
+            let m2 = re * re + im * im;
+            // |OTF|, 0 with derivative 0 where it vanishes.
+            Some(if m2.value() > 0.0 {
+                m2.sqrt()
+            } else {
+                S::cst(0.0)
+            })
+        };
+        let s = [t[1], -t[0]];
+        Some(match self.direction {
+            MtfDirection::Tangential => otf(t)?,
+            MtfDirection::Sagittal => otf(s)?,
+            MtfDirection::Mean => (otf(t)? + otf(s)?) * S::cst(0.5),
+        })
+    }
+}
+
+impl Objective for MtfLoss {
+    fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
+        let lens = &*self.launch.lens;
+        let optics = launch_optics(lens, self.launch.wavelength_nm, self.launch.stop, lift);
+        let to_pupil = pupil_from_image(lens, self.launch.stop, lift);
+        let mut total = S::cst(0.0);
+        let n = self.fields.len() * self.wavelengths_nm.len();
+        for f in 0..self.fields.len() {
+            for &wl in &self.wavelengths_nm {
+                let m = self
+                    .bundle(sys, f, wl, &optics, to_pupil)
+                    .unwrap_or(S::cst(0.0));
+                total += S::cst(1.0) - m;
+            }
+        }
+        total * S::cst(1.0 / n.max(1) as f64)
     }
 }

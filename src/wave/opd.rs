@@ -152,11 +152,11 @@ pub(crate) fn sphere_opd<S: Real>(
     })
 }
 
-/// The RMS of `opd` (waves) about the weighted least-squares plane `a + b x + c y` over the
-/// entrance-pupil points `pupil` with weights `w` (summing to 1): the RMS wavefront error to
-/// centroid. The plane's normal equations depend on the points alone, so the RMS is a smooth
-/// function of the OPD in any number type; `None` when the points determine no plane.
-pub(crate) fn rms_about_plane<S: Real>(pupil: &[[f64; 2]], w: &[f64], opd: &[S]) -> Option<S> {
+/// The weighted least-squares plane `a + b x + c y` through the values `v` at the points
+/// `pupil` with weights `w`: `[a, b, c]`. The normal equations depend on the points alone, so
+/// the coefficients are linear in the values in any number type; `None` when the points
+/// determine no plane.
+pub(crate) fn plane_fit<S: Real>(pupil: &[[f64; 2]], w: &[f64], v: &[S]) -> Option<[S; 3]> {
     // M = Σ w b bᵀ with b = (1, x, y).
     let mut m = [[0.0f64; 3]; 3];
     for (p, &wi) in pupil.iter().zip(w) {
@@ -169,17 +169,23 @@ pub(crate) fn rms_about_plane<S: Real>(pupil: &[[f64; 2]], w: &[f64], opd: &[S])
     }
     let inv = invert3(&m)?;
     let mut rhs = [S::cst(0.0); 3];
-    for ((p, &wi), &v) in pupil.iter().zip(w).zip(opd) {
+    for ((p, &wi), &v) in pupil.iter().zip(w).zip(v) {
         let b = [1.0, p[0], p[1]];
         for r in 0..3 {
             rhs[r] += v * S::cst(wi * b[r]);
         }
     }
-    let coef: Vec<S> = (0..3)
-        .map(|r| {
-            rhs[0] * S::cst(inv[r][0]) + rhs[1] * S::cst(inv[r][1]) + rhs[2] * S::cst(inv[r][2])
-        })
-        .collect();
+    Some(std::array::from_fn(|r| {
+        rhs[0] * S::cst(inv[r][0]) + rhs[1] * S::cst(inv[r][1]) + rhs[2] * S::cst(inv[r][2])
+    }))
+}
+
+/// The RMS of `opd` (waves) about the weighted least-squares plane `a + b x + c y` over the
+/// entrance-pupil points `pupil` with weights `w` (summing to 1): the RMS wavefront error to
+/// centroid. The plane's normal equations depend on the points alone, so the RMS is a smooth
+/// function of the OPD in any number type; `None` when the points determine no plane.
+pub(crate) fn rms_about_plane<S: Real>(pupil: &[[f64; 2]], w: &[f64], opd: &[S]) -> Option<S> {
+    let coef = plane_fit(pupil, w, opd)?;
     let mut ss = S::cst(0.0);
     for ((p, &wi), &v) in pupil.iter().zip(w).zip(opd) {
         let r = v - coef[0] - coef[1] * S::cst(p[0]) - coef[2] * S::cst(p[1]);

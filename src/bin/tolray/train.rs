@@ -18,8 +18,25 @@ use tolray::image::source::TrainImages;
 use tolray::optim::train::{
     run_to_report, OpticalLoss, RunEnd, RunOptions, TrainConfig, TrainState,
 };
-use tolray::tolerance::ToleranceSpec;
+use tolray::tolerance::{Criterion, ToleranceSpec};
 use tolray::{Lens, Object};
+
+/// Checks a `--loss` value: spot, rms-wavefront or mtf@FREQ[:t|s|mean].
+fn parse_loss(s: &str) -> Result<String, String> {
+    match s {
+        "spot" | "rms-wavefront" => Ok(s.to_string()),
+        _ if s.starts_with("mtf@") => match Criterion::parse(s) {
+            Ok(Criterion::Mtf { .. }) => Ok(s.to_string()),
+            Ok(_) => Err(format!("{s}: not an MTF loss")),
+            Err(_) => Err(format!(
+                "{s}: give mtf@FREQ[:t|s|mean], FREQ a positive number of cycles/mm"
+            )),
+        },
+        _ => Err(format!(
+            "{s}: give spot, rms-wavefront or mtf@FREQ[:t|s|mean] (FREQ in cycles/mm)"
+        )),
+    }
+}
 
 /// Arguments of `tolray train`.
 #[derive(Args)]
@@ -68,10 +85,12 @@ pub struct TrainArgs {
     /// Weight of the PSF-similarity loss [default: 1; with --decoder 0.01]; 0 turns it off.
     #[arg(long)]
     pub lambda_psf: Option<f64>,
-    /// The optical term of both stages: spot (the paper's spot size) or rms-wavefront (the RMS
+    /// The optical term of both stages: spot (the paper's spot size), rms-wavefront (the RMS
     /// wavefront error to centroid in waves, weighed as the RMS spot of a defocus with that
-    /// error: 4√6·N·λ mm a wave). Not with --decoder.
-    #[arg(long, default_value = "spot", value_parser = ["spot", "rms-wavefront"])]
+    /// error: 4√6·N·λ mm a wave) or mtf@FREQ[:t|s|mean] (1 − the diffraction MTF at FREQ
+    /// cycles/mm, tangential, sagittal or their mean [default], weighed as a spot of 1/(2·FREQ)
+    /// mm per unit). Not with --decoder.
+    #[arg(long, default_value = "spot", value_parser = parse_loss, value_name = "LOSS")]
     pub loss: String,
     /// Rays per PSF in stage 2.
     #[arg(long, default_value_t = 256)]
@@ -234,9 +253,17 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
             cfg.lambda_spot = lambda_spot.unwrap_or(10.0);
             cfg.lambda_psf = lambda_psf.unwrap_or(1.0);
             cfg.psf_spp = psf_spp;
-            if loss == "rms-wavefront" {
-                cfg.loss = OpticalLoss::rms_wavefront_for(&l)?;
-            }
+            cfg.loss = match loss.as_str() {
+                "spot" => OpticalLoss::Spot,
+                "rms-wavefront" => OpticalLoss::rms_wavefront_for(&l)?,
+                s => match Criterion::parse(s)? {
+                    Criterion::Mtf {
+                        freq_lpmm,
+                        direction,
+                    } => OpticalLoss::mtf_at(freq_lpmm, direction)?,
+                    _ => unreachable!("refused by parse_loss"),
+                },
+            };
             let tolerance_lr_scale = tolerance_lr_scale.unwrap_or(0.1);
             if !(tolerance_lr_scale > 0.0 && tolerance_lr_scale.is_finite()) {
                 usage!("--tolerance-lr-scale {tolerance_lr_scale}: must be positive");
@@ -445,7 +472,8 @@ fn train(
             l.loss,
             l.spot_um,
             l.wavefront_waves
-                .map_or(String::new(), |w| format!(" wavefront {w:.4} waves")),
+                .map_or(String::new(), |w| format!(" wavefront {w:.4} waves"))
+                + &l.mtf.map_or(String::new(), |m| format!(" MTF {m:.4}")),
             l.psf_similarity
                 .map_or(String::new(), |s| format!(" sim {s:.4}"))
         ));
