@@ -1,7 +1,8 @@
 //! `deep`: the cost of the image half on the CPU.
 //! - spatially variant convolution of a 2048x2048 RGB image by an 8x8 map of 51x51 kernels;
-//! - one joint training iteration on lens1 at the demo's batch (32 crops of 32²) and at the
-//!   paper's (64 crops of 256²), tolerance phase, Wiener + U-Net decoder;
+//! - one joint training iteration on lens1 at the demo's batch (32 crops of 32²), through the
+//!   rays' PSFs and through diffraction PSFs, and at the paper's (64 crops of 256²), tolerance
+//!   phase, Wiener + U-Net decoder;
 //! - a decoder training step alone (64 crops of 64², Wiener + U-Net width 8);
 //! - the evaluation of one fabricated unit (RGB PSF map of 8192 rays per PSF, 3 images of 384²).
 
@@ -11,6 +12,7 @@ use tolray::deep::eval::{evaluate, EvalConfig, EvalImages};
 use tolray::deep::{step, DeepConfig, DeepState, Phase};
 use tolray::image::deadleaves::DeadLeaves;
 use tolray::image::render::{render_map, PsfMap};
+use tolray::psf::PsfModel;
 use tolray::Lens;
 
 fn focused_lens1() -> Lens {
@@ -39,10 +41,15 @@ fn bench(c: &mut Criterion) {
     });
 
     let lens = focused_lens1();
-    for (name, samples, crop) in [("demo-32x32px", 32, 32), ("paper-64x256px", 64, 256)] {
+    for (name, samples, crop, model) in [
+        ("demo-32x32px", 32, 32, PsfModel::Geometric),
+        ("demo-32x32px-diffraction", 32, 32, PsfModel::Diffraction),
+        ("paper-64x256px", 64, 256, PsfModel::Geometric),
+    ] {
         let mut cfg = DeepConfig::for_lens(&lens);
         cfg.optics.samples = samples;
         cfg.crop_px = crop;
+        cfg.psf = model;
         let st = DeepState::new(cfg.clone(), lens.clone(), None, Phase::Tolerance, 1, 0).unwrap();
         // A whole iteration: drawing the crops, patterns and rays, rendering, decoding, both
         // backward passes and the Adam steps.

@@ -19,6 +19,8 @@ pub struct BatchCrop {
     pub rays: Bundles,
     /// Spot bundles at its field (likewise).
     pub spot: Bundles,
+    /// Its diffraction PSFs, launched from the design likewise, when training uses them.
+    pub diffraction: Option<Arc<DiffractionPsfs>>,
     /// Nominal-design PSFs (the similarity term's constant reference; tolerance phases only).
     pub ideal: Vec<Vec<f64>>,
     /// Sharp image with a halo of (ks - 1) / 2 pixels, 3 planes of (crop + ks - 1)².
@@ -89,10 +91,26 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 .map(|&w| (fields[tile], w))
                 .collect();
             let rays = Bundles::pairs(lens, &pairs, &psf.pupil)?;
+            let diffraction = match cfg.psf {
+                PsfModel::Geometric => None,
+                PsfModel::Diffraction => Some(Arc::new(DiffractionPsfs::new(
+                    lens,
+                    fields[tile],
+                    &o.wavelengths_nm,
+                    ks,
+                    psf.pitch_mm,
+                    trace,
+                )?)),
+            };
             let ideal = if phase.samples_tolerances() {
-                (0..pairs.len())
-                    .map(|k| psf_of(&nominal, &rays, k, &psf, trace).0)
-                    .collect()
+                crop_psfs(
+                    &rays,
+                    diffraction.as_deref(),
+                    &nominal,
+                    &|_, v| v,
+                    &psf,
+                    trace,
+                )
             } else {
                 Vec::new()
             };
@@ -110,6 +128,7 @@ pub fn draw_batch(cfg: &DeepConfig, lens: &Lens, phase: Phase, it: usize) -> Res
                 refocus,
                 rays,
                 spot,
+                diffraction,
                 ideal,
                 xpad,
                 noise,
@@ -171,9 +190,14 @@ pub fn eval_batch(
         .map(|(j, bc)| -> Result<_> {
             let (plens, adj) = crop_lens(lens, bc)?;
             let sys: System<f64> = System::compile(&plens, &adj, &|_, v| v);
-            let psfs: Vec<Vec<f64>> = (0..bc.rays.len())
-                .map(|k| psf_of(&sys, &bc.rays, k, &psf, trace).0)
-                .collect();
+            let psfs: Vec<Vec<f64>> = crop_psfs(
+                &bc.rays,
+                bc.diffraction.as_deref(),
+                &sys,
+                &|_, v| v,
+                &psf,
+                trace,
+            );
             for (k, p) in psfs.iter().enumerate() {
                 crate::psf::check_landed(
                     p,
@@ -249,6 +273,7 @@ pub fn eval_batch(
                     let obj = PatternObjective {
                         spot: bc.spot.clone(),
                         psf_rays: bc.rays.clone(),
+                        diffraction: bc.diffraction.clone(),
                         psf,
                         similarity: !bc.ideal.is_empty(),
                         image_grad: g

@@ -27,10 +27,11 @@ use crate::optim::adam::{cosine_schedule, Adam};
 use crate::optim::train::{design_variables, TrainConfig};
 use crate::optim::GRAD_WIDTH;
 use crate::optim::{
-    gradient, gradient_with_unit, param_value, set_param, spot_sum, Objective, SpotMeasure,
+    gradient, gradient_with_unit, param_value, set_param, spot_sum, DiffractionPsfs, Objective,
+    SpotMeasure,
 };
 use crate::psf::{
-    grid_fields, psf_of, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfModel,
+    grid_fields, psf_of_launched, psf_similarity, psf_similarity_of, PsfCentre, PsfModel,
     PsfOptions,
 };
 use crate::trace::{Bundles, Field, Pupil, PupilPattern, TraceOptions, Traceable};
@@ -118,6 +119,10 @@ pub struct DeepConfig {
     /// for the sensor distance is exactly −∂L/∂δ, and training then drifts out of focus).
     #[serde(default)]
     pub compensate_focus: bool,
+    /// The PSFs training renders with and differentiates: the rays' (the paper's) or
+    /// diffraction PSFs ([`crate::optim::DiffractionPsfs`], exact in dual numbers too).
+    #[serde(default, skip_serializing_if = "PsfModel::is_geometric")]
+    pub psf: PsfModel,
 }
 
 impl DeepConfig {
@@ -140,6 +145,7 @@ impl DeepConfig {
             lambda_psf: 0.01,
             train_images: TrainImages::default(),
             compensate_focus: false,
+            psf: PsfModel::Geometric,
         }
     }
 
@@ -272,7 +278,12 @@ impl DeepState {
         let decoder = match decoder {
             Some(d) => d,
             None => {
-                let psfs = nominal_psf_map(&lens, &config.optics, config.optics.psf_spp.max(2048))?;
+                let psfs = nominal_psf_map(
+                    config.psf,
+                    &lens,
+                    &config.optics,
+                    config.optics.psf_spp.max(2048),
+                )?;
                 Decoder::new(
                     config.decoder,
                     config.optics.psf_grid,

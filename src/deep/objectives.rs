@@ -85,16 +85,48 @@ pub fn rgb_psf_map_of(
     Ok(out)
 }
 
-/// The nominal lens' RGB PSF map with `spp` rays per PSF (used to initialise a decoder).
-pub(super) fn nominal_psf_map(lens: &Lens, cfg: &TrainConfig, spp: usize) -> Result<Vec<f32>> {
+/// The nominal lens' RGB PSF map in `model`, `spp` rays per geometric PSF (used to initialise a
+/// decoder).
+pub(super) fn nominal_psf_map(
+    model: PsfModel,
+    lens: &Lens,
+    cfg: &TrainConfig,
+    spp: usize,
+) -> Result<Vec<f32>> {
     let opts = psf_options(lens, cfg.psf_ks, spp, cfg.seed);
-    rgb_psf_map(
+    rgb_psf_map_of(
+        model,
         lens,
         &lens.compile(),
         cfg.psf_grid,
         &cfg.wavelengths_nm,
         &opts,
     )
+}
+
+/// A crop's RGB PSFs through `sys` (compiled with `lift`): the rays' PSFs of `rays`, or with
+/// `diffraction` each wavelength's diffraction PSF where it has one (else the rays' PSF, a
+/// choice made on values), in any number type: the value path of training and the dual path
+/// of its gradient are this one function.
+pub fn crop_psfs<S: Traceable>(
+    rays: &Bundles,
+    diffraction: Option<&DiffractionPsfs>,
+    sys: &System<S>,
+    lift: &dyn Fn(Param, S) -> S,
+    psf: &PsfOptions,
+    trace: TraceOptions,
+) -> Vec<Vec<S>> {
+    let optics = rays.optics(lift);
+    let mut out: Vec<Option<Vec<S>>> = match diffraction {
+        Some(d) => d.psfs(sys, lift),
+        None => vec![None; rays.len()],
+    };
+    for (k, p) in out.iter_mut().enumerate() {
+        if p.is_none() {
+            *p = Some(psf_of_launched(sys, rays, k, optics.as_ref(), psf, trace).0);
+        }
+    }
+    out.into_iter().flatten().collect()
 }
 
 /// The lens objective of one training crop's pattern: the spot and PSF-similarity terms (weighted
@@ -107,6 +139,8 @@ pub struct PatternObjective {
     pub spot: Bundles,
     /// Rays of the crop's RGB PSF.
     pub psf_rays: Bundles,
+    /// The crop's diffraction PSFs when training uses them ([`crop_psfs`]).
+    pub diffraction: Option<Arc<DiffractionPsfs>>,
     /// PSF settings.
     pub psf: PsfOptions,
     /// Whether the similarity term is on (tolerance phases; off in the nominal phase).
@@ -128,18 +162,26 @@ impl Objective for PatternObjective {
         let spot = spot_sum(&self.spot, sys, lift, SpotMeasure::Mean, self.trace);
         let mut total =
             spot * S::cst(self.weight * self.lambda_spot / self.spot.len().max(1) as f64);
-        let optics = self.psf_rays.optics(lift);
-        let design = self.similarity.then(|| self.psf_rays.launch.design(lift));
-        let at = |s: &System<S>, k: usize| {
-            psf_of_launched(s, &self.psf_rays, k, optics.as_ref(), &self.psf, self.trace).0
+        let at = |s: &System<S>| {
+            crop_psfs(
+                &self.psf_rays,
+                self.diffraction.as_deref(),
+                s,
+                lift,
+                &self.psf,
+                self.trace,
+            )
         };
+        let psfs = at(sys);
+        let design = self
+            .similarity
+            .then(|| at(&self.psf_rays.launch.design(lift)));
         let mut sim = S::cst(0.0);
-        for k in 0..self.psf_rays.len() {
-            let p = at(sys, k);
+        for (k, p) in psfs.iter().enumerate() {
             if let Some(d) = &design {
-                sim += psf_similarity_of(&at(d, k), &p, self.psf.ks);
+                sim += psf_similarity_of(&d[k], p, self.psf.ks);
             }
-            for (g, v) in self.image_grad[k].iter().zip(&p) {
+            for (g, v) in self.image_grad[k].iter().zip(p) {
                 if *g != 0.0 {
                     total += *v * S::cst(*g);
                 }

@@ -184,11 +184,12 @@ impl Vignetting {
         *self == Vignetting::default()
     }
 
-    /// The normalized pupil point `q` moved into the vignetted pupil.
-    pub fn apply(&self, q: [f64; 2]) -> [f64; 2] {
+    /// The normalized pupil point `q` moved into the vignetted pupil, in any number type (the
+    /// differentiable wavefront launches through it in dual numbers).
+    pub fn apply<S: crate::real::Real>(&self, q: [S; 2]) -> [S; 2] {
         [
-            self.decenter_x + q[0] * (1.0 - self.compress_x),
-            self.decenter_y + q[1] * (1.0 - self.compress_y),
+            S::cst(self.decenter_x) + q[0] * S::cst(1.0 - self.compress_x),
+            S::cst(self.decenter_y) + q[1] * S::cst(1.0 - self.compress_y),
         ]
     }
 

@@ -6,7 +6,7 @@ mod run;
 pub mod train;
 mod wave;
 
-pub use wave::{MtfLoss, WavefrontLoss, LOST_WAVEFRONT_PENALTY_WAVES};
+pub use wave::{DiffractionPsfs, MtfLoss, WavefrontLoss, LOST_WAVEFRONT_PENALTY_WAVES};
 
 use crate::analysis::spot::root;
 use crate::analysis::SpotMoments;

@@ -66,6 +66,15 @@ pub enum OpticalLoss {
 }
 
 impl OpticalLoss {
+    /// What an iteration logs of the wave term's value `v` (none for the spot loss):
+    /// `(RMS wavefront waves, MTF)`, the MTF being `1 − v`.
+    fn logged(&self, v: Option<f64>) -> (Option<f64>, Option<f64>) {
+        match self {
+            OpticalLoss::Mtf { .. } => (None, v.map(|v| 1.0 - v)),
+            _ => (v, None),
+        }
+    }
+
     /// The RMS wavefront loss of `lens` weighed as the RMS spot radius a pure defocus of the same
     /// RMS wavefront error gives: 4√6 · N · λ mm per wave (N the working F-number, λ the primary
     /// wavelength in mm), 0.023 mm for an f/4 lens in green light.
@@ -420,16 +429,6 @@ enum WaveTerm {
     Mtf(MtfLoss),
 }
 
-impl WaveTerm {
-    /// What an iteration logs of the term's value `v`: `(RMS wavefront waves, MTF)`.
-    fn logged(&self, v: Option<f64>) -> (Option<f64>, Option<f64>) {
-        match self {
-            WaveTerm::Rms(_) => (v, None),
-            WaveTerm::Mtf(_) => (None, v.map(|v| 1.0 - v)),
-        }
-    }
-}
-
 impl Objective for WaveTerm {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
         match self {
@@ -464,11 +463,13 @@ impl Objective for PretrainObjective<'_> {
 
 /// The wave term of `cfg` over `fields` × its wavelengths, launched from `lens`, with its
 /// weight, or `None` for the spot loss.
+/// With `check` the MTF loss' frequency is checked against the design's cutoff at each field.
 fn wave_term(
     lens: &Lens,
     cfg: &TrainConfig,
     fields: &[Field],
     trace: TraceOptions,
+    check: bool,
 ) -> Result<Option<(WaveTerm, f64)>> {
     match cfg.loss {
         OpticalLoss::Spot => Ok(None),
@@ -487,7 +488,7 @@ fn wave_term(
             direction,
             mm_per_unit,
         } => {
-            let m = MtfLoss::new(
+            let m = MtfLoss::checked(
                 lens,
                 fields,
                 &cfg.wavelengths_nm,
@@ -495,6 +496,7 @@ fn wave_term(
                 direction,
                 Sampling::Grid(crate::tolerance::criterion::MTF_GRID),
                 trace,
+                check,
             )?;
             Ok(Some((WaveTerm::Mtf(m), mm_per_unit)))
         }
@@ -701,7 +703,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             let obj = PretrainObjective {
                 lens: &lens,
                 bundles,
-                wave: wave_term(&lens, &cfg, &cfg.fields, trace)?,
+                wave: wave_term(&lens, &cfg, &cfg.fields, trace, true)?,
                 trace,
                 constraints: &cfg.constraints,
             };
@@ -712,10 +714,9 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                 .map(|k| spot_size(&obj.bundles.sensor_points(&sys, k, trace), SpotMeasure::Rms))
                 .sum::<f64>()
                 / obj.bundles.len() as f64;
-            let wave = obj
-                .wave
-                .as_ref()
-                .map_or((None, None), |(w, _)| w.logged(Some(value(w, &lens, &adj))));
+            let wave = cfg
+                .loss
+                .logged(obj.wave.as_ref().map(|(w, _)| value(w, &lens, &adj)));
             (v, g, spot * 1e3, None, wave)
         }
         Stage::Tolerance => {
@@ -734,6 +735,10 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             };
             let slots_ok = cfg.spec.validate(&lens);
             slots_ok?;
+            // The MTF loss' cutoff at every field, once (each pattern's term skips it).
+            if matches!(cfg.loss, OpticalLoss::Mtf { .. }) {
+                wave_term(&lens, &cfg, &fields, trace, true)?;
+            }
             let results = (0..cfg.samples)
                 .into_par_iter()
                 .map(|j| -> Result<PatternResult> {
@@ -757,7 +762,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     )?;
                     let obj = PatternObjective {
                         spot,
-                        wave: wave_term(&lens, &cfg, &[field], trace)?,
+                        wave: wave_term(&lens, &cfg, &[field], trace, false)?,
                         psf_rays,
                         psf,
                         cfg: &cfg,
@@ -812,11 +817,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             for (a, b) in g.iter_mut().zip(&pg) {
                 *a += b;
             }
-            let logged = match cfg.loss {
-                OpticalLoss::Mtf { .. } => (None, wave.map(|v| 1.0 - v)),
-                _ => (wave, None),
-            };
-            (v + pv, g, s * 1e3, Some(sim), logged)
+            (v + pv, g, s * 1e3, Some(sim), cfg.loss.logged(wave))
         }
     };
     if !loss.is_finite() {

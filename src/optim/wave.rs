@@ -214,6 +214,31 @@ impl MtfLoss {
         sampling: Sampling,
         trace: TraceOptions,
     ) -> Result<MtfLoss> {
+        Self::checked(
+            lens,
+            fields,
+            wavelengths_nm,
+            freq_lpmm,
+            direction,
+            sampling,
+            trace,
+            true,
+        )
+    }
+
+    /// [`MtfLoss::new`], the cutoff checked only with `check` (a trainer that checked the design
+    /// at every field once need not trace its wavefronts again for each pattern).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn checked(
+        lens: &Lens,
+        fields: &[Field],
+        wavelengths_nm: &[f64],
+        freq_lpmm: f64,
+        direction: MtfDirection,
+        sampling: Sampling,
+        trace: TraceOptions,
+        check: bool,
+    ) -> Result<MtfLoss> {
         sampling.check()?;
         if !(freq_lpmm > 0.0 && freq_lpmm.is_finite()) {
             return Err(Error::argument(format!(
@@ -230,6 +255,9 @@ impl MtfLoss {
         let mut launched = Vec::with_capacity(fields.len());
         for &f in fields {
             launched.push((f, f.resolved(lens, &para, false)?));
+            if !check {
+                continue;
+            }
             // The design's cutoff, so that a frequency it cannot pass is refused by name.
             for &wl in wavelengths_nm {
                 let w = wavefront(lens, &sys, f, wl, &opts)?;
@@ -269,65 +297,21 @@ impl MtfLoss {
         optics: &LaunchOptics<S>,
         to_pupil: S,
     ) -> Option<S> {
-        let lens = &*self.launch.lens;
         let (given, field) = self.fields[f];
-        let beam = Beam::launch(lens, optics, field).ok()?;
-        let vig = lens.vignetting_of(given);
-        // The vignetted pupil is an affine map of the normalised one.
-        let ray = |q: [S; 2]| {
-            let x = S::cst(vig.decenter_x) + q[0] * S::cst(1.0 - vig.compress_x);
-            let y = S::cst(vig.decenter_y) + q[1] * S::cst(1.0 - vig.compress_y);
-            beam.ray(x * beam.r_ep, y * beam.r_ep)
-        };
-        let chief = ray([S::cst(0.0); 2]);
-        let idx = sys.indices(wl);
-        let (n0, n_img) = (idx[0], idx[idx.len() - 1].abs());
-        // Traces rays (the chief ray appended) and returns their OPD against the sphere.
-        let opd = |rays: Vec<(Vec3<S>, Vec3<S>)>| {
-            let mut launch = rays;
-            launch.push(chief);
-            let mut batch = RayBatch::collect_unit(launch.iter().copied());
-            trace_serial(sys, wl, &mut batch, self.trace);
-            let s = sphere_opd(
-                lens.object,
-                &launch,
-                &batch,
-                n0,
-                n_img,
-                &sys.image,
-                to_pupil,
-                Reference::Chief,
-                wl,
-            )
-            .ok()?;
-            Some((s, batch))
-        };
-        let pts = &self.points;
-        let (base, batch) = opd(pts.iter().map(|p| ray(p.map(S::cst))).collect::<Vec<_>>())?;
-        if base.rays.len() < 3 {
-            return None;
-        }
-        let p: Vec<[f64; 2]> = base.rays.iter().map(|r| pts[r.0]).collect();
-        let total: f64 = base.rays.iter().map(|r| self.weights[r.0]).sum();
-        let w: Vec<f64> = base
-            .rays
-            .iter()
-            .map(|r| self.weights[r.0] / total)
-            .collect();
-        // The slopes of n' times the image-space direction cosines over the pupil.
-        let img = &sys.image;
-        let dirs: Vec<Vec3<S>> = base
-            .rays
-            .iter()
-            .map(|r| img.rotation.apply_t(batch.get(r.0).d) * n_img)
-            .collect();
-        let ax = plane_fit(&p, &w, &dirs.iter().map(|d| d.x).collect::<Vec<_>>())?[1];
-        let ay = plane_fit(&p, &w, &dirs.iter().map(|d| d.y).collect::<Vec<_>>())?[2];
-        if !(ax.value().abs() > 0.0 && ay.value().abs() > 0.0) {
-            return None;
-        }
+        let tracer = PupilTracer::new(
+            &self.launch.lens,
+            sys,
+            optics,
+            given,
+            field,
+            wl,
+            to_pupil,
+            self.trace,
+        )?;
+        let base = tracer.wave(&self.points, &self.weights)?;
+        let (p, w, [ax, ay]) = (&base.pupil, &base.weights, base.slopes);
         // Tangential: toward the chief ray's image point (y on axis); sagittal across it.
-        let c = img.point_to_local(base.centre);
+        let c = sys.image.point_to_local(base.centre);
         let r = (c.x * c.x + c.y * c.y).sqrt();
         let t = if r.value() > 1e-9 {
             [c.x / r, c.y / r]
@@ -344,15 +328,15 @@ impl MtfLoss {
                 let q = [S::cst(q[0]) - shift[0], S::cst(q[1]) - shift[1]];
                 if q[0].value().powi(2) + q[1].value().powi(2) <= 1.0 {
                     owner.push(i);
-                    rays.push(ray(q));
+                    rays.push(tracer.ray(q));
                 }
             }
             let (mut re, mut im) = (S::cst(0.0), S::cst(0.0));
             if !rays.is_empty() {
-                let (sheared, _) = opd(rays)?;
+                let (sheared, _) = tracer.opd(rays)?;
                 for &(k, v, _) in &sheared.rays {
                     let i = owner[k];
-                    let phase = (base.rays[i].1 - v) * S::cst(std::f64::consts::TAU);
+                    let phase = (base.opd_waves[i] - v) * S::cst(std::f64::consts::TAU);
                     re += phase.cos() * S::cst(w[i]);
                     im += phase.sin() * S::cst(w[i]);
                 }
@@ -374,6 +358,137 @@ impl MtfLoss {
     }
 }
 
+/// The rays of one field and wavelength through normalised entrance-pupil points, in any number
+/// type, launched from a design (its first-order numbers moving with the design variables), its
+/// vignetting factors applied, traced through a system and measured against the reference
+/// sphere on the chief ray through the exit pupil: the wavefront of
+/// [`crate::wave::wavefront`] (no aiming) as a differentiable function.
+pub(crate) struct PupilTracer<'a, S: Traceable> {
+    lens: &'a Lens,
+    sys: &'a System<S>,
+    beam: Beam<S>,
+    vig: crate::lens::Vignetting,
+    chief: (Vec3<S>, Vec3<S>),
+    wl: f64,
+    n0: S,
+    n_img: S,
+    to_pupil: S,
+    trace: TraceOptions,
+}
+
+/// The unsheared wavefront of a [`PupilTracer`] over the rays that got through.
+pub(crate) struct TracedWave<S> {
+    /// Their normalised pupil points.
+    pub pupil: Vec<[f64; 2]>,
+    /// Their weights, normalised over them.
+    pub weights: Vec<f64>,
+    /// Their OPD, waves.
+    pub opd_waves: Vec<S>,
+    /// The slopes of `n'` times the image-space direction cosines over the pupil (x, y).
+    pub slopes: [S; 2],
+    /// The reference sphere's centre (the chief ray's image point), global frame.
+    pub centre: Vec3<S>,
+}
+
+impl<'a, S: Traceable> PupilTracer<'a, S> {
+    /// The tracer of field `field` (as launched; `given` as the user gave it, which names its
+    /// vignetting factors) at `wl` through `sys`, launched from `lens` with `optics`, the exit
+    /// pupil `to_pupil` mm from the image plane; `None` when the field cannot be launched.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn new(
+        lens: &'a Lens,
+        sys: &'a System<S>,
+        optics: &LaunchOptics<S>,
+        given: Field,
+        field: Field,
+        wl: f64,
+        to_pupil: S,
+        trace: TraceOptions,
+    ) -> Option<Self> {
+        let beam = Beam::launch(lens, optics, field).ok()?;
+        let vig = lens.vignetting_of(given);
+        let idx = sys.indices(wl);
+        let (n0, n_img) = (idx[0], idx[idx.len() - 1].abs());
+        let mut t = PupilTracer {
+            lens,
+            sys,
+            beam,
+            vig,
+            chief: (Vec3::cst(0.0, 0.0, 0.0), Vec3::cst(0.0, 0.0, 0.0)),
+            wl,
+            n0,
+            n_img,
+            to_pupil,
+            trace,
+        };
+        t.chief = t.ray([S::cst(0.0); 2]);
+        Some(t)
+    }
+
+    /// The ray through the normalised pupil point `q` (the vignetted pupil is an affine map of
+    /// the normalised one).
+    pub(crate) fn ray(&self, q: [S; 2]) -> (Vec3<S>, Vec3<S>) {
+        let [x, y] = self.vig.apply(q);
+        self.beam.ray(x * self.beam.r_ep, y * self.beam.r_ep)
+    }
+
+    /// Traces `rays` (the chief ray appended) and returns their OPD against the sphere, and the
+    /// traced batch; `None` when the chief ray is lost.
+    pub(crate) fn opd(
+        &self,
+        rays: Vec<(Vec3<S>, Vec3<S>)>,
+    ) -> Option<(crate::wave::opd::SphereOpd<S>, RayBatch<S>)> {
+        let mut launch = rays;
+        launch.push(self.chief);
+        let mut batch = RayBatch::collect_unit(launch.iter().copied());
+        trace_serial(self.sys, self.wl, &mut batch, self.trace);
+        let s = sphere_opd(
+            self.lens.object,
+            &launch,
+            &batch,
+            self.n0,
+            self.n_img,
+            &self.sys.image,
+            self.to_pupil,
+            Reference::Chief,
+            self.wl,
+        )
+        .ok()?;
+        Some((s, batch))
+    }
+
+    /// The wavefront through `points` of quadrature `weights`; `None` when the chief ray is lost,
+    /// fewer than three rays get through or the slopes vanish.
+    pub(crate) fn wave(&self, points: &[[f64; 2]], weights: &[f64]) -> Option<TracedWave<S>> {
+        let rays = points.iter().map(|p| self.ray(p.map(S::cst))).collect();
+        let (base, batch) = self.opd(rays)?;
+        if base.rays.len() < 3 {
+            return None;
+        }
+        let pupil: Vec<[f64; 2]> = base.rays.iter().map(|r| points[r.0]).collect();
+        let total: f64 = base.rays.iter().map(|r| weights[r.0]).sum();
+        let w: Vec<f64> = base.rays.iter().map(|r| weights[r.0] / total).collect();
+        let img = &self.sys.image;
+        let dirs: Vec<Vec3<S>> = base
+            .rays
+            .iter()
+            .map(|r| img.rotation.apply_t(batch.get(r.0).d) * self.n_img)
+            .collect();
+        let ax = plane_fit(&pupil, &w, &dirs.iter().map(|d| d.x).collect::<Vec<_>>())?[1];
+        let ay = plane_fit(&pupil, &w, &dirs.iter().map(|d| d.y).collect::<Vec<_>>())?[2];
+        if !(ax.value().abs() > 0.0 && ay.value().abs() > 0.0) {
+            return None;
+        }
+        Some(TracedWave {
+            pupil,
+            weights: w,
+            opd_waves: base.rays.iter().map(|r| r.1).collect(),
+            slopes: [ax, ay],
+            centre: base.centre,
+        })
+    }
+}
+
 impl Objective for MtfLoss {
     fn eval<S: Traceable>(&self, sys: &System<S>, lift: &dyn Fn(Param, S) -> S) -> S {
         let lens = &*self.launch.lens;
@@ -390,5 +505,105 @@ impl Objective for MtfLoss {
             }
         }
         total * S::cst(1.0 / n.max(1) as f64)
+    }
+}
+
+/// The diffraction PSFs of one field at several wavelengths on sensor pixels, in any number
+/// type: [`crate::wave::psf::diffraction_psf_map`]'s PSF of that field (the same sampling rule,
+/// FFT and bilinear deposit, centred on the chief ray), its wavefront traced as a differentiable
+/// function of the design (launched through the design's paraxial entrance pupil, the
+/// reference sphere through its exit pupil, as [`MtfLoss`] traces it). Its dual-number
+/// derivative is that of the PSF as evaluated: the OPD, the FFT's pixel pitch (from the
+/// rays' direction cosines) and the deposit's bilinear weights all move with the design; which
+/// pupil and FFT sizes are used, and which pixels a sample lands between, is decided on values.
+///
+/// # Examples
+/// ```
+/// use tolray::optim::DiffractionPsfs;
+/// use tolray::trace::{Field, TraceOptions};
+/// use tolray::wave::psf::diffraction_psf_map;
+/// use tolray::Lens;
+/// let lens = Lens::load("lens1")?;
+/// let field = tolray::psf::grid_fields(&lens, 2)[3];
+/// let d = DiffractionPsfs::new(&lens, field, &[587.5618], 15, 0.0036, TraceOptions::default())?;
+/// let p = d.psfs(&lens.compile(), &|_, v| v)[0].clone().unwrap();
+/// let map = diffraction_psf_map(&lens, &lens.compile(), 2, 587.5618, 15, 0.0036)?;
+/// assert!(p.iter().zip(&map[3]).all(|(a, b)| (a - b).abs() < 1e-9));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct DiffractionPsfs {
+    /// The design the rays are launched from (at its primary wavelength).
+    pub launch: LaunchSource,
+    /// The field as given and as launched (held).
+    pub field: (Field, Field),
+    /// Wavelengths, nm: one PSF each.
+    pub wavelengths_nm: Vec<f64>,
+    /// Window side, pixels (odd).
+    pub ks: usize,
+    /// Pixel pitch, mm.
+    pub pitch_mm: f64,
+    /// Trace options.
+    pub trace: TraceOptions,
+}
+
+impl DiffractionPsfs {
+    /// The PSFs of `field` of `lens` at `wavelengths_nm` on `ks x ks` pixels of `pitch_mm`.
+    ///
+    /// # Errors
+    /// Paraxial errors of the design; a field it cannot resolve; a window
+    /// [`crate::wave::psf::pixel_psf`] refuses.
+    pub fn new(
+        lens: &Lens,
+        field: Field,
+        wavelengths_nm: &[f64],
+        ks: usize,
+        pitch_mm: f64,
+        trace: TraceOptions,
+    ) -> Result<DiffractionPsfs> {
+        let para = lens.paraxial(lens.primary_wavelength_nm)?;
+        let resolved = field.resolved(lens, &para, false)?;
+        crate::wave::psf::check_window(ks, pitch_mm)?;
+        Ok(DiffractionPsfs {
+            launch: LaunchSource::new(lens, &para),
+            field: (field, resolved),
+            wavelengths_nm: wavelengths_nm.to_vec(),
+            ks,
+            pitch_mm,
+            trace,
+        })
+    }
+
+    /// Each wavelength's PSF through `sys` (the design compiled with `lift`, or a unit of it),
+    /// unit sum, or `None` where it has none (the chief ray lost, fewer than three rays through,
+    /// a wavefront the sampling rule cannot resolve): the caller stands in for it.
+    pub fn psfs<S: Traceable>(
+        &self,
+        sys: &System<S>,
+        lift: &dyn Fn(Param, S) -> S,
+    ) -> Vec<Option<Vec<S>>> {
+        let lens = &*self.launch.lens;
+        let optics = launch_optics(lens, self.launch.wavelength_nm, self.launch.stop, lift);
+        let to_pupil = pupil_from_image(lens, self.launch.stop, lift);
+        let (given, field) = self.field;
+        self.wavelengths_nm
+            .iter()
+            .map(|&wl| {
+                let tracer =
+                    PupilTracer::new(lens, sys, &optics, given, field, wl, to_pupil, self.trace)?;
+                let mut wave_at = |s: usize| -> Result<crate::wave::psf::GridWave<S>> {
+                    let (points, weights) = Sampling::Grid(s).points();
+                    let t = tracer
+                        .wave(&points, &weights)
+                        .ok_or_else(|| Error::numerical("no wavefront"))?;
+                    Ok(crate::wave::psf::GridWave {
+                        pupil: t.pupil,
+                        opd_waves: t.opd_waves,
+                        slopes: t.slopes,
+                    })
+                };
+                crate::wave::psf::sampled_pixel_psf(&mut wave_at, wl, self.ks, self.pitch_mm).ok()
+            })
+            .collect()
     }
 }

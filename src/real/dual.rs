@@ -161,6 +161,28 @@ impl<T: Real, const N: usize> Real for Dual<T, N> {
     }
     const EPSILON: f64 = T::EPSILON;
     const NAME: &'static str = "dual";
+    const PARTS: usize = T::PARTS * (N + 1);
+    #[inline(always)]
+    fn part(self, k: usize) -> f64 {
+        let (c, r) = (k / T::PARTS, k % T::PARTS);
+        if c == 0 {
+            self.re.part(r)
+        } else {
+            self.eps[c - 1].part(r)
+        }
+    }
+    #[inline(always)]
+    fn from_parts(parts: &[f64]) -> Self {
+        let t = T::PARTS;
+        let mut eps = [T::cst(0.0); N];
+        for (k, e) in eps.iter_mut().enumerate() {
+            *e = T::from_parts(&parts[(k + 1) * t..(k + 2) * t]);
+        }
+        Dual {
+            re: T::from_parts(&parts[..t]),
+            eps,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -184,5 +206,27 @@ mod tests {
         let (s, q, d) = (x0.sin(), (x0 * y0).sqrt(), x0 + y0.cos());
         let exact = s * (x0 / (2.0 * q) * d + q * y0.sin()) / (d * d);
         assert!((f.eps[1] - exact).abs() < 1e-15);
+    }
+
+    /// Parts round-trip, nested duals included: value first, then each derivative's parts.
+    #[test]
+    fn parts_round_trip() {
+        type D = Dual<Dual<f64, 2>, 3>;
+        let mut x = D::constant(Dual {
+            re: 1.0,
+            eps: [2.0, 3.0],
+        });
+        for (k, e) in x.eps.iter_mut().enumerate() {
+            *e = Dual {
+                re: 4.0 + k as f64,
+                eps: [10.0 + k as f64, 20.0 + k as f64],
+            };
+        }
+        assert_eq!(D::PARTS, 12);
+        let p: Vec<f64> = (0..D::PARTS).map(|k| x.part(k)).collect();
+        assert_eq!(&p[..6], &[1.0, 2.0, 3.0, 4.0, 10.0, 20.0]);
+        assert_eq!(D::from_parts(&p), x);
+        assert_eq!(<f64 as Real>::PARTS, 1);
+        assert_eq!(f64::from_parts(&[2.5]), 2.5);
     }
 }

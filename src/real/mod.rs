@@ -95,6 +95,21 @@ pub trait Real:
     const EPSILON: f64;
     /// Short type name for reports and benchmark labels.
     const NAME: &'static str;
+    /// Number of `f64` components: the value and, for dual numbers, each derivative part
+    /// (1 for plain floats). A map that is linear with constant coefficients (an FFT) applies
+    /// to a number component by component, so a crate written for `f64` can carry any `Real`.
+    const PARTS: usize = 1;
+    /// Component `k` of [`Real::PARTS`] (0 is the value).
+    #[inline(always)]
+    fn part(self, k: usize) -> f64 {
+        debug_assert_eq!(k, 0);
+        self.value()
+    }
+    /// The number whose components are `parts` ([`Real::PARTS`] of them).
+    #[inline(always)]
+    fn from_parts(parts: &[f64]) -> Self {
+        Self::cst(parts[0])
+    }
 }
 
 macro_rules! impl_real_float {

@@ -26,6 +26,7 @@
 use super::Wavefront;
 use crate::error::{Error, Result};
 use crate::math::Vec3;
+use crate::real::Real;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use serde::Serialize;
@@ -139,9 +140,15 @@ fn cell(x: f64, s: usize) -> usize {
 /// from it is wrong.
 #[must_use]
 pub fn opd_step_waves(w: &Wavefront, s: usize) -> f64 {
+    opd_step(&w.pupil, &w.opd_waves, s)
+}
+
+/// [`opd_step_waves`] of the OPD `opd` (waves, any number type: its values) at the grid points
+/// `pupil`.
+fn opd_step<S: Real>(pupil: &[[f64; 2]], opd: &[S], s: usize) -> f64 {
     let mut g = vec![f64::NAN; s * s];
-    for (p, &opd) in w.pupil.iter().zip(&w.opd_waves) {
-        g[cell(p[1], s) * s + cell(p[0], s)] = opd;
+    for (p, &v) in pupil.iter().zip(opd) {
+        g[cell(p[1], s) * s + cell(p[0], s)] = v.value();
     }
     let mut step: f64 = 0.0;
     for j in 0..s {
@@ -160,6 +167,16 @@ pub fn opd_step_waves(w: &Wavefront, s: usize) -> f64 {
     step
 }
 
+/// The error of a pupil grid of `s` samples across on which the OPD steps by `step` waves.
+fn undersampled(step: f64, s: usize) -> Error {
+    let need = (s as f64 * step / 0.4).ceil() as usize;
+    Error::numerical(format!(
+        "pupil undersampled: the OPD changes by {step:.2} waves between neighbouring samples \
+         of the {s} x {s} pupil grid (at most 0.5 without aliasing); use about {need} pupil \
+         samples or more"
+    ))
+}
+
 /// Refuses a wavefront not traced on the `s x s` pupil grid, or too steep for it
 /// ([`opd_step_waves`] above half a wave),
 /// saying how many samples would do.
@@ -167,12 +184,7 @@ pub(crate) fn check_sampling(w: &Wavefront, s: usize) -> Result<()> {
     check_grid_sampled(w, s)?;
     let step = opd_step_waves(w, s);
     if step > 0.5 {
-        let need = (s as f64 * step / 0.4).ceil() as usize;
-        return Err(Error::numerical(format!(
-            "pupil undersampled: the OPD changes by {step:.2} waves between neighbouring samples \
-             of the {s} x {s} pupil grid (at most 0.5 without aliasing); use about {need} pupil \
-             samples or more"
-        )));
+        return Err(undersampled(step, s));
     }
     Ok(())
 }
@@ -186,23 +198,99 @@ pub(crate) fn pupil_transform(
     opts: &FftOptions,
     aberrated: bool,
 ) -> (Vec<Complex<f64>>, f64) {
-    let (s, n) = (opts.pupil_samples, opts.grid);
-    let mut a = vec![Complex::new(0.0, 0.0); n * n];
-    let off = (n - s) / 2;
-    for (p, &opd) in w.pupil.iter().zip(&w.opd_waves) {
-        let (i, j) = (cell(p[0], s) + off, cell(p[1], s) + off);
-        let phase = if aberrated {
-            std::f64::consts::TAU * opd
-        } else {
-            0.0
-        };
-        a[j * n + i] = Complex::from_polar(1.0, phase);
-    }
-    let mut planner = rustfft::FftPlanner::<f64>::new();
-    let f = planner.plan_fft_forward(n);
-    crate::psf::transform2(&mut a, n, &f);
+    let opd = aberrated.then_some(w.opd_waves.as_slice());
+    let a = transform_of(&w.pupil, opd, opts.pupil_samples, opts.grid);
     let count = w.pupil.len() as f64;
-    (a, count * count)
+    (
+        a.into_iter().map(|[re, im]| Complex::new(re, im)).collect(),
+        count * count,
+    )
+}
+
+/// The FFT of the pupil function `exp(i 2π W)` of the OPD `opd` (waves; zero when `None`) at
+/// the points `pupil` of the `s x s` grid, placed in the centre of an `n x n` array, as
+/// `[re, im]`, in any number type: the transform is linear with constant coefficients, so each
+/// of the number's components ([`Real::part`]: the value and each derivative) is transformed
+/// by `rustfft` on its own.
+fn transform_of<S: Real>(pupil: &[[f64; 2]], opd: Option<&[S]>, s: usize, n: usize) -> Vec<[S; 2]> {
+    let off = (n - s) / 2;
+    let at: Vec<usize> = pupil
+        .iter()
+        .map(|p| (cell(p[1], s) + off) * n + cell(p[0], s) + off)
+        .collect();
+    let values: Vec<[S; 2]> = match opd {
+        Some(o) => o
+            .iter()
+            .map(|&w| {
+                let ph = w * S::cst(std::f64::consts::TAU);
+                [ph.cos(), ph.sin()]
+            })
+            .collect(),
+        None => vec![[S::cst(1.0), S::cst(0.0)]; pupil.len()],
+    };
+    let f = rustfft::FftPlanner::<f64>::new().plan_fft_forward(n);
+    let parts: Vec<Vec<Complex<f64>>> = (0..S::PARTS)
+        .map(|k| {
+            let mut a = vec![Complex::new(0.0, 0.0); n * n];
+            for (&i, v) in at.iter().zip(&values) {
+                a[i] = Complex::new(v[0].part(k), v[1].part(k));
+            }
+            crate::psf::transform2(&mut a, n, &f);
+            a
+        })
+        .collect();
+    let (mut re, mut im) = (vec![0.0; S::PARTS], vec![0.0; S::PARTS]);
+    (0..n * n)
+        .map(|m| {
+            for (k, a) in parts.iter().enumerate() {
+                re[k] = a[m].re;
+                im[k] = a[m].im;
+            }
+            [S::from_parts(&re), S::from_parts(&im)]
+        })
+        .collect()
+}
+
+/// A wavefront on the `s x s` pupil grid in any number type: what an FFT PSF is made of.
+#[derive(Clone, Debug)]
+pub(crate) struct GridWave<S> {
+    /// Normalised pupil points (cell centres of the grid) of the rays that got through.
+    pub pupil: Vec<[f64; 2]>,
+    /// Their OPD, waves.
+    pub opd_waves: Vec<S>,
+    /// The slopes `a_x`, `a_y` of the image-space direction cosines times the index over the
+    /// pupil ([`direction_map`]'s `[0][1]` and `[1][2]`).
+    pub slopes: [S; 2],
+}
+
+/// The FFT PSF intensity of `w` on an `n x n` grid (relative to the unaberrated peak, laid out
+/// as [`fft_psf`]'s values) and its pixel pitch (mm) along x and y.
+fn intensity_of<S: Real>(
+    w: &GridWave<S>,
+    s: usize,
+    n: usize,
+    wavelength_nm: f64,
+) -> (Vec<S>, [S; 2]) {
+    let (ax, ay) = (w.slopes[0], w.slopes[1]);
+    let k = S::cst(wavelength_nm * 1e-6 / (n as f64 * 2.0 / s as f64));
+    let pitch = [k / ax.abs(), k / ay.abs()];
+    let a = transform_of(&w.pupil, Some(&w.opd_waves), s, n);
+    let count = w.pupil.len() as f64;
+    let inv = S::cst(1.0 / (count * count));
+    let half = (n / 2) as isize;
+    let wrap = |k: isize| k.rem_euclid(n as isize) as usize;
+    let (sx, sy) = (ax.value().signum() as isize, ay.value().signum() as isize);
+    let mut values = Vec::with_capacity(n * n);
+    for r in 0..n {
+        // Image y = (n/2 - r) pitch; frequency index k_y = sign(a_y) (n/2 - r).
+        let ky = wrap(sy * (half - r as isize));
+        for c in 0..n {
+            let kx = wrap(sx * (c as isize - half));
+            let [re, im] = a[ky * n + kx];
+            values.push((re * re + im * im) * inv);
+        }
+    }
+    (values, pitch)
 }
 
 /// The FFT PSF's grid before its peak is refined: [`fft_psf`]'s values, pixel pitch (mm),
@@ -220,31 +308,19 @@ fn fft_intensity(w: &Wavefront, opts: &FftOptions) -> Result<FftGrid> {
     check_sampling(w, opts.pupil_samples)?;
     let (s, n) = (opts.pupil_samples, opts.grid);
     let map = direction_map(w)?;
-    let (ax, ay) = (map[0][1], map[1][2]);
-    let lambda_mm = w.wavelength_nm * 1e-6;
-    let dp = 2.0 / s as f64;
-    let pitch = [
-        lambda_mm / (n as f64 * dp * ax.abs()),
-        lambda_mm / (n as f64 * dp * ay.abs()),
-    ];
-    let (a, ideal) = pupil_transform(w, opts, true);
-    let half = (n / 2) as isize;
-    let wrap = |k: isize| k.rem_euclid(n as isize) as usize;
-    let mut values = vec![0.0; n * n];
-    for r in 0..n {
-        // Image y = (n/2 - r) pitch; frequency index k_y = sign(a_y) (n/2 - r).
-        let ky = wrap((ay.signum() as isize) * (half - r as isize));
-        for c in 0..n {
-            let kx = wrap((ax.signum() as isize) * (c as isize - half));
-            values[r * n + c] = a[ky * n + kx].norm_sqr() / ideal;
-        }
-    }
+    let g = GridWave {
+        pupil: w.pupil.clone(),
+        opd_waves: w.opd_waves.clone(),
+        slopes: [map[0][1], map[1][2]],
+    };
+    let (values, pitch_mm) = intensity_of(&g, s, n, w.wavelength_nm);
+    let count = w.pupil.len() as f64;
     Ok(FftGrid {
         n,
         values,
-        pitch_mm: pitch,
-        slopes: [ax, ay],
-        ideal,
+        pitch_mm,
+        slopes: g.slopes,
+        ideal: count * count,
     })
 }
 
@@ -684,7 +760,7 @@ pub fn pixel_psf(w: &Wavefront, opts: &FftOptions, ks: usize, pitch_mm: f64) -> 
 
 /// Checks a sensor window: `ks` odd, 3 to 255 pixels (as a geometric PSF's), of a positive,
 /// finite pitch up to 10 mm.
-fn check_window(ks: usize, pitch_mm: f64) -> Result<()> {
+pub(crate) fn check_window(ks: usize, pitch_mm: f64) -> Result<()> {
     if ks < 3 || ks % 2 == 0 || ks > 255 {
         return Err(Error::argument(format!(
             "PSF window of {ks} pixels: give an odd number from 3 to 255"
@@ -701,36 +777,63 @@ fn check_window(ks: usize, pitch_mm: f64) -> Result<()> {
 /// The FFT grid `g` deposited bilinearly on a `ks x ks` window of `pitch_mm` pixels centred on
 /// the grid's centre, unit sum; `None` when nothing lands.
 fn deposit(g: &FftGrid, ks: usize, pitch_mm: f64) -> Option<Vec<f64>> {
-    let n = g.n;
+    deposit_of(&g.values, g.n, g.pitch_mm, ks, pitch_mm)
+}
+
+/// [`deposit`] of the `n x n` intensities `values` of pixel pitch `grid_pitch_mm`, in any number
+/// type: which pixels a sample lands between is decided on the values, its bilinear weights
+/// and the unit sum move with the pitch and the intensities.
+fn deposit_of<S: Real>(
+    values: &[S],
+    n: usize,
+    grid_pitch_mm: [S; 2],
+    ks: usize,
+    pitch_mm: f64,
+) -> Option<Vec<S>> {
     let (half_g, half_k) = ((n / 2) as f64, (ks / 2) as f64);
     let last = (ks - 1) as f64;
-    let mut img = vec![0.0; ks * ks];
-    let mut total = 0.0;
+    let scale = [
+        grid_pitch_mm[0] * S::cst(1.0 / pitch_mm),
+        grid_pitch_mm[1] * S::cst(1.0 / pitch_mm),
+    ];
+    // Each column's pixel and weight toward the next.
+    let cols: Vec<Option<(usize, S)>> = (0..n)
+        .map(|c| {
+            let u = S::cst(c as f64 - half_g) * scale[0] + S::cst(half_k);
+            let uv = u.value();
+            (uv >= 0.0 && uv < last).then(|| (uv.floor() as usize, u - S::cst(uv.floor())))
+        })
+        .collect();
+    let mut img = vec![S::cst(0.0); ks * ks];
+    let mut total = S::cst(0.0);
+    let one = S::cst(1.0);
     for r in 0..n {
-        let v = half_k - (half_g - r as f64) * g.pitch_mm[1] / pitch_mm;
-        if !(v >= 0.0 && v < last) {
+        let v = S::cst(half_k) - S::cst(half_g - r as f64) * scale[1];
+        let vv = v.value();
+        if !(vv >= 0.0 && vv < last) {
             continue;
         }
-        let (j, fy) = (v.floor() as usize, v - v.floor());
-        for c in 0..n {
-            let u = (c as f64 - half_g) * g.pitch_mm[0] / pitch_mm + half_k;
-            let e = g.values[r * n + c];
-            if !(u >= 0.0 && u < last) || e == 0.0 {
+        let (j, fy) = (vv.floor() as usize, v - S::cst(vv.floor()));
+        for (c, col) in cols.iter().enumerate() {
+            let e = values[r * n + c];
+            let Some((i, fx)) = *col else { continue };
+            if e.value() == 0.0 {
                 continue;
             }
-            let (i, fx) = (u.floor() as usize, u - u.floor());
-            img[j * ks + i] += e * (1.0 - fx) * (1.0 - fy);
-            img[j * ks + i + 1] += e * fx * (1.0 - fy);
-            img[(j + 1) * ks + i] += e * (1.0 - fx) * fy;
-            img[(j + 1) * ks + i + 1] += e * fx * fy;
+            let (ey, ey1) = (e * (one - fy), e * fy);
+            img[j * ks + i] += ey * (one - fx);
+            img[j * ks + i + 1] += ey * fx;
+            img[(j + 1) * ks + i] += ey1 * (one - fx);
+            img[(j + 1) * ks + i + 1] += ey1 * fx;
             total += e;
         }
     }
-    if !(total > 0.0) {
+    if !(total.value() > 0.0) {
         return None;
     }
+    let inv = one / total;
     for x in &mut img {
-        *x /= total;
+        *x *= inv;
     }
     Some(img)
 }
@@ -786,68 +889,92 @@ pub fn diffraction_psf_tiles(
     pitch_mm: f64,
 ) -> Result<Vec<Result<Vec<f64>>>> {
     check_window(ks, pitch_mm)?;
-    let window = ks as f64 * pitch_mm;
     Ok(crate::psf::grid_fields(lens, grid)
         .par_iter()
         .map(|&field| {
-            let what = || {
-                format!(
-                    "diffraction PSF of field {} at {wavelength_nm} nm",
-                    field.label()
-                )
-            };
-            let mut s = MAP_SAMPLES.0;
-            loop {
+            let mut wave_at = |s: usize| -> Result<GridWave<f64>> {
                 let o = super::WaveOptions {
                     sampling: super::Sampling::Grid(s),
                     ..super::WaveOptions::default()
                 };
-                let w = super::wavefront(lens, sys, field, wavelength_nm, &o)
-                    .map_err(|e| e.context(what()))?;
-                let mut opts = FftOptions {
-                    pupil_samples: s,
-                    grid: 2 * s,
-                };
-                let more = s < MAP_SAMPLES.1;
-                let mut g = match fft_intensity(&w, &opts) {
-                    Ok(g) => g,
-                    Err(e) if more && e.message().contains("undersampled") => {
-                        s *= 2;
-                        continue;
-                    }
-                    Err(e) => return Err(e.context(what())),
-                };
-                let extent = g.n as f64 * g.pitch_mm[0].min(g.pitch_mm[1]);
-                if extent < 1.2 * window {
-                    if more {
-                        s *= 2;
-                        continue;
-                    }
-                    return Err(Error::numerical(format!(
-                        "{}: the FFT image of {} pupil samples spans {:.3} mm, less than the \
-                         {:.3} mm window",
-                        what(),
-                        s,
-                        extent,
-                        window
-                    )));
-                }
-                // Finer FFT pixels (a larger grid, the same pupil) until they are at most half
-                // the sensor's.
-                while g.pitch_mm[0].max(g.pitch_mm[1]) > 0.5 * pitch_mm && opts.grid * 2 <= MAX_GRID
-                {
-                    opts.grid *= 2;
-                    g = fft_intensity(&w, &opts).map_err(|e| e.context(what()))?;
-                }
-                return deposit(&g, ks, pitch_mm).ok_or_else(|| {
-                    Error::numerical(format!(
-                        "{}: no energy lands in the {ks} x {ks} window",
-                        what()
-                    ))
-                });
-            }
+                let w = super::wavefront(lens, sys, field, wavelength_nm, &o)?;
+                check_grid_sampled(&w, s)?;
+                let map = direction_map(&w)?;
+                Ok(GridWave {
+                    pupil: w.pupil,
+                    opd_waves: w.opd_waves,
+                    slopes: [map[0][1], map[1][2]],
+                })
+            };
+            sampled_pixel_psf(&mut wave_at, wavelength_nm, ks, pitch_mm).map_err(|e| {
+                e.context(format!(
+                    "diffraction PSF of field {} at {wavelength_nm} nm",
+                    field.label()
+                ))
+            })
         })
         .collect())
+}
+
+/// The pixel PSF of [`diffraction_psf_map`]'s sampling rule, in any number type, from the
+/// wavefront `wave_at(s)` traced on an `s x s` pupil grid: `s` starts at 64 and doubles (up to
+/// 1024) until the wavefront is not undersampled and the FFT's image (`λ / (Δp |a|)` across)
+/// covers 1.2 times the window; the FFT grid is `2 s`, doubled until its pixels are at most
+/// half the sensor's (or [`MAX_GRID`]); then [`deposit_of`]. Every choice is made on values, so
+/// that dual numbers follow the value's path and carry its exact derivative.
+///
+/// # Errors
+/// `wave_at`'s; [`crate::ErrorKind::Numerical`] for a wavefront still undersampled or an FFT
+/// image smaller than the window at 1024 samples, or no energy in the window.
+pub(crate) fn sampled_pixel_psf<S: Real>(
+    wave_at: &mut dyn FnMut(usize) -> Result<GridWave<S>>,
+    wavelength_nm: f64,
+    ks: usize,
+    pitch_mm: f64,
+) -> Result<Vec<S>> {
+    check_window(ks, pitch_mm)?;
+    let window = ks as f64 * pitch_mm;
+    let mut s = MAP_SAMPLES.0;
+    loop {
+        let w = wave_at(s)?;
+        let more = s < MAP_SAMPLES.1;
+        let step = opd_step(&w.pupil, &w.opd_waves, s);
+        if step > 0.5 {
+            if more {
+                s *= 2;
+                continue;
+            }
+            return Err(undersampled(step, s));
+        }
+        let [ax, ay] = w.slopes.map(|a| a.value().abs());
+        if !(ax > 0.0 && ay > 0.0) {
+            return Err(Error::numerical(
+                "the rays leave the pupil with one direction: no converging beam to diffract",
+            ));
+        }
+        // The FFT image spans n pitch = λ / (Δp |a|), whatever the grid n.
+        let span = |a: f64| wavelength_nm * 1e-6 * s as f64 / (2.0 * a);
+        let extent = span(ax).min(span(ay));
+        if extent < 1.2 * window {
+            if more {
+                s *= 2;
+                continue;
+            }
+            return Err(Error::numerical(format!(
+                "the FFT image of {s} pupil samples spans {extent:.3} mm, less than the \
+                 {window:.3} mm window"
+            )));
+        }
+        // Finer FFT pixels (a larger grid, the same pupil) until they are at most half the
+        // sensor's.
+        let mut n = 2 * s;
+        while span(ax.min(ay)) / n as f64 > 0.5 * pitch_mm && n * 2 <= MAX_GRID {
+            n *= 2;
+        }
+        let (values, grid_pitch) = intensity_of(&w, s, n, wavelength_nm);
+        return deposit_of(&values, n, grid_pitch, ks, pitch_mm)
+            .ok_or_else(|| Error::numerical(format!("no energy lands in the {ks} x {ks} window")));
+    }
 }
 
 /// The fraction of a PSF's energy on its grid within each radius (µm) of pixel (n/2, n/2)

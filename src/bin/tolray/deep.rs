@@ -43,9 +43,9 @@ pub struct EvalArgs {
     /// Tolerance spec (default: the paper's Table A1).
     #[arg(long, value_name = "SPEC.json")]
     pub spec: Option<PathBuf>,
-    /// The PSFs the evaluated units are imaged with: geometric (rays on pixels, as training
-    /// sees them) or diffraction (the pupil function's FFT on the same pixels: Airy disk and
-    /// diffraction of the aberrated wavefront).
+    /// The PSFs the evaluated units are imaged with: geometric (rays on pixels) or diffraction
+    /// (the pupil function's FFT on the same pixels: Airy disk and diffraction of the aberrated
+    /// wavefront). In `deep` and `demo` training uses them too unless --train-psf says.
     #[arg(long = "psf", default_value = "geometric", value_parser = ["geometric", "diffraction"])]
     pub psf_model: String,
 }
@@ -179,6 +179,11 @@ pub struct DeepArgs {
     /// derivative (README, "Deep optics").
     #[arg(long, value_name = "focus", value_parser = ["focus"])]
     pub train_compensate: Option<String>,
+    /// The PSFs training renders with and differentiates: geometric (rays on pixels, the
+    /// paper's) or diffraction (the pupil function's FFT on the same pixels, its exact
+    /// gradient by dual numbers; several times slower). Default: as --psf.
+    #[arg(long, value_name = "MODEL", value_parser = ["geometric", "diffraction"])]
+    pub train_psf: Option<String>,
     /// Skip the decoder-only control.
     #[arg(long)]
     pub no_decoder_only: bool,
@@ -252,6 +257,10 @@ fn study_config(a: &DeepArgs, lens: &Lens) -> anyhow::Result<StudyConfig> {
     d.lambda_spot = a.lambda_spot;
     d.lambda_psf = a.lambda_psf;
     d.compensate_focus = a.train_compensate.is_some();
+    d.psf = match a.train_psf.as_deref().unwrap_or(&a.eval.psf_model) {
+        "diffraction" => tolray::psf::PsfModel::Diffraction,
+        _ => tolray::psf::PsfModel::Geometric,
+    };
     if let Some(p) = &a.eval.spec {
         d.optics.spec = ToleranceSpec::read(p)?;
     }
