@@ -71,6 +71,7 @@ pub mod deep;
 pub mod embree;
 pub mod error;
 pub mod ffi;
+pub mod fft;
 pub mod figures;
 pub mod files;
 pub mod image;

@@ -326,23 +326,20 @@ pub fn grid_fields(lens: &Lens, grid: usize) -> Vec<Field> {
 /// Σ a\[p\] b\[p + shift\] (zero padding), found by FFT.
 pub fn best_shift(a: &[f64], b: &[f64], ks: usize) -> (isize, isize) {
     let n = 2 * ks;
-    let mut planner = rustfft::FftPlanner::<f64>::new();
-    let fwd = planner.plan_fft_forward(n);
-    let inv = planner.plan_fft_inverse(n);
-    let fft2 = |img: &[f64], f: &std::sync::Arc<dyn rustfft::Fft<f64>>| {
+    let fft2 = |img: &[f64]| {
         let mut m = vec![Complex::new(0.0, 0.0); n * n];
         for j in 0..ks {
             for i in 0..ks {
                 m[j * n + i] = Complex::new(img[j * ks + i], 0.0);
             }
         }
-        transform2(&mut m, n, f);
+        crate::fft::fft2(&mut m, n, n, false);
         m
     };
-    let (fa, fb) = (fft2(a, &fwd), fft2(b, &fwd));
+    let (fa, fb) = (fft2(a), fft2(b));
     // corr(s) = IFFT(conj(FA) FB)(s).
     let mut c: Vec<Complex<f64>> = fa.iter().zip(&fb).map(|(x, y)| x.conj() * y).collect();
-    transform2(&mut c, n, &inv);
+    crate::fft::fft2(&mut c, n, n, true);
     let h = (ks / 2) as isize;
     let mut best = (0, 0);
     let mut best_v = f64::MIN;
@@ -358,28 +355,6 @@ pub fn best_shift(a: &[f64], b: &[f64], ks: usize) -> (isize, isize) {
         }
     }
     best
-}
-
-/// The 2-D transform of the `n x n` row-major `m` in place, by `f` (a forward or inverse plan of
-/// length `n`): rows, then columns.
-pub(crate) fn transform2(
-    m: &mut [Complex<f64>],
-    n: usize,
-    f: &std::sync::Arc<dyn rustfft::Fft<f64>>,
-) {
-    for row in m.chunks_exact_mut(n) {
-        f.process(row);
-    }
-    let mut col = vec![Complex::new(0.0, 0.0); n];
-    for i in 0..n {
-        for j in 0..n {
-            col[j] = m[j * n + i];
-        }
-        f.process(&mut col);
-        for j in 0..n {
-            m[j * n + i] = col[j];
-        }
-    }
 }
 
 /// The paper's PSF similarity: both PSFs scaled to unit L2 norm, then the maximum over shifts

@@ -16,10 +16,8 @@
 //! `log μ[t][c]`.
 
 use crate::error::{Error, Result};
+use crate::fft::{fast_size, fft2};
 use rustfft::num_complex::Complex;
-use rustfft::{Fft, FftPlanner};
-use std::collections::HashMap;
-use std::sync::Arc;
 
 /// Per-tile Wiener filters.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,57 +39,6 @@ pub struct WienerCache {
     h: usize,
     /// DFT of the padded capture, per channel.
     z: Vec<Vec<Complex<f64>>>,
-}
-
-type Plans = (Arc<dyn Fft<f64>>, Arc<dyn Fft<f64>>);
-
-thread_local! {
-    static PLANS: std::cell::RefCell<(FftPlanner<f64>, HashMap<usize, Plans>)> =
-        std::cell::RefCell::new((FftPlanner::new(), HashMap::new()));
-}
-
-fn plans(n: usize) -> Plans {
-    PLANS.with(|p| {
-        let mut p = p.borrow_mut();
-        let (planner, cache) = &mut *p;
-        cache
-            .entry(n)
-            .or_insert_with(|| (planner.plan_fft_forward(n), planner.plan_fft_inverse(n)))
-            .clone()
-    })
-}
-
-/// In-place unnormalized 2-D DFT of an `nx x ny` row-major array (inverse: conjugate kernel,
-/// no 1/N).
-fn fft2(a: &mut [Complex<f64>], nx: usize, ny: usize, inverse: bool) {
-    let (fx, ix) = plans(nx);
-    let (fy, iy) = plans(ny);
-    let (px, py) = if inverse { (ix, iy) } else { (fx, fy) };
-    px.process(a);
-    let mut col = vec![Complex::default(); ny];
-    for x in 0..nx {
-        for y in 0..ny {
-            col[y] = a[y * nx + x];
-        }
-        py.process(&mut col);
-        for y in 0..ny {
-            a[y * nx + x] = col[y];
-        }
-    }
-}
-
-fn fast_size(n: usize) -> usize {
-    (n..)
-        .find(|&m| {
-            let mut k = m;
-            for p in [2, 3, 5] {
-                while k % p == 0 {
-                    k /= p;
-                }
-            }
-            k == 1
-        })
-        .unwrap_or(n)
 }
 
 /// Source index of padded position `i` (may be negative or past the end) under mirror

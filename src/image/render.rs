@@ -11,12 +11,10 @@
 
 use super::Image;
 use crate::error::{Error, Result};
+use crate::fft::{fast_size, fft2};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
-use rustfft::{Fft, FftPlanner};
-use std::collections::HashMap;
-use std::sync::Arc;
 
 /// RGB PSFs on a `grid x grid` field grid: tile `t = row · grid + col` (row 0 at the top), each
 /// `3 · ks · ks` values, channel-major, unit sum per channel.
@@ -49,62 +47,6 @@ impl PsfMap {
     pub fn psf(&self, t: usize) -> &[f32] {
         let n = 3 * self.ks * self.ks;
         &self.psfs[t * n..(t + 1) * n]
-    }
-}
-
-/// Smallest 2^a 3^b 5^c >= n.
-fn fast_size(n: usize) -> usize {
-    let mut m = n.max(1);
-    loop {
-        let mut k = m;
-        for p in [2, 3, 5] {
-            while k % p == 0 {
-                k /= p;
-            }
-        }
-        if k == 1 {
-            return m;
-        }
-        m += 1;
-    }
-}
-
-/// Forward and inverse FFT plans of one length, cached per thread.
-type Plans = (Arc<dyn Fft<f32>>, Arc<dyn Fft<f32>>);
-
-thread_local! {
-    static PLANS: std::cell::RefCell<(FftPlanner<f32>, HashMap<usize, Plans>)> =
-        std::cell::RefCell::new((FftPlanner::new(), HashMap::new()));
-}
-
-fn plans(n: usize) -> Plans {
-    PLANS.with(|p| {
-        let mut p = p.borrow_mut();
-        let (planner, cache) = &mut *p;
-        if let Some(x) = cache.get(&n) {
-            return x.clone();
-        }
-        let x = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
-        cache.insert(n, x.clone());
-        x
-    })
-}
-
-/// In-place 2-D FFT of an `nx x ny` row-major array (rows, then columns).
-fn fft2(a: &mut [Complex<f32>], nx: usize, ny: usize, inverse: bool) {
-    let (fx, ix) = plans(nx);
-    let (fy, iy) = plans(ny);
-    let (px, py) = if inverse { (ix, iy) } else { (fx, fy) };
-    px.process(a);
-    let mut col = vec![Complex::default(); ny];
-    for x in 0..nx {
-        for y in 0..ny {
-            col[y] = a[y * nx + x];
-        }
-        py.process(&mut col);
-        for y in 0..ny {
-            a[y * nx + x] = col[y];
-        }
     }
 }
 

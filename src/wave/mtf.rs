@@ -60,13 +60,11 @@ impl Otf {
         let n = opts.grid;
         let lambda_mm = w.wavelength_nm * 1e-6;
         let dp = 2.0 / opts.pupil_samples as f64;
-        let mut planner = rustfft::FftPlanner::<f64>::new();
-        let f = planner.plan_fft_forward(n);
         let transform = |aberrated: bool| {
             let (a, _) = pupil_transform(w, opts, aberrated);
             let mut i: Vec<Complex<f64>> =
                 a.iter().map(|v| Complex::new(v.norm_sqr(), 0.0)).collect();
-            crate::psf::transform2(&mut i, n, &f);
+            crate::fft::fft2(&mut i, n, n, false);
             let dc = i[0].re;
             for v in &mut i {
                 *v /= dc;

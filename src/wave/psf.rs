@@ -228,14 +228,13 @@ fn transform_of<S: Real>(pupil: &[[f64; 2]], opd: Option<&[S]>, s: usize, n: usi
             .collect(),
         None => vec![[S::cst(1.0), S::cst(0.0)]; pupil.len()],
     };
-    let f = rustfft::FftPlanner::<f64>::new().plan_fft_forward(n);
     let parts: Vec<Vec<Complex<f64>>> = (0..S::PARTS)
         .map(|k| {
             let mut a = vec![Complex::new(0.0, 0.0); n * n];
             for (&i, v) in at.iter().zip(&values) {
                 a[i] = Complex::new(v[0].part(k), v[1].part(k));
             }
-            crate::psf::transform2(&mut a, n, &f);
+            crate::fft::fft2(&mut a, n, n, false);
             a
         })
         .collect();
