@@ -589,23 +589,43 @@ fn the_refocus_derivative_is_exact() {
     assert!((g[2] + 1.0).abs() < 1e-12, "{}", g[2]);
 }
 
-/// One crop's PSF settings (51 px, 64 rays, seed 9), its field (tile 10 of an 8 x 8 grid) and
-/// its (field, wavelength) pairs at the lens' RGB wavelengths.
-fn crop_rays(
-    lens: &Lens,
-) -> (
-    tolray::psf::PsfOptions,
-    tolray::trace::Field,
-    Vec<(tolray::trace::Field, f64)>,
-) {
+/// One crop's PSF settings (51 px, 64 rays, seed 9) and its field (tile 10 of an 8 x 8 grid).
+fn crop_rays(lens: &Lens) -> (tolray::psf::PsfOptions, tolray::trace::Field) {
     let psf = tolray::deep::psf_options(lens, 51, 64, 9);
-    let field = tolray::psf::grid_fields(lens, 8)[10];
-    let pairs = lens
-        .rgb_wavelengths_nm
-        .iter()
-        .map(|&w| (field, w))
-        .collect();
-    (psf, field, pairs)
+    (psf, tolray::psf::grid_fields(lens, 8)[10])
+}
+
+/// The crop objective of design `l` at `field` (its RGB wavelengths): spot bundles on a 4 x 4
+/// grid and the PSF rays launched from `l`, the similarity on, weight 0.25, λ_spot 0.1, λ_psf
+/// 0.05, the image term `image_grad`, and with `diffraction` the crop's diffraction PSFs.
+fn crop_objective(
+    l: &Lens,
+    field: tolray::trace::Field,
+    psf: tolray::psf::PsfOptions,
+    image_grad: Vec<Vec<f64>>,
+    diffraction: bool,
+    trace: tolray::trace::TraceOptions,
+) -> tolray::deep::PatternObjective {
+    use tolray::trace::{Bundles, Pupil};
+    let wl = l.rgb_wavelengths_nm;
+    let pairs: Vec<_> = wl.iter().map(|&w| (field, w)).collect();
+    tolray::deep::PatternObjective {
+        spot: Bundles::new(l, &[field], &wl, &Pupil::grid(4)).unwrap(),
+        psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
+        diffraction: diffraction.then(|| {
+            std::sync::Arc::new(
+                tolray::optim::DiffractionPsfs::new(l, field, &wl, psf.ks, psf.pitch_mm, trace)
+                    .unwrap(),
+            )
+        }),
+        psf,
+        similarity: true,
+        image_grad,
+        weight: 0.25,
+        lambda_spot: 0.1,
+        lambda_psf: 0.05,
+        trace,
+    }
 }
 
 /// The seam between reverse and forward mode, exactly: the lens gradient of `<G, PSF(θ)>` for a
@@ -613,11 +633,10 @@ fn crop_rays(
 /// differences with steps small enough that no ray changes pixel.
 #[test]
 fn the_vjp_seam_is_exact_in_f64() {
-    use tolray::deep::PatternObjective;
     use tolray::optim::{gradient, value};
-    use tolray::trace::{Bundles, Pupil, TraceOptions};
+    use tolray::trace::TraceOptions;
     let lens = focused_lens1();
-    let (psf, field, pairs) = crop_rays(&lens);
+    let (psf, field) = crop_rays(&lens);
     let n = 51 * 51;
     let g: Vec<Vec<f64>> = (0..3)
         .map(|c| {
@@ -629,18 +648,7 @@ fn the_vjp_seam_is_exact_in_f64() {
     let trace = TraceOptions { apertures: false };
     // The objective at a design: its rays launched from that design, the similarity's reference
     // its own PSFs.
-    let make = |l: &Lens| PatternObjective {
-        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4)).unwrap(),
-        psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
-        diffraction: None,
-        psf,
-        similarity: true,
-        image_grad: g.clone(),
-        weight: 0.25,
-        lambda_spot: 0.1,
-        lambda_psf: 0.05,
-        trace,
-    };
+    let make = |l: &Lens| crop_objective(l, field, psf, g.clone(), false, trace);
     let obj = make(&lens);
     let adj = tolray::lens::Adjustments::none(lens.surfaces.len());
     let vars = [
@@ -813,31 +821,19 @@ fn refocused_training_keeps_the_design_at_its_best_focus() {
 /// the unit's sensor-shift derivative) is exact.
 #[test]
 fn the_refocused_crop_objective_is_exact_in_f64() {
-    use tolray::deep::PatternObjective;
     use tolray::optim::{gradient, gradient_with_unit, value};
-    use tolray::trace::{Bundles, Pupil, TraceOptions};
+    use tolray::trace::TraceOptions;
     let mut lens = focused_lens1();
     let last = lens.surfaces.len() - 1;
     let none = Adjustments::none(last + 1);
     lens.surfaces[last].d_next_mm +=
         value(&FocusObjective::new(&lens, false).unwrap(), &lens, &none);
-    let (psf, field, pairs) = crop_rays(&lens);
+    let (psf, field) = crop_rays(&lens);
     let trace = TraceOptions { apertures: false };
     let pattern = tolray::tolerance::ToleranceSpec::default()
         .sample(&lens, 3, 7)
         .unwrap();
-    let make = |l: &Lens| PatternObjective {
-        spot: Bundles::new(l, &[field], &l.rgb_wavelengths_nm, &Pupil::grid(4)).unwrap(),
-        psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
-        diffraction: None,
-        psf,
-        similarity: true,
-        image_grad: vec![vec![0.0; 51 * 51]; 3],
-        weight: 0.25,
-        lambda_spot: 0.1,
-        lambda_psf: 0.05,
-        trace,
-    };
+    let make = |l: &Lens| crop_objective(l, field, psf, vec![vec![0.0; 51 * 51]; 3], false, trace);
     // The unit of design `l`, refocused as training refocuses it.
     let unit = |l: &Lens| {
         let f = FocusObjective::new(l, false).unwrap();
@@ -885,10 +881,9 @@ fn the_refocused_crop_objective_is_exact_in_f64() {
 /// `wave::psf::diffraction_psf_map`, and differ from the rays'.
 #[test]
 fn the_diffraction_vjp_seam_is_exact_in_f64() {
-    use std::sync::Arc;
-    use tolray::deep::{crop_psfs, PatternObjective};
+    use tolray::deep::crop_psfs;
     use tolray::optim::{gradient, value, DiffractionPsfs};
-    use tolray::trace::{Bundles, Pupil, TraceOptions};
+    use tolray::trace::TraceOptions;
     let lens = focused_lens1();
     let ks = 21;
     let psf = tolray::deep::psf_options(&lens, ks, 64, 9);
@@ -897,7 +892,6 @@ fn the_diffraction_vjp_seam_is_exact_in_f64() {
     let wl = lens.rgb_wavelengths_nm;
     for tile in [0, 10, 27] {
         let field = grid[tile];
-        let pairs: Vec<_> = wl.iter().map(|&w| (field, w)).collect();
         let g: Vec<Vec<f64>> = (0..3)
             .map(|c| {
                 (0..ks * ks)
@@ -905,20 +899,7 @@ fn the_diffraction_vjp_seam_is_exact_in_f64() {
                     .collect()
             })
             .collect();
-        let make = |l: &Lens| PatternObjective {
-            spot: Bundles::new(l, &[field], &wl, &Pupil::grid(4)).unwrap(),
-            psf_rays: Bundles::pairs(l, &pairs, &psf.pupil).unwrap(),
-            diffraction: Some(Arc::new(
-                DiffractionPsfs::new(l, field, &wl, ks, psf.pitch_mm, trace).unwrap(),
-            )),
-            psf,
-            similarity: true,
-            image_grad: g.clone(),
-            weight: 0.25,
-            lambda_spot: 0.1,
-            lambda_psf: 0.05,
-            trace,
-        };
+        let make = |l: &Lens| crop_objective(l, field, psf, g.clone(), true, trace);
         let obj = make(&lens);
         // Every wavelength has its diffraction PSF (no stand-in), the map's to rounding (with
         // the map's apertures), and not the rays'.

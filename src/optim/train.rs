@@ -463,13 +463,11 @@ impl Objective for PretrainObjective<'_> {
 
 /// The wave term of `cfg` over `fields` × its wavelengths, launched from `lens`, with its
 /// weight, or `None` for the spot loss.
-/// With `check` the MTF loss' frequency is checked against the design's cutoff at each field.
 fn wave_term(
     lens: &Lens,
     cfg: &TrainConfig,
     fields: &[Field],
     trace: TraceOptions,
-    check: bool,
 ) -> Result<Option<(WaveTerm, f64)>> {
     match cfg.loss {
         OpticalLoss::Spot => Ok(None),
@@ -488,7 +486,7 @@ fn wave_term(
             direction,
             mm_per_unit,
         } => {
-            let m = MtfLoss::checked(
+            let m = MtfLoss::new(
                 lens,
                 fields,
                 &cfg.wavelengths_nm,
@@ -496,7 +494,6 @@ fn wave_term(
                 direction,
                 Sampling::Grid(crate::tolerance::criterion::MTF_GRID),
                 trace,
-                check,
             )?;
             Ok(Some((WaveTerm::Mtf(m), mm_per_unit)))
         }
@@ -703,7 +700,7 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             let obj = PretrainObjective {
                 lens: &lens,
                 bundles,
-                wave: wave_term(&lens, &cfg, &cfg.fields, trace, true)?,
+                wave: wave_term(&lens, &cfg, &cfg.fields, trace)?,
                 trace,
                 constraints: &cfg.constraints,
             };
@@ -735,10 +732,14 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
             };
             let slots_ok = cfg.spec.validate(&lens);
             slots_ok?;
-            // The MTF loss' cutoff at every field, once (each pattern's term skips it).
-            if matches!(cfg.loss, OpticalLoss::Mtf { .. }) {
-                wave_term(&lens, &cfg, &fields, trace, true)?;
-            }
+            // The MTF loss over the fields this iteration's patterns use (pattern j at field
+            // j mod the field count), built once, its cutoff checked once per field: each
+            // pattern's term is it at the pattern's field.
+            let used = &fields[..cfg.samples.min(fields.len())];
+            let mtf = match cfg.loss {
+                OpticalLoss::Mtf { .. } => wave_term(&lens, &cfg, used, trace)?,
+                _ => None,
+            };
             let results = (0..cfg.samples)
                 .into_par_iter()
                 .map(|j| -> Result<PatternResult> {
@@ -762,7 +763,12 @@ pub fn step(state: &mut TrainState) -> Result<IterLog> {
                     )?;
                     let obj = PatternObjective {
                         spot,
-                        wave: wave_term(&lens, &cfg, &[field], trace, false)?,
+                        wave: match &mtf {
+                            Some((WaveTerm::Mtf(m), w)) => {
+                                Some((WaveTerm::Mtf(m.at_field(j % fields.len())), *w))
+                            }
+                            _ => wave_term(&lens, &cfg, &[field], trace)?,
+                        },
                         psf_rays,
                         psf,
                         cfg: &cfg,

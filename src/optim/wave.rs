@@ -214,31 +214,6 @@ impl MtfLoss {
         sampling: Sampling,
         trace: TraceOptions,
     ) -> Result<MtfLoss> {
-        Self::checked(
-            lens,
-            fields,
-            wavelengths_nm,
-            freq_lpmm,
-            direction,
-            sampling,
-            trace,
-            true,
-        )
-    }
-
-    /// [`MtfLoss::new`], the cutoff checked only with `check` (a trainer that checked the design
-    /// at every field once need not trace its wavefronts again for each pattern).
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn checked(
-        lens: &Lens,
-        fields: &[Field],
-        wavelengths_nm: &[f64],
-        freq_lpmm: f64,
-        direction: MtfDirection,
-        sampling: Sampling,
-        trace: TraceOptions,
-        check: bool,
-    ) -> Result<MtfLoss> {
         sampling.check()?;
         if !(freq_lpmm > 0.0 && freq_lpmm.is_finite()) {
             return Err(Error::argument(format!(
@@ -255,9 +230,6 @@ impl MtfLoss {
         let mut launched = Vec::with_capacity(fields.len());
         for &f in fields {
             launched.push((f, f.resolved(lens, &para, false)?));
-            if !check {
-                continue;
-            }
             // The design's cutoff, so that a frequency it cannot pass is refused by name.
             for &wl in wavelengths_nm {
                 let w = wavefront(lens, &sys, f, wl, &opts)?;
@@ -284,6 +256,15 @@ impl MtfLoss {
             weights,
             trace,
         })
+    }
+
+    /// The loss at its `k`-th field alone (the design's cutoff there was checked by
+    /// [`MtfLoss::new`]; nothing is traced again).
+    pub(crate) fn at_field(&self, k: usize) -> MtfLoss {
+        MtfLoss {
+            fields: vec![self.fields[k]],
+            ..self.clone()
+        }
     }
 
     /// The MTF of field `f` at `wl` along the chosen direction through `sys`, the launch's
