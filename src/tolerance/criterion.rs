@@ -16,9 +16,10 @@
 //! The compensator moves the sensor along its normal. For the RMS spot it is the closed-form
 //! best focus ([`crate::analysis::SpotMoments::best_focus`]); for a wave criterion it starts
 //! there, scans ±3 steps of `λ N_w²` (a quarter of the diffraction depth of focus), marches on
-//! with doubling steps while the scan's edge is the best, and refines the best point by
-//! golden-section search to 1e-3 of a step, maximising the field mean of a Strehl or MTF and
-//! minimising that of an RMS wavefront.
+//! with doubling steps while the scan's edge is the best, and refines the best point by Brent's
+//! method (parabolic steps seeded by the scan, golden sections as the safeguard) to 5e-4 of a
+//! step, maximising the field mean of a Strehl or MTF and minimising that of an RMS wavefront;
+//! the answer is the best point evaluated.
 
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
@@ -285,57 +286,133 @@ impl<'a> WaveJudge<'a> {
     /// counts as worst.
     pub(crate) fn best_focus(&self, sys: &System<f64>, start_mm: f64) -> Result<(f64, Vec<f64>)> {
         let h = self.step_mm;
-        let at = |dz: f64| -> Result<(f64, Vec<f64>)> { self.cost(&moved(sys, dz)) };
-        let score = |dz: f64| at(dz).map_or(f64::INFINITY, |c| c.0);
-        let first = at(start_mm)?;
-        let (mut best_dz, mut best) = (start_mm, first.0);
-        for k in -3i32..=3 {
-            if k == 0 {
-                continue;
-            }
-            let dz = start_mm + f64::from(k) * h;
-            let c = score(dz);
-            if c < best {
-                (best_dz, best) = (dz, c);
-            }
+        // Every evaluation goes through `score`, which keeps the best point seen with its
+        // per-field values: the answer is the best evaluated point, never evaluated twice.
+        let first = self.cost(&moved(sys, start_mm))?;
+        let best = std::cell::RefCell::new((start_mm, first.0, first.1));
+        let seen = std::cell::RefCell::new(vec![(start_mm, first.0)]);
+        let score = |dz: f64| -> f64 {
+            let c = self.cost(&moved(sys, dz)).map_or(f64::INFINITY, |(c, v)| {
+                if c < best.borrow().1 {
+                    *best.borrow_mut() = (dz, c, v);
+                }
+                c
+            });
+            seen.borrow_mut().push((dz, c));
+            c
+        };
+        for k in [-3i32, -2, -1, 1, 2, 3] {
+            score(start_mm + f64::from(k) * h);
         }
         // A best point at the scan's edge: march on, doubling the step, until it gets worse
         // (at most 2^12 steps of h further).
         let mut step = h;
-        if (best_dz - start_mm).abs() > 2.5 * h {
-            let dir = (best_dz - start_mm).signum();
+        let edge = best.borrow().0;
+        if (edge - start_mm).abs() > 2.5 * h {
+            let dir = (edge - start_mm).signum();
             for _ in 0..12 {
-                let dz = best_dz + dir * step;
-                let c = score(dz);
-                if c < best {
-                    (best_dz, best) = (dz, c);
+                let (b_dz, b_c, _) = *best.borrow();
+                if score(b_dz + dir * step) < b_c {
                     step *= 2.0;
                 } else {
                     break;
                 }
             }
         }
-        // Golden section on [best − step, best + step]: the points either side are worse.
-        let g = 0.5 * (5f64.sqrt() - 1.0);
-        let (mut a, mut b) = (best_dz - step, best_dz + step);
-        let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-        let (mut f1, mut f2) = (score(x1), score(x2));
-        while b - a > 1e-3 * h {
-            if f1 < f2 {
-                (b, x2, f2) = (x2, x1, f1);
-                x1 = b - g * (b - a);
-                f1 = score(x1);
+        let (x0, f0, _) = *best.borrow();
+        // The two evaluated points nearest the best, inside the bracket, seed the parabola.
+        let mut near: Vec<(f64, f64)> = seen
+            .borrow()
+            .iter()
+            .copied()
+            .filter(|&(z, _)| z != x0 && (z - x0).abs() <= step * (1.0 + 1e-12))
+            .collect();
+        near.sort_by(|a, b| (a.0 - x0).abs().total_cmp(&(b.0 - x0).abs()));
+        brent(&score, (x0 - step, x0 + step), (x0, f0), &near, 5e-4 * h);
+        let (dz, _, v) = best.into_inner();
+        Ok((dz, v))
+    }
+}
+
+/// Brent's minimisation (parabolic interpolation safeguarded by golden sections, as in
+/// Numerical Recipes' `brent`) of `f` on the bracket `(a, b)` around `x` (value `fx`, no worse
+/// than the bracket's ends), seeded with up to two further evaluated points `near`, until the
+/// bracket is within `tol` (mm) of its best point. Unusable values (`inf` where a field loses
+/// its rays) fall back to golden sections.
+fn brent(
+    f: &dyn Fn(f64) -> f64,
+    (mut a, mut b): (f64, f64),
+    (mut x, mut fx): (f64, f64),
+    near: &[(f64, f64)],
+    tol: f64,
+) {
+    const CGOLD: f64 = 0.381_966_011_250_105_1;
+    let (mut w, mut fw) = near.first().copied().unwrap_or((x, fx));
+    let (mut v, mut fv) = near.get(1).copied().unwrap_or((w, fw));
+    // With two seeds the first step may be parabolic.
+    let (mut d, mut e) = (0.0f64, if near.len() >= 2 { b - a } else { 0.0 });
+    for _ in 0..100 {
+        let xm = 0.5 * (a + b);
+        let tol2 = 2.0 * tol;
+        if (x - xm).abs() <= tol2 - 0.5 * (b - a) {
+            return;
+        }
+        let mut golden = true;
+        if e.abs() > tol {
+            let r = (x - w) * (fx - fv);
+            let mut q = (x - v) * (fx - fw);
+            let mut p = (x - v) * q - (x - w) * r;
+            q = 2.0 * (q - r);
+            if q > 0.0 {
+                p = -p;
             } else {
-                (a, x1, f1) = (x1, x2, f2);
-                x2 = a + g * (b - a);
-                f2 = score(x2);
+                q = -q;
+            }
+            let e_old = e;
+            if q > 0.0
+                && p.is_finite()
+                && q.is_finite()
+                && p.abs() < (0.5 * q * e_old).abs()
+                && p > q * (a - x)
+                && p < q * (b - x)
+            {
+                e = d;
+                d = p / q;
+                let u = x + d;
+                if u - a < tol2 || b - u < tol2 {
+                    d = tol.copysign(xm - x);
+                }
+                golden = false;
             }
         }
-        let mid = 0.5 * (a + b);
-        let end = at(mid);
-        match end {
-            Ok((c, v)) if c <= best => Ok((mid, v)),
-            _ => Ok((best_dz, at(best_dz)?.1)),
+        if golden {
+            e = if x >= xm { a - x } else { b - x };
+            d = CGOLD * e;
+        }
+        let u = if d.abs() >= tol {
+            x + d
+        } else {
+            x + tol.copysign(d)
+        };
+        let fu = f(u);
+        if fu <= fx {
+            if u >= x {
+                a = x;
+            } else {
+                b = x;
+            }
+            (v, fv, w, fw, x, fx) = (w, fw, x, fx, u, fu);
+        } else {
+            if u < x {
+                a = u;
+            } else {
+                b = u;
+            }
+            if fu <= fw || w == x {
+                (v, fv, w, fw) = (w, fw, u, fu);
+            } else if fu <= fv || v == x || v == w {
+                (v, fv) = (u, fu);
+            }
         }
     }
 }
