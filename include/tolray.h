@@ -196,7 +196,7 @@
 /**
  * Version of the C ABI: raised whenever a declaration in `tolray.h` changes incompatibly.
  */
-#define TOLRAY_ABI_VERSION 2
+#define TOLRAY_ABI_VERSION 3
 
 /**
  * `x`, `y` are fractions of the full field: the tangent of the field angle is the fraction
@@ -581,9 +581,16 @@ typedef struct tolray_paraxial {
      */
     double wavelength_nm;
     /**
-     * Effective focal length, mm (0 when `afocal`).
+     * Effective focal length 1/Φ, mm: OpticStudio's "Effective Focal Length (in air)" (0
+     * when `afocal`).
      */
     double efl_mm;
+    /**
+     * Effective focal length in image space n'/Φ, mm: OpticStudio's "Effective Focal Length
+     * (in image space)", n' signed as OpticStudio signs it (negative after an odd number of
+     * mirrors; 1.333 `efl_mm` for an image in water), 0 when `afocal` (ABI version 3).
+     */
+    double efl_image_space_mm;
     /**
      * Back focal distance (last vertex to the infinity focus), mm (0 when `afocal`).
      */

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs tolray for C and C++ users under PREFIX:
 #   PREFIX/include/tolray.h
-#   PREFIX/lib/libtolray.so.2 (SONAME libtolray.so.2, the ABI version), the link
-#   PREFIX/lib/libtolray.so -> libtolray.so.2 for the linker, PREFIX/lib/libtolray.a
+#   PREFIX/lib/libtolray.so.3 (SONAME libtolray.so.3, the ABI version), the link
+#   PREFIX/lib/libtolray.so -> libtolray.so.3 for the linker, PREFIX/lib/libtolray.a
 #   PREFIX/lib/pkgconfig/tolray.pc (shared) and tolray-static.pc (static)
 #   PREFIX/lib/cmake/tolray/ (find_package(tolray) -> tolray::tolray, tolray::tolray_static)
 #

@@ -95,8 +95,13 @@ impl tolray_param {
 pub struct tolray_paraxial {
     /// Wavelength of the analysis, nm.
     pub wavelength_nm: f64,
-    /// Effective focal length, mm (0 when `afocal`).
+    /// Effective focal length 1/Φ, mm: OpticStudio's "Effective Focal Length (in air)" (0
+    /// when `afocal`).
     pub efl_mm: f64,
+    /// Effective focal length in image space n'/Φ, mm: OpticStudio's "Effective Focal Length
+    /// (in image space)", n' signed as OpticStudio signs it (negative after an odd number of
+    /// mirrors; 1.333 `efl_mm` for an image in water), 0 when `afocal` (ABI version 3).
+    pub efl_image_space_mm: f64,
     /// Back focal distance (last vertex to the infinity focus), mm (0 when `afocal`).
     pub bfd_mm: f64,
     /// Last vertex to the paraxial image of the stated object, mm (0 when
@@ -266,6 +271,7 @@ pub unsafe extern "C" fn tolray_lens_paraxial(
         let value = tolray_paraxial {
             wavelength_nm: p.wavelength_nm,
             efl_mm: p.efl_mm.unwrap_or(0.0),
+            efl_image_space_mm: p.efl_image_space_mm.unwrap_or(0.0),
             bfd_mm: p.bfd_mm.unwrap_or(0.0),
             image_distance_mm: p.image_distance_mm.unwrap_or(0.0),
             entrance_pupil_z_mm: p.entrance_pupil_z_mm,

@@ -42,7 +42,7 @@ pub const TOLRAY_VERSION_MINOR: u32 = 1;
 /// Patch version of the library.
 pub const TOLRAY_VERSION_PATCH: u32 = 0;
 /// Version of the C ABI: raised whenever a declaration in `tolray.h` changes incompatibly.
-pub const TOLRAY_ABI_VERSION: u32 = 2;
+pub const TOLRAY_ABI_VERSION: u32 = 3;
 
 /// Outcome of a C ABI call. The numeric values are fixed and will never be reused.
 #[repr(u32)]

@@ -440,10 +440,63 @@ fn an_afocal_lens_has_paraxial_data_through_the_c_abi() {
     assert_eq!((p.afocal, p.image_at_infinity), (1, 1));
     assert!((p.angular_magnification + 2.0).abs() < 1e-12, "{p:?}");
     assert_eq!(
-        (p.efl_mm, p.bfd_mm, p.fnum, p.power_per_mm),
-        (0.0, 0.0, 0.0, 0.0)
+        (
+            p.efl_mm,
+            p.efl_image_space_mm,
+            p.bfd_mm,
+            p.fnum,
+            p.power_per_mm
+        ),
+        (0.0, 0.0, 0.0, 0.0, 0.0)
     );
     assert!((p.entrance_pupil_diameter_mm - 20.0).abs() < 1e-12, "{p:?}");
+}
+
+/// Issue 41: the C ABI gives OpticStudio's two focal lengths as `tolray info` does: a concave
+/// mirror of radius -400 mm has 1/Φ = 200 mm "in air" and n'/Φ = -200 mm "in image space"
+/// (closed form); lens1 images in air, so the two are equal.
+#[test]
+fn the_c_abi_gives_the_focal_length_in_image_space() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    let mirror = std::ffi::CString::new(
+        r#"{"primary_wvln": 0.5875618, "r_sensor": 1, "sensor_res": [512, 512],
+        "surfaces": [{"type": "Mirror", "r": 20, "c": -0.0025, "d_next": -200, "mat2": "air",
+        "is_aperture": true}]}"#,
+    )
+    .unwrap();
+    let name = std::ffi::CString::new("lens1").unwrap();
+    let (mut a, mut b) = (null_mut(), null_mut());
+    let (mut pa, mut pb) = (tolray_paraxial::default(), tolray_paraxial::default());
+    // SAFETY: valid pointers; the handles are freed below.
+    unsafe {
+        assert_eq!(
+            tolray_lens_from_json(mirror.as_ptr(), &mut a),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_lens_load(name.as_ptr(), &mut b),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_lens_paraxial(a, 587.5618, &mut pa),
+            tolray_status::TOLRAY_OK
+        );
+        assert_eq!(
+            tolray_lens_paraxial(b, 587.5618, &mut pb),
+            tolray_status::TOLRAY_OK
+        );
+        tolray_lens_free(a);
+        tolray_lens_free(b);
+    }
+    assert!((pa.efl_mm - 200.0).abs() < 1e-9, "{pa:?}");
+    assert!((pa.efl_image_space_mm + 200.0).abs() < 1e-9, "{pa:?}");
+    let rust = tolray::Lens::load("lens1")
+        .unwrap()
+        .paraxial(587.5618)
+        .unwrap();
+    assert_eq!(pb.efl_image_space_mm, rust.efl_image_space_mm.unwrap());
+    assert_eq!(pb.efl_image_space_mm, pb.efl_mm);
 }
 
 /// The wave-optics calls give the Rust API's numbers, and refuse bad sizes, NULLs and

@@ -87,7 +87,7 @@ fn lib_dir() -> PathBuf {
     );
 }
 
-/// A directory holding `libtolray.so.2` (the SONAME a program linked against the build's
+/// A directory holding `libtolray.so.3` (the SONAME a program linked against the build's
 /// library records, as an installed library is named) and `libtolray.so`, both links to the
 /// build's library.
 fn soname_dir() -> PathBuf {
