@@ -2,7 +2,7 @@
 
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
-use crate::real::Real;
+use crate::real::{sqrt_or_zero, Real};
 use crate::trace::{self, Field, Pupil, RaySet, TraceOptions};
 use serde::Serialize;
 
@@ -145,7 +145,7 @@ impl<S: Real> SpotMoments<S> {
 
     /// RMS radius about the centroid, mm (0 for a point image, with derivative 0).
     pub fn rms(&self) -> S {
-        root(self.a)
+        sqrt_or_zero(self.a)
     }
 
     /// Mean square radius about the point `p` (mm), mm²: `a + |centroid − p|²`.
@@ -156,7 +156,7 @@ impl<S: Real> SpotMoments<S> {
 
     /// RMS spot radius about the centroid with the sensor moved by `delta` mm, mm.
     pub fn rms_at(&self, delta: S) -> S {
-        root(self.a + S::cst(2.0) * self.b * delta + self.c * delta * delta)
+        sqrt_or_zero(self.a + S::cst(2.0) * self.b * delta + self.c * delta * delta)
     }
 
     /// The sensor shift (mm, along its normal) that minimizes the sum of the mean-square radii of
@@ -172,17 +172,6 @@ impl<S: Real> SpotMoments<S> {
         } else {
             S::cst(0.0)
         }
-    }
-}
-
-/// `√x` for `x > 0`, else 0 with derivative 0: a radius of exactly 0 (a perfect point image) is
-/// the tip of the cone `|x|`, where sqrt's chain rule would give 0 · ∞ = NaN; 0 there is a
-/// subgradient (the one that makes a perfect focus a stationary point).
-pub(crate) fn root<S: Real>(x: S) -> S {
-    if x.value() > 0.0 {
-        x.sqrt()
-    } else {
-        S::cst(0.0)
     }
 }
 

@@ -8,10 +8,10 @@ mod wave;
 
 pub use wave::{DiffractionPsfs, MtfLoss, WavefrontLoss, LOST_WAVEFRONT_PENALTY_WAVES};
 
-use crate::analysis::spot::root;
 use crate::analysis::SpotMoments;
 use crate::error::{Error, Result};
 use crate::lens::{Adjustments, Lens, Param, System};
+use crate::real::sqrt_or_zero;
 use crate::real::{Dual, Real};
 use crate::trace::{Bundles, TraceOptions, Traceable};
 
@@ -201,11 +201,11 @@ pub fn spot_size<S: Real>(pts: &[[S; 2]], measure: SpotMeasure) -> S {
     match measure {
         SpotMeasure::Rms => SpotMoments::of_points(pts).map_or(S::cst(0.0), |m| m.rms()),
         SpotMeasure::Mean => {
-            // A ray exactly on the centroid contributes 0 with derivative 0 (see `root`).
+            // A ray exactly on the centroid contributes 0 with derivative 0 (see `sqrt_or_zero`).
             let [cx, cy] = SpotMoments::centroid_of(pts).unwrap_or([S::cst(0.0); 2]);
             let mut acc = S::cst(0.0);
             for p in pts {
-                acc += root((p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy));
+                acc += sqrt_or_zero((p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy));
             }
             acc * S::cst(1.0 / pts.len() as f64)
         }

@@ -159,6 +159,17 @@ macro_rules! impl_real_float {
 impl_real_float!(f32);
 impl_real_float!(f64);
 
+/// `√x` for `x > 0`, else 0 with derivative 0: a radius of exactly 0 (a perfect point image) is
+/// the tip of the cone `|x|`, where sqrt's chain rule would give 0 · ∞ = NaN; 0 there is a
+/// subgradient (the one that makes a perfect focus a stationary point).
+pub(crate) fn sqrt_or_zero<S: Real>(x: S) -> S {
+    if x.value() > 0.0 {
+        x.sqrt()
+    } else {
+        S::cst(0.0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::Real;
