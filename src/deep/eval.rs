@@ -21,7 +21,7 @@ use crate::image::render::{blur_patch, pad_reflect, SensorNoise};
 use crate::image::Image;
 use crate::lens::{Lens, System};
 use crate::psf::PsfModel;
-use crate::tolerance::analysis::{perturbed_rms, McOptions};
+use crate::tolerance::monte_carlo::{perturbed_rms, McOptions};
 use crate::tolerance::ToleranceSpec;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -197,8 +197,8 @@ impl Objective for PatternObjective {
 
 /// How a fabricated unit is refocused (training and evaluation alike): best RMS focus over
 /// the fields 0, 0.7 and 1 at the lens's RGB wavelengths, a 16 x 16 pupil grid, apertures on.
-pub fn refocus_options(lens: &Lens) -> crate::tolerance::analysis::McOptions {
-    crate::tolerance::analysis::McOptions {
+pub fn refocus_options(lens: &Lens) -> crate::tolerance::monte_carlo::McOptions {
+    crate::tolerance::monte_carlo::McOptions {
         spec: crate::tolerance::ToleranceSpec::default(),
         trials: 1,
         seed: 0,

@@ -20,12 +20,12 @@
 // Every unsafe block says why it is sound (enforced: CI denies clippy warnings).
 #![warn(clippy::undocumented_unsafe_blocks)]
 
-mod analysis;
+mod geometric;
 mod handles;
 mod train;
 mod wave;
 
-pub use analysis::*;
+pub use geometric::*;
 pub use handles::*;
 pub use train::*;
 pub use wave::*;

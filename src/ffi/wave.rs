@@ -1,7 +1,7 @@
 //! Wave optics through the C ABI: wavefront statistics and Zernike coefficients, the OPD map,
 //! diffraction PSFs and MTFs.
 
-use super::analysis::tolray_field;
+use super::geometric::tolray_field;
 use super::handles::{check_wavelength, tolray_system};
 use super::{boundary, c_slice, nonnull, tolray_status, FfiError, FfiResult};
 use crate::trace::TraceOptions;

@@ -917,7 +917,7 @@ pub struct HeldOut {
 /// As the Monte Carlo analysis.
 pub fn held_out(lens: &Lens, cfg: &TrainConfig, trials: usize, seed: u64) -> Result<HeldOut> {
     let summary =
-        |compensate_focus: bool| -> Result<(crate::tolerance::analysis::Stats, Vec<f64>)> {
+        |compensate_focus: bool| -> Result<(crate::tolerance::monte_carlo::Stats, Vec<f64>)> {
             let mc = crate::tolerance::McOptions {
                 spec: cfg.spec.clone(),
                 trials,

@@ -8,15 +8,15 @@
 //! Curvature errors are per surface, in percent of the curvature. Surface decenter/tilt (wedge)
 //! moves one surface about its own vertex before the element moves.
 
-pub mod analysis;
 pub mod criterion;
+pub mod monte_carlo;
 pub mod spec;
 
-pub use analysis::{
+pub use criterion::{Criterion, MtfDirection};
+pub use monte_carlo::{
     merge_reports, monte_carlo, perturbed_criterion, sensitivity, McOptions, McReport,
     SensitivityNominal, SensitivityRow, TrialResult,
 };
-pub use criterion::{Criterion, MtfDirection};
 pub use spec::{Distribution, Operand, OperandKind, ToleranceSpec};
 
 use crate::error::{Error, Result};

@@ -331,7 +331,7 @@ fn monte_carlo_is_thread_count_independent_and_yield_is_ordered() {
     );
     // Trial k re-traces from its stored pattern.
     let t = &a.trials[5];
-    let (rms, _) = tolray::tolerance::analysis::perturbed_rms(&l, &opts, &t.pattern).unwrap();
+    let (rms, _) = tolray::tolerance::monte_carlo::perturbed_rms(&l, &opts, &t.pattern).unwrap();
     assert_eq!(rms, t.rms_um);
 }
 
@@ -341,14 +341,14 @@ fn focus_compensator_finds_the_traced_best_focus() {
     let l = Lens::load("lens1").unwrap();
     let opts = mc_options(1, true);
     let (rms, shift) =
-        tolray::tolerance::analysis::perturbed_rms(&l, &opts, &Perturbation::default()).unwrap();
+        tolray::tolerance::monte_carlo::perturbed_rms(&l, &opts, &Perturbation::default()).unwrap();
     let shift = shift.unwrap();
     assert!(shift > 2.0 && shift < 3.5, "refocus {shift} mm");
     // Trace with the image plane really moved there, and a little either side.
     let moved = |dz: f64| {
         let p: Perturbation =
             serde_json::from_value(json!({"surfaces": [{"surface": 6, "gap_mm": dz}]})).unwrap();
-        tolray::tolerance::analysis::perturbed_rms(&l, &mc_options(1, false), &p)
+        tolray::tolerance::monte_carlo::perturbed_rms(&l, &mc_options(1, false), &p)
             .unwrap()
             .0
     };
@@ -358,7 +358,7 @@ fn focus_compensator_finds_the_traced_best_focus() {
     }
     let ms = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     assert!(ms(&at) < ms(&moved(shift + 0.01)) && ms(&at) < ms(&moved(shift - 0.01)));
-    let (nominal, _) = tolray::tolerance::analysis::perturbed_rms(
+    let (nominal, _) = tolray::tolerance::monte_carlo::perturbed_rms(
         &l,
         &mc_options(1, false),
         &Perturbation::default(),

@@ -4,7 +4,7 @@
 use std::path::Path;
 use tolray::analysis::SpotResult;
 use tolray::lens::Paraxial;
-use tolray::tolerance::analysis::Stats;
+use tolray::tolerance::monte_carlo::Stats;
 use tolray::tolerance::McReport;
 use tolray::{Lens, Object};
 

@@ -1,4 +1,5 @@
-//! Tracing, spot statistics, PSFs and gradients through the C ABI.
+//! The geometric-optics calls: tracing, spot statistics, geometric PSFs and gradients through
+//! the C ABI (the wave-optics ones are `wave.rs`).
 
 use super::handles::{check_wavelength, tolray_param, tolray_system};
 use super::{boundary, c_slice, nonnull, tolray_status, FfiError, FfiResult};
