@@ -373,12 +373,7 @@ impl Unet {
             }
             let std = (2.0 / (c.cin * c.k * c.k) as f32).sqrt();
             for v in &mut params[c.w..c.b] {
-                // Box–Muller normal.
-                let (u1, u2): (f32, f32) = (
-                    1.0 - rand::Rng::random::<f32>(&mut rng),
-                    rand::Rng::random(&mut rng),
-                );
-                *v = std * (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos();
+                *v = crate::math::normal::scaled_f32(&mut rng, std);
             }
         }
         Ok(Unet { cfg, convs, params })

@@ -12,7 +12,7 @@
 use super::Image;
 use crate::error::{Error, Result};
 use crate::fft::{fast_size, fft2};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 
@@ -344,12 +344,9 @@ pub fn standard_normals(n: usize, seed: u64, stream: u64) -> Vec<f32> {
     rng.set_stream(stream);
     let mut out = Vec::with_capacity(n + 1);
     while out.len() < n {
-        let u1: f64 = 1.0 - rng.random::<f64>();
-        let u2: f64 = rng.random();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let a = std::f64::consts::TAU * u2;
-        out.push((r * a.cos()) as f32);
-        out.push((r * a.sin()) as f32);
+        let (z0, z1) = crate::math::normal::pair(&mut rng);
+        out.push(z0 as f32);
+        out.push(z1 as f32);
     }
     out.truncate(n);
     out

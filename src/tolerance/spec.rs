@@ -324,23 +324,16 @@ impl ToleranceSpec {
     }
 }
 
-fn std_normal(rng: &mut ChaCha8Rng) -> f64 {
-    // Box-Muller; u1 in (0, 1] so the logarithm is finite.
-    let u1 = 1.0 - rng.random::<f64>();
-    let u2 = rng.random::<f64>();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
-
 /// One draw of `dist` over ±`max`.
 fn draw(rng: &mut ChaCha8Rng, dist: Distribution, max: f64) -> f64 {
     if max == 0.0 {
         return 0.0;
     }
     match dist {
-        Distribution::Normal => (std_normal(rng) * max / 3.0).clamp(-max, max),
+        Distribution::Normal => (crate::math::normal::one(rng) * max / 3.0).clamp(-max, max),
         Distribution::Uniform => (2.0 * rng.random::<f64>() - 1.0) * max,
         Distribution::TruncatedNormal => loop {
-            let v = std_normal(rng) * max / 3.0;
+            let v = crate::math::normal::one(rng) * max / 3.0;
             if v.abs() <= max {
                 break v;
             }

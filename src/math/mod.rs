@@ -1,4 +1,7 @@
-//! Small linear algebra generic over the number type: 3-vectors, rotations and rigid placements.
+//! Small linear algebra generic over the number type: 3-vectors, rotations and rigid placements;
+//! and the crate's one normal sampler ([`normal`]).
+
+pub mod normal;
 
 use crate::real::Real;
 use std::ops::{Add, Mul, Neg, Sub};
