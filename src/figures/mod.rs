@@ -345,6 +345,54 @@ fn px(v_pt: f64, s: f64) -> u32 {
     (v_pt * s).round().max(1.0) as u32
 }
 
+/// A vertical colour bar in `area`: `map` over [0, 1] from bottom to top in 128 steps from
+/// (`x0`, `y0`) (points, top left) over `height` points, 14 points wide and outlined; each of
+/// `ticks` (a position in [0, 1] and its label) written beside it, and `label` turned along it
+/// `label_dx` points right of `x0`.
+#[allow(clippy::too_many_arguments)]
+fn colour_bar<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    s: f64,
+    (x0, y0, height): (f64, f64, f64),
+    map: fn(f64) -> RGBColor,
+    ticks: &[(f64, String)],
+    label: &str,
+    label_dx: f64,
+) -> DrawResult<DB> {
+    let p = |v: f64| (v * s).round() as i32;
+    let steps = 128;
+    for k in 0..steps {
+        let t0 = k as f64 / steps as f64;
+        let ya = y0 + height * (1.0 - t0 - 1.0 / steps as f64);
+        area.draw(&Rectangle::new(
+            [
+                (p(x0), p(ya)),
+                (p(x0 + 14.0), p(ya + height / steps as f64) + 1),
+            ],
+            map(t0 + 0.5 / steps as f64).filled(),
+        ))?;
+    }
+    area.draw(&Rectangle::new(
+        [(p(x0), p(y0)), (p(x0 + 14.0), p(y0 + height))],
+        BLACK.stroke_width(px(0.6, s)),
+    ))?;
+    for (t, text) in ticks {
+        let y = y0 + height * (1.0 - t);
+        area.draw(&Text::new(
+            text.as_str(),
+            (p(x0 + 18.0), p(y)),
+            font(10.5, s).pos(Pos::new(HPos::Left, VPos::Center)),
+        ))?;
+    }
+    area.draw(&Text::new(
+        label,
+        (p(x0 + label_dx), p(y0 + 0.5 * height)),
+        font(11.0, s)
+            .transform(FontTransform::Rotate90)
+            .pos(Pos::new(HPos::Center, VPos::Center)),
+    ))
+}
+
 /// Tick label: up to 6 significant decimals, no trailing zeros, a true minus sign, exponent
 /// form for very large or small magnitudes.
 fn tick(v: f64) -> String {

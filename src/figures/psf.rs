@@ -70,37 +70,19 @@ pub(super) fn draw_psf<DB: DrawingBackend>(
     let rows = tiles.len().div_ceil(cols).max(1) as f64;
     let height = (rows * (tile + 2.0) - 2.0).max(120.0);
     let bx = x0 + cols as f64 * (tile + 2.0) + 18.0;
-    let steps = 128;
-    for k in 0..steps {
-        let t0 = k as f64 / steps as f64;
-        let ya = y0 + height * (1.0 - t0 - 1.0 / steps as f64);
-        body.draw(&Rectangle::new(
-            [
-                (p(bx), p(ya)),
-                (p(bx + 14.0), p(ya + height / steps as f64) + 1),
-            ],
-            inferno(t0 + 0.5 / steps as f64).filled(),
-        ))?;
-    }
-    body.draw(&Rectangle::new(
-        [(p(bx), p(y0)), (p(bx + 14.0), p(y0 + height))],
-        BLACK.stroke_width(px(0.6, s)),
-    ))?;
-    for v in [0.0, 0.25, 0.5, 0.75, 1.0] {
-        let y = y0 + height * (1.0 - v);
-        body.draw(&Text::new(
-            tick(v),
-            (p(bx + 18.0), p(y)),
-            font(10.5, s).pos(Pos::new(HPos::Left, VPos::Center)),
-        ))?;
-    }
-    body.draw(&Text::new(
+    let ticks: Vec<(f64, String)> = [0.0, 0.25, 0.5, 0.75, 1.0]
+        .iter()
+        .map(|&v| (v, tick(v)))
+        .collect();
+    colour_bar(
+        body,
+        s,
+        (bx, y0, height),
+        inferno,
+        &ticks,
         "intensity / tile peak",
-        (p(bx + 46.0), p(y0 + 0.5 * height)),
-        font(11.0, s)
-            .transform(FontTransform::Rotate90)
-            .pos(Pos::new(HPos::Center, VPos::Center)),
-    ))?;
+        46.0,
+    )?;
     Ok(())
 }
 

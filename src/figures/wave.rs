@@ -127,42 +127,20 @@ pub(super) fn draw_opd_map<DB: DrawingBackend>(
         BLACK.stroke_width(px(0.8, s)),
     )))?;
     // Colour bar.
-    let (bw, bh) = bar.dim_in_pixel();
-    let p = |v: f64| (v * s).round() as i32;
-    let (x0, y0) = (12.0, 20.0);
-    let height = bh as f64 / s - 70.0;
-    let steps = 128;
-    for k in 0..steps {
-        let t0 = k as f64 / steps as f64;
-        let ya = y0 + height * (1.0 - t0 - 1.0 / steps as f64);
-        bar.draw(&Rectangle::new(
-            [
-                (p(x0), p(ya)),
-                (p(x0 + 14.0), p(ya + height / steps as f64) + 1),
-            ],
-            diverging(t0 + 0.5 / steps as f64).filled(),
-        ))?;
-    }
-    bar.draw(&Rectangle::new(
-        [(p(x0), p(y0)), (p(x0 + 14.0), p(y0 + height))],
-        BLACK.stroke_width(px(0.6, s)),
-    ))?;
-    for v in [-1.0, -0.5, 0.0, 0.5, 1.0] {
-        let y = y0 + height * (1.0 - (0.5 + 0.5 * v));
-        bar.draw(&Text::new(
-            tick(v * lim),
-            (p(x0 + 18.0), p(y)),
-            font(10.5, s).pos(Pos::new(HPos::Left, VPos::Center)),
-        ))?;
-    }
-    let _ = bw;
-    bar.draw(&Text::new(
+    let (_, bh) = bar.dim_in_pixel();
+    let ticks: Vec<(f64, String)> = [-1.0, -0.5, 0.0, 0.5, 1.0]
+        .iter()
+        .map(|&v| (0.5 + 0.5 * v, tick(v * lim)))
+        .collect();
+    colour_bar(
+        &bar,
+        s,
+        (12.0, 20.0, bh as f64 / s - 70.0),
+        diverging,
+        &ticks,
         "OPD, piston removed (waves)",
-        (p(x0 + 80.0), p(y0 + 0.5 * height)),
-        font(11.0, s)
-            .transform(FontTransform::Rotate90)
-            .pos(Pos::new(HPos::Center, VPos::Center)),
-    ))
+        80.0,
+    )
 }
 
 /// Zernike Standard coefficients (waves) as grouped bars, one colour per row (field and
