@@ -298,7 +298,8 @@ fn run_diffraction(a: DiffractionArgs) -> anyhow::Result<()> {
     // Each wavelength's wavefront and Huygens pitch, for the polychromatic PSF.
     let mut waves = Vec::new();
     for &wl in &wls {
-        let what = format!("field {}, {wl} nm", field.label());
+        // Rounded as the user writes wavelengths (the d line is 587.5618 nm, not ...6000001).
+        let what = format!("field {}, {} nm", field.label(), (wl * 1e4).round() / 1e4);
         let trace = |fft: &FftOptions| {
             let o = WaveOptions {
                 sampling: Sampling::Grid(fft.pupil_samples),

@@ -352,7 +352,11 @@ pub fn run_mtf(a: MtfArgs) -> anyhow::Result<()> {
                     refocused(&l, dz)
                 };
                 let sys = perturbed_system(&lf, a.rays.perturb.as_deref())?;
-                let what = format!("field {label}, {wl} nm, focus {dz} mm");
+                let what = format!(
+                    "field {label}, {} nm, focus {} mm",
+                    (wl * 1e4).round() / 1e4,
+                    (dz * 1e6).round() / 1e6
+                );
                 let quad = if a.method == "geometric" {
                     Some(wave::wavefront(&lf, &sys, *field, wl, &quad_opts)?)
                 } else {
