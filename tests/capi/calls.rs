@@ -410,33 +410,47 @@ pub(super) fn last_error() -> String {
         .into_owned()
 }
 
+/// `tolray_lens_paraxial` at the d line of a lens made by `tolray_lens_from_json` (for `Json`)
+/// or `tolray_lens_load` (for `Name`), both calls asserted to succeed, the handle freed.
+fn paraxial_through_c(lens: LensText) -> tolray::ffi::tolray_paraxial {
+    use tolray::ffi::*;
+    type Make =
+        unsafe extern "C" fn(*const std::ffi::c_char, *mut *mut tolray_lens) -> tolray_status;
+    let (text, load): (&str, Make) = match lens {
+        LensText::Json(t) => (t, tolray_lens_from_json),
+        LensText::Name(n) => (n, tolray_lens_load),
+    };
+    let text = std::ffi::CString::new(text).unwrap();
+    let mut handle = std::ptr::null_mut();
+    let mut p = tolray_paraxial::default();
+    // SAFETY: valid pointers; the handle is freed below.
+    unsafe {
+        assert_eq!(load(text.as_ptr(), &mut handle), tolray_status::TOLRAY_OK);
+        assert_eq!(
+            tolray_lens_paraxial(handle, 587.5618, &mut p),
+            tolray_status::TOLRAY_OK
+        );
+        tolray_lens_free(handle);
+    }
+    p
+}
+
+/// A lens for [`paraxial_through_c`]: DeepLens JSON text or a built-in or file name.
+enum LensText<'a> {
+    Json(&'a str),
+    Name(&'a str),
+}
+
 /// An afocal lens is an answer of `tolray_lens_paraxial`, not an error: `afocal` = 1, the
 /// angular magnification set (a 2x Keplerian reducer of two ideal thin lenses: -2), the focal
 /// numbers 0 as documented, and the image of an object at infinity at infinity.
 #[test]
 fn an_afocal_lens_has_paraxial_data_through_the_c_abi() {
-    use std::ptr::null_mut;
-    use tolray::ffi::*;
-    let text = std::ffi::CString::new(
+    let p = paraxial_through_c(LensText::Json(
         r#"{"surfaces": [
             {"type": "ThinLens", "f": 100, "r": 10, "mat2": "air", "d_next": 150, "is_aperture": true},
             {"type": "ThinLens", "f": 50, "r": 10, "mat2": "air", "d_next": 30}], "r_sensor": 5}"#,
-    )
-    .unwrap();
-    let mut lens = null_mut();
-    let mut p = tolray_paraxial::default();
-    // SAFETY: valid pointers; the handle is freed below.
-    unsafe {
-        assert_eq!(
-            tolray_lens_from_json(text.as_ptr(), &mut lens),
-            tolray_status::TOLRAY_OK
-        );
-        assert_eq!(
-            tolray_lens_paraxial(lens, 587.5618, &mut p),
-            tolray_status::TOLRAY_OK
-        );
-        tolray_lens_free(lens);
-    }
+    ));
     assert_eq!((p.afocal, p.image_at_infinity), (1, 1));
     assert!((p.angular_magnification + 2.0).abs() < 1e-12, "{p:?}");
     assert_eq!(
@@ -457,38 +471,12 @@ fn an_afocal_lens_has_paraxial_data_through_the_c_abi() {
 /// (closed form); lens1 images in air, so the two are equal.
 #[test]
 fn the_c_abi_gives_the_focal_length_in_image_space() {
-    use std::ptr::null_mut;
-    use tolray::ffi::*;
-    let mirror = std::ffi::CString::new(
+    let pa = paraxial_through_c(LensText::Json(
         r#"{"primary_wvln": 0.5875618, "r_sensor": 1, "sensor_res": [512, 512],
         "surfaces": [{"type": "Mirror", "r": 20, "c": -0.0025, "d_next": -200, "mat2": "air",
         "is_aperture": true}]}"#,
-    )
-    .unwrap();
-    let name = std::ffi::CString::new("lens1").unwrap();
-    let (mut a, mut b) = (null_mut(), null_mut());
-    let (mut pa, mut pb) = (tolray_paraxial::default(), tolray_paraxial::default());
-    // SAFETY: valid pointers; the handles are freed below.
-    unsafe {
-        assert_eq!(
-            tolray_lens_from_json(mirror.as_ptr(), &mut a),
-            tolray_status::TOLRAY_OK
-        );
-        assert_eq!(
-            tolray_lens_load(name.as_ptr(), &mut b),
-            tolray_status::TOLRAY_OK
-        );
-        assert_eq!(
-            tolray_lens_paraxial(a, 587.5618, &mut pa),
-            tolray_status::TOLRAY_OK
-        );
-        assert_eq!(
-            tolray_lens_paraxial(b, 587.5618, &mut pb),
-            tolray_status::TOLRAY_OK
-        );
-        tolray_lens_free(a);
-        tolray_lens_free(b);
-    }
+    ));
+    let pb = paraxial_through_c(LensText::Name("lens1"));
     assert!((pa.efl_mm - 200.0).abs() < 1e-9, "{pa:?}");
     assert!((pa.efl_image_space_mm + 200.0).abs() < 1e-9, "{pa:?}");
     let rust = tolray::Lens::load("lens1")
