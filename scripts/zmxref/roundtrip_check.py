@@ -12,7 +12,7 @@ Usage (from any directory outside the repository; optiland may write logs into t
 with ZEMAXGLASS_AGF set as for gen_reference.py (its patch 9: the LightPath and RPO glasses of
 two corpus files, which optiland's database lacks).
 
-Quantities and tolerances (those of tests/optics/zemax/, corpus_mismatches; lengths in mm, the
+Quantities and tolerances (those of tests/zemax/, corpus_mismatches; lengths in mm, the
 reference's file units converted by its UNIT):
   * wavelength, EFL (optiland f2), BFD, EPD: relative 1e-9; the field's kind and maximum (angle or
     object height that was traced): relative 1e-9;
@@ -22,7 +22,7 @@ reference's file units converted by its UNIT):
     surface, so where the original has dummy surfaces or coordinate breaks before its first lens
     surface the written file's frame origin lies dz further along z.  dz is measured with optiland
     on both files as the shift of the image plane relative to each file's frame origin (optiland
-    surface 1), and the reference EP z is compared as ep_z - dz (tests/optics/zemax/ does the same with
+    surface 1), and the reference EP z is compared as ep_z - dz (tests/zemax/ does the same with
     tolray's own first_vertex_mm);
   * per field (0, 0.7, 1 of the maximum): rays launched and rays reaching the image: exact;
     RMS spot: |a - b| <= 1e-9 b + 1e-6 um; centroid: each coordinate within 1e-9 (1 + |y_ref|) mm,

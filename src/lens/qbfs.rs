@@ -22,7 +22,7 @@
 //! Which formula OpticStudio uses for type 0 is not publicly specified to the letter; this one is
 //! the only candidate under which Thorlabs' ASL5040-UV file (a conic base with `c ρ > 1` at the
 //! rim, where 1 / sqrt(1 - c² ρ²) does not exist) focuses a collimated beam at the file's own
-//! image distance and primary wavelength (0.28 µm RMS; `tests/optics/zemax/`).
+//! image distance and primary wavelength (0.28 µm RMS; `tests/zemax/`).
 
 use super::N_ASPH;
 use crate::real::Real;

@@ -23,7 +23,7 @@
 //! stable on and beyond [0, 1]. Checked in the tests: Forbes' closed forms, orthogonality with
 //! weight x⁴ on [0, 1] (norm 1 / (2m + 5)), and derivatives against central differences; traced
 //! ray by ray against optiland with the same surface written as an even asphere by SciPy's
-//! Jacobi polynomials (`tests/optics/zemax/`).
+//! Jacobi polynomials (`tests/zemax/`).
 
 use super::N_ASPH;
 use crate::real::Real;

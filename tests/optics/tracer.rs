@@ -611,7 +611,7 @@ fn an_ideal_thin_lens_focuses_each_direction_to_one_point() {
 /// -f2/f1 = -0.5 at a finite distance; a field given as a fraction of the sensor is an error
 /// naming the reason, except the axis. The all-flat fold-mirror files of optiland's suite
 /// are afocal with angular magnification +1 (their rays are checked against optiland in
-/// zemax::corpus).
+/// `tests/zemax/`, `corpus`).
 #[test]
 fn an_afocal_telescope_has_an_angular_magnification_and_parallel_beams() {
     use tolray::trace::{Field, Pupil, RaySet};

@@ -226,7 +226,7 @@ fn fixtures_match_their_json_lenses() {
 #[test]
 fn zmx_fixtures_reproduce_the_reference_spots() {
     let v: serde_json::Value =
-        serde_json::from_str(include_str!("../../data/reference_values.json")).unwrap();
+        serde_json::from_str(include_str!("../data/reference_values.json")).unwrap();
     for (key, file) in [
         ("Triplet", "cooke-triplet-utf16.zmx"),
         ("Lens1@inf", "lens1.zmx"),
