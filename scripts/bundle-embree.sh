@@ -4,7 +4,7 @@
 # directory is gone: its rpath searches its own directory and ../lib first.
 #
 # Usage: scripts/bundle-embree.sh BINARY DEST
-#   e.g. after `cargo install --path . --features embree`:
+#   e.g. after `cargo install --path cli --features embree`:
 #        scripts/bundle-embree.sh ~/.cargo/bin/tolray ~/.cargo/lib
 # The libraries are found in the binary's absolute rpath entries (the build directory's copy of
 # the pinned PyPI wheel, or EMBREE_DIR). A system Embree (/usr/lib) needs no bundling.

@@ -28,7 +28,6 @@
 //! - [`ffi`]: the C ABI (`include/tolray.h`).
 //! - [`error`], [`files`], [`math`]: errors with their kind and I/O source; JSON reading and atomic
 //!   writes that an interrupted program cleans up; small vector algebra.
-//! - `embree` (feature `embree`): the Embree 4 cross-check of every intersection.
 //!
 //! ```
 //! use tolray::analysis::{spot_diagram, SpotOptions};
@@ -67,8 +66,6 @@
 pub mod analysis;
 pub mod decoder;
 pub mod deep;
-#[cfg(feature = "embree")]
-pub mod embree;
 pub mod error;
 pub mod ffi;
 pub mod fft;

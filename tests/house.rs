@@ -93,9 +93,10 @@ fn the_front_door_stays_short() {
     }
 }
 
-/// The library's modules from the bottom up: a module may use only those before it. The CLI
-/// (`bin/`) and `lib.rs` sit on top of everything.
-const LAYERS: [&str; 18] = [
+/// The library's modules from the bottom up: a module may use only those before it. `lib.rs`
+/// sits on top of them, and the packages in cli/ (the command) and embree/ (the Embree
+/// cross-check) on top of the library.
+const LAYERS: [&str; 17] = [
     "error",
     "files",
     "real",
@@ -112,7 +113,6 @@ const LAYERS: [&str; 18] = [
     "image",
     "decoder",
     "deep",
-    "embree",
     "ffi",
 ];
 
@@ -143,7 +143,7 @@ fn layers_point_down() {
             .as_os_str()
             .to_string_lossy();
         let module = first.trim_end_matches(".rs");
-        if module == "bin" || module == "lib" {
+        if module == "lib" {
             continue;
         }
         let own = rank(module).unwrap_or_else(|| panic!("src/{module} is in no layer: add it"));
@@ -178,7 +178,7 @@ fn layers_point_down() {
 #[test]
 fn no_source_file_grows_past_1200_lines() {
     let mut files = Vec::new();
-    for dir in ["src", "tests", "benches", "examples"] {
+    for dir in ["src", "tests", "benches", "examples", "cli", "embree"] {
         rust_files(&Path::new(ROOT).join(dir), &mut files);
     }
     let mut long = Vec::new();

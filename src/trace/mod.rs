@@ -8,8 +8,6 @@
 
 mod bundles;
 mod kernel;
-#[cfg(feature = "embree")]
-pub(crate) use kernel::image_root;
 pub mod raw;
 pub mod rays;
 pub mod reference;

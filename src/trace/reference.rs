@@ -44,6 +44,30 @@ pub fn surface_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
     sag(row.c, row.k1, &row.asph[..row.n_asph], u)
 }
 
+/// Sag `z` (mm) and `dz/du` of a compiled Q-type asphere ([`Shape::Qbfs`] or [`Shape::Qcon`]) at
+/// `u = x² + y²` (mm²), in its local frame, from the polynomials' definitions term by term;
+/// `None` beyond the base conic's rim or for another shape (the Embree mesh).
+pub fn q_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
+    let sag_and_slope = match row.shape {
+        Shape::Qbfs { .. } => crate::lens::qbfs::sag_and_slope,
+        Shape::Qcon { .. } => crate::lens::qcon::sag_and_slope,
+        _ => return None,
+    };
+    sag_and_slope(
+        row.c,
+        row.k1 - 1.0,
+        &row.asph[..row.n_asph],
+        row.inv_norm2.sqrt().recip(),
+        u,
+    )
+}
+
+/// Where the ray at `p` going `d` (both in the image surface's frame, mm) crosses the image
+/// plane or curved image surface: (distance along `d`, whether it does), as the kernel finds it.
+pub fn image_crossing(sys: &System<f64>, p: Vec3<f64>, d: Vec3<f64>) -> (f64, bool) {
+    crate::trace::kernel::image_root(sys, p, d)
+}
+
 /// Sag `z` (mm) and its gradient (`∂z/∂x`, `∂z/∂y`) of a compiled surface of any shape at
 /// `(x, y)` in its local frame, written from the shapes' definitions term by term (powers, not
 /// the kernel's Horner forms); `None` where the surface is undefined.

@@ -14,10 +14,10 @@
 //! Only single rays (`rtcIntersect1`) are used, with NULL intersect arguments (Embree's
 //! defaults; `rtcInitIntersectArguments` is an inline C function that bindgen cannot bind).
 
-use crate::error::{Error, ErrorKind, Result};
 use embree4_sys as sys;
 use std::cell::RefCell;
 use std::ffi::{c_char, c_void, CStr, CString};
+use tolray::error::{Error, ErrorKind, Result};
 
 extern "C" {
     /// In the 4.4 library but not in the 4.2 headers of `embree4-sys`.

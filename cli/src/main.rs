@@ -129,7 +129,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 /// The command-line reference in Markdown, `docs/cli.md` (`tolray --markdown-help`, a hidden
-/// flag; `tests/cli/` fails when the file drifts from the parser).
+/// flag; `cli/tests/cli/` fails when the file drifts from the parser).
 fn markdown_help() -> String {
     use clap::CommandFactory;
     let opts = clap_markdown::MarkdownOptions::new()

@@ -14,7 +14,7 @@ fn info_prints_the_reference_first_order_data() {
     let efl = v["paraxial"]["efl_mm"].as_f64().unwrap();
     assert!((efl - 48.53684694175222).abs() < 1e-9);
     // A folded lens: its folds and tilts; a virtual object: said so.
-    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/");
+    let data = concat!(env!("TOLRAY_ROOT"), "/tests/data/zemax/");
     let (code, out, _) = tolray(&["info", &format!("{data}fold.zmx")]);
     assert_eq!(code, 0);
     assert_eq!(

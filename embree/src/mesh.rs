@@ -51,10 +51,10 @@
 //! global frame (the perturbed placement `x = pos + R x_local`; at z = 50 mm one f32 ulp is
 //! ~4e-6 mm). [`Mesh::deviation`] measures what the f32 mesh actually does.
 
-use crate::error::{Error, Result};
-use crate::lens::{Shape, SurfaceKind, SurfaceRow};
-use crate::math::Vec3;
-use crate::trace::reference::{intersect_local, surface_sag, surface_sag_xy};
+use tolray::error::{Error, Result};
+use tolray::lens::{Shape, SurfaceKind, SurfaceRow};
+use tolray::math::Vec3;
+use tolray::trace::reference::{intersect_local, q_sag, surface_sag, surface_sag_xy};
 
 /// Where mesh vertices (and the rays traced against them) are expressed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -115,20 +115,7 @@ pub struct Mesh {
 /// asphere without the cone term, a Q-type asphere), from the reference tracer's definitions.
 fn radial_sag(row: &SurfaceRow<f64>, u: f64) -> Option<(f64, f64)> {
     match row.shape {
-        Shape::Qbfs { .. } | Shape::Qcon { .. } => {
-            let sag_and_slope = if matches!(row.shape, Shape::Qbfs { .. }) {
-                crate::lens::qbfs::sag_and_slope
-            } else {
-                crate::lens::qcon::sag_and_slope
-            };
-            sag_and_slope(
-                row.c,
-                row.k1 - 1.0,
-                &row.asph[..row.n_asph],
-                row.inv_norm2.sqrt().recip(),
-                u,
-            )
-        }
+        Shape::Qbfs { .. } | Shape::Qcon { .. } => q_sag(row, u),
         Shape::Odd => {
             let r = u.sqrt();
             let (z, _, fr) = surface_sag_xy(row, 0.0, r)?;
@@ -198,7 +185,7 @@ fn curvature_bounds(row: &SurfaceRow<f64>, r: f64, surface: usize) -> Result<(f6
 /// Radius of the smallest disk holding the 2-D triangle `a, b, c` (the `R` of the chord bound).
 ///
 /// ```
-/// use tolray::embree::mesh::enclosing_radius;
+/// use tolray_embree::mesh::enclosing_radius;
 /// // Right triangle: half the hypotenuse.
 /// let r = enclosing_radius([0.0, 0.0], [2.0, 0.0], [0.0, 2.0]);
 /// assert!((r - 2f64.sqrt()).abs() < 1e-15);
@@ -486,8 +473,8 @@ impl Mesh {
     /// mesh is within `chord_mm` of the surface, in `frame`.
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for a non-positive or non-finite `chord_mm` or a mesh that
-    /// would exceed [`MAX_TRIANGLES`]; [`crate::ErrorKind::Invalid`] if the sag is undefined
+    /// [`tolray::ErrorKind::Argument`] for a non-positive or non-finite `chord_mm` or a mesh that
+    /// would exceed [`MAX_TRIANGLES`]; [`tolray::ErrorKind::Invalid`] if the sag is undefined
     /// (beyond a conic's rim) inside the tessellated disk.
     pub fn new(row: &SurfaceRow<f64>, surface: usize, chord_mm: f64, frame: Frame) -> Result<Mesh> {
         Mesh::with_radius(row, surface, row.ap2.sqrt(), chord_mm, frame)
@@ -498,7 +485,7 @@ impl Mesh {
     /// semi-diameter's disk.
     ///
     /// # Errors
-    /// As [`Mesh::new`]; also [`crate::ErrorKind::Argument`] for a radius that is not positive.
+    /// As [`Mesh::new`]; also [`tolray::ErrorKind::Argument`] for a radius that is not positive.
     pub fn with_radius(
         row: &SurfaceRow<f64>,
         surface: usize,

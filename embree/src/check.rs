@@ -39,18 +39,20 @@
 
 use super::device::{Device, Hit, Scene, SceneOptions};
 use super::mesh::{Frame, Mesh};
-use crate::analysis::spot_stats;
-use crate::error::{Error, Result};
-use crate::lens::material::LAMBDA_D_NM;
-use crate::lens::{Lens, SurfaceRow, System};
-use crate::math::Vec3;
-use crate::tolerance::{Perturbation, ToleranceSpec};
-use crate::trace::reference::{bend, intersect_local, surface_sag_xy, trace_ray, unit_normal};
-use crate::trace::{
-    trace_serial, Bundle, Bundles, Field, Pupil, RayBatch, RayStatus, TraceOptions,
-};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use tolray::analysis::spot_stats;
+use tolray::error::{Error, Result};
+use tolray::lens::material::LAMBDA_D_NM;
+use tolray::lens::{Lens, SurfaceRow, System};
+use tolray::math::Vec3;
+use tolray::tolerance::{Perturbation, ToleranceSpec};
+use tolray::trace::reference::{
+    bend, image_crossing, intersect_local, surface_sag_xy, trace_ray, unit_normal,
+};
+use tolray::trace::{
+    trace_serial, Bundle, Bundles, Field, Pupil, RayBatch, RayStatus, TraceOptions,
+};
 
 /// Which normal refracts a ray at an Embree hit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -122,7 +124,7 @@ impl Default for CheckOptions {
 /// the Monte Carlo analysis does), so every case traces the same rays.
 ///
 /// # Errors
-/// [`crate::ErrorKind::Argument`] without fields or wavelengths; paraxial and ray-generation
+/// [`tolray::ErrorKind::Argument`] without fields or wavelengths; paraxial and ray-generation
 /// errors.
 pub fn check_rays(lens: &Lens, opts: &CheckOptions) -> Result<Bundles> {
     if opts.fields.is_empty() || opts.wavelengths_nm.is_empty() {
@@ -522,7 +524,7 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 /// refused by name. (Gratings and ideal thin lenses are meshed as their substrate, a plane for
 /// the thin lens, and turn the rays as the reference tracer does: [`bend`].)
 fn supported(sys: &System<f64>) -> Result<()> {
-    use crate::lens::Shape;
+    use tolray::lens::Shape;
     for (i, row) in sys.rows.iter().enumerate() {
         let what = match row.shape {
             Shape::Odd if row.asph[0] != 0.0 => {
@@ -547,7 +549,7 @@ fn supported(sys: &System<f64>) -> Result<()> {
 /// it.
 ///
 /// # Errors
-/// [`crate::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
+/// [`tolray::ErrorKind::Argument`] naming the surface, the bound and the triangle count.
 pub fn check_feasible(sys: &System<f64>, rays: &Bundles, opts: &CheckOptions) -> Result<()> {
     supported(sys)?;
     let indices = bundle_indices(sys, rays);
@@ -607,7 +609,7 @@ fn used_radii(sys: &System<f64>, rays: &Bundles, indices: &[Vec<f64>]) -> Vec<f6
 /// (inside the tessellated disk) or as uncovered (outside it); both fail the case.
 ///
 /// # Errors
-/// Mesh and Embree errors naming the surface; [`crate::ErrorKind::Numerical`] if no ray of a
+/// Mesh and Embree errors naming the surface; [`tolray::ErrorKind::Numerical`] if no ray of a
 /// field reaches the image in every trace.
 pub fn check_system(
     device: &Device,
@@ -784,7 +786,7 @@ pub fn check_system(
         }
         let p = sys.image.point_to_local(st.o);
         let dl = sys.image.rotation.apply_t(st.d);
-        let (t, hit) = crate::trace::image_root(sys, p, dl);
+        let (t, hit) = image_crossing(sys, p, dl);
         if !hit {
             st.status = RayStatus::Missed(n_img);
             continue;

@@ -8,12 +8,12 @@
 //! rays' footprints (the default) against whole disks.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use tolray::embree::{
-    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, Scene, SceneOptions,
-};
 use tolray::math::Vec3;
 use tolray::trace::reference::intersect_local;
 use tolray::Lens;
+use tolray_embree::{
+    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, Scene, SceneOptions,
+};
 
 fn bench(c: &mut Criterion) {
     let lens = Lens::load("lens2").unwrap();

@@ -67,7 +67,7 @@ pub fn run(_args: ValidateArgs) -> anyhow::Result<()> {
 #[cfg(feature = "embree")]
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     let (lens, args) = (&args.lens, &args);
-    use tolray::embree::{validate, CheckOptions, Cover, Device, Frame, ValidateOptions};
+    use tolray_embree::{validate, CheckOptions, Cover, Device, Frame, ValidateOptions};
     let (l, file_fields) = lens.load_with_fields()?;
     let spec = match &args.tolerance_spec {
         Some(p) => ToleranceSpec::read(p)?,
@@ -157,7 +157,7 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
 }
 
 #[cfg(feature = "embree")]
-fn validate_text(r: &tolray::embree::ValidationReport) -> String {
+fn validate_text(r: &tolray_embree::ValidationReport) -> String {
     use std::fmt::Write;
     let s = &r.summary;
     let c = &r.options.check;
@@ -174,8 +174,8 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
         r.options.seed,
         c.chord_mm,
         match c.frame {
-            tolray::embree::Frame::Local => "local",
-            tolray::embree::Frame::Global => "global",
+            tolray_embree::Frame::Local => "local",
+            tolray_embree::Frame::Global => "global",
         },
         rays
     );
@@ -235,7 +235,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
                 .filter(|x| !x.sharp)
                 .map(|x| x.max_f32_allowance_mm)
                 .fold(0.0, f64::max),
-            100.0 * tolray::embree::check::SHARP_FRACTION
+            100.0 * tolray_embree::check::SHARP_FRACTION
         );
     }
     let _ = writeln!(
@@ -256,7 +256,7 @@ fn validate_text(r: &tolray::embree::ValidationReport) -> String {
     );
     for f in 0..nf {
         let n = &r.cases[0].fields[f];
-        let worst = |g: &dyn Fn(&tolray::embree::FieldCheck) -> f64| {
+        let worst = |g: &dyn Fn(&tolray_embree::FieldCheck) -> f64| {
             r.cases.iter().map(|c| g(&c.fields[f])).fold(0.0, f64::max)
         };
         let _ = writeln!(

@@ -5,13 +5,13 @@
 mod common;
 
 use common::tolray;
-use tolray::embree::{
-    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, RayHit, Scene, SceneOptions,
-};
 use tolray::lens::{Adjustments, System};
 use tolray::tolerance::ToleranceSpec;
 use tolray::trace::Pupil;
 use tolray::Lens;
+use tolray_embree::{
+    check_rays, check_system, CheckOptions, Cover, Device, Frame, Mesh, RayHit, Scene, SceneOptions,
+};
 
 fn device() -> &'static Device {
     Device::shared().expect("Embree device")
@@ -175,7 +175,7 @@ fn no_ray_leaks_through_mesh_vertices_or_edges() {
 
 /// A hand-made lens of tests/data/zemax, or Thorlabs' Q-type asphere of the corpus.
 fn zmx(name: &str) -> Lens {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/").to_string() + name;
+    let path = concat!(env!("TOLRAY_ROOT"), "/tests/data/zemax/").to_string() + name;
     Lens::load(&path).unwrap()
 }
 
@@ -248,7 +248,7 @@ fn small_options() -> CheckOptions {
 fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
     let opts = small_options();
     let spec = ToleranceSpec::default();
-    let cassegrain = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/cassegrain.json");
+    let cassegrain = concat!(env!("TOLRAY_ROOT"), "/tests/data/cassegrain.json");
     for name in [
         "lens1",
         "lens2",
@@ -370,7 +370,7 @@ fn footprint_meshes_give_the_whole_disks_hits() {
             assert_eq!(a.failures, b.failures, "{name}");
             for (x, y) in a.surfaces.iter().zip(&b.surfaces) {
                 let ctx = format!("{name} {frame:?} surface {}", x.surface);
-                let counts = |s: &tolray::embree::SurfaceCheck| {
+                let counts = |s: &tolray_embree::SurfaceCheck| {
                     [
                         s.hits,
                         s.leaks,
@@ -425,7 +425,7 @@ fn footprint_meshes_give_the_whole_disks_hits() {
 #[test]
 fn a_disk_reaching_a_conic_rim_is_refused_before_meshing() {
     let file = concat!(
-        env!("CARGO_MANIFEST_DIR"),
+        env!("TOLRAY_ROOT"),
         "/tests/data/zemax/real/patent_to_zemax/EP0770895A2-embodiment-1.zmx"
     );
     for chord in ["1e-4", "1e-3", "1e-2"] {
@@ -667,10 +667,7 @@ fn the_binary_is_relocatable_with_its_embree_libraries() {
     std::fs::copy(env!("CARGO_BIN_EXE_tolray"), &exe).unwrap();
     let lib = dir.join("lib");
     let out = std::process::Command::new("bash")
-        .arg(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/scripts/bundle-embree.sh"
-        ))
+        .arg(concat!(env!("TOLRAY_ROOT"), "/scripts/bundle-embree.sh"))
         .arg(&exe)
         .arg(&lib)
         .output()

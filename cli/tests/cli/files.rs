@@ -4,7 +4,7 @@ use super::*;
 
 #[test]
 fn convert_between_zmx_and_json() {
-    let fixture = |n: &str| format!("{}/tests/data/zemax/{n}", env!("CARGO_MANIFEST_DIR"));
+    let fixture = |n: &str| format!("{}/tests/data/zemax/{n}", env!("TOLRAY_ROOT"));
     // A .zmx file's field points are the default fields of `spot` and `layout` (issue 14): the
     // triplet file's YFLN 0, 10, 14, 20 (degrees), not fractions 0, 0.5, 0.7, 1, in tolray's
     // sign (OpticStudio's +10° rises toward +y: the object is below the axis, tolray's -10°),
@@ -31,7 +31,7 @@ fn convert_between_zmx_and_json() {
     // `info` lists a file's fields with their vignetting factors.
     let vignetted = format!(
         "{}/tests/data/zemax/real/rayoptics/US00583336-2-scaled.zmx",
-        env!("CARGO_MANIFEST_DIR")
+        env!("TOLRAY_ROOT")
     );
     let (code, out, err) = tolray(&["info", &vignetted]);
     assert_eq!(code, 0, "{err}");
@@ -44,7 +44,7 @@ fn convert_between_zmx_and_json() {
     // lithography lens) are the defaults; the real chief ray lands on each height.
     let uv = format!(
         "{}/tests/data/zemax/real/rayoptics/US05831776-1.zmx",
-        env!("CARGO_MANIFEST_DIR")
+        env!("TOLRAY_ROOT")
     );
     let (code, out, err) = tolray(&["spot", &uv, "--pupil", "grid:8", "--json"]);
     assert_eq!(code, 0, "{err}");

@@ -8,7 +8,7 @@ use super::*;
 #[test]
 fn wave_optics_commands() {
     let ac254 = concat!(
-        env!("CARGO_MANIFEST_DIR"),
+        env!("TOLRAY_ROOT"),
         "/tests/data/zemax/real/dcclab_raytracing/AC254-100-A-Zemax(ZMX).zmx"
     );
     let png = tmp("opd.png");
@@ -354,7 +354,7 @@ fn cli_reference_is_generated_from_the_parser() {
     ] {
         assert!(out.contains(&format!("## `tolray {cmd}`")), "{cmd} missing");
     }
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/cli.md");
+    let path = concat!(env!("TOLRAY_ROOT"), "/docs/cli.md");
     if std::env::var_os("TOLRAY_BLESS").is_some() {
         std::fs::write(path, &out).unwrap();
     }
