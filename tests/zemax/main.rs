@@ -23,6 +23,7 @@ mod fields;
 mod fuzz;
 mod geometry;
 mod surfaces;
+mod tilted;
 #[allow(unused_imports)]
 use catalogs::*;
 #[allow(unused_imports)]
@@ -37,6 +38,8 @@ use fuzz::*;
 use geometry::*;
 #[allow(unused_imports)]
 use surfaces::*;
+#[allow(unused_imports)]
+use tilted::*;
 
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

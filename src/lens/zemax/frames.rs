@@ -47,6 +47,40 @@ pub(super) fn turn_onto(u: Vec3<f64>, v: Vec3<f64>) -> Option<Mat3<f64>> {
     })
 }
 
+/// The rotation of an OpticStudio tilted surface (`TILTSURF`, the plane z = x tan θx + y tan θy
+/// of its frame, PARM 1 = tan θx, PARM 2 = tan θy) against its frame: the shortest arc turning +z
+/// onto the plane's normal (-tan θx, -tan θy, 1) / norm. The frame itself does not change.
+pub(super) fn tilted_surface_rotation(tangents: [f64; 2]) -> Mat3<f64> {
+    let n = Vec3::cst(-tangents[0], -tangents[1], 1.0).normalized();
+    // The normal has a positive z, so the arc exists.
+    turn_onto(Vec3::cst(0.0, 0.0, 1.0), n).unwrap_or_else(Mat3::identity)
+}
+
+/// A `TILTSURF` surface's tangents (PARM 1 and 2); other parameters are refused, as is an angle
+/// that is not finite.
+fn tilt_tangents(s: &RawSurf) -> Result<[f64; 2]> {
+    let mut t = [0.0; 2];
+    for &(p, v, line) in &s.parm {
+        match p {
+            1 | 2 if v.is_finite() && v.abs() <= 1e6 => t[p - 1] = v,
+            1 | 2 => {
+                return Err(invalid(
+                    line,
+                    format!("PARM {p} = {v}: a tilted surface's tangent must be finite (within ±1e6)"),
+                ))
+            }
+            _ if v != 0.0 => {
+                return Err(invalid(
+                    line,
+                    format!("PARM {p} = {v}: a tilted surface (TILTSURF) has the tangents of its x and y angles (PARM 1 and 2) only"),
+                ))
+            }
+            _ => {}
+        }
+    }
+    Ok(t)
+}
+
 /// The tilts about x, the new y and the new z (degrees, `Rx(a) Ry(b) Rz(g)`) of a rotation.
 pub(super) fn angles_of(r: &Mat3<f64>) -> [f64; 3] {
     // Rx(a) Ry(b) Rz(g) has third column (sin b, -sin a cos b, cos a cos b) and first row
@@ -277,7 +311,18 @@ impl Walker {
     ) -> Result<()> {
         let ty = s.type_name();
         let scale = self.scale;
-        let c = s.curv.as_ref().map_or(0.0, |c| c.v) / scale;
+        // A tilted surface is a plane: its tangents turn it against its frame, below.
+        let tilted = ty == "TILTSURF";
+        let tangents = if tilted {
+            Some(tilt_tangents(s)?)
+        } else {
+            None
+        };
+        let c = if tilted {
+            0.0
+        } else {
+            s.curv.as_ref().map_or(0.0, |c| c.v) / scale
+        };
         let mut asph = [0.0; N_ASPH];
         let mut shape = Shape::Even;
         let mut grating = Grating {
@@ -286,6 +331,7 @@ impl Walker {
         };
         for &(p, v, line) in &s.parm {
             match ty.as_str() {
+                "TILTSURF" => {}
                 "EVENASPH" if (1..=N_ASPH).contains(&p) => {
                     // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
                     asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
@@ -403,8 +449,50 @@ impl Walker {
             && material == self.medium
             && aperture.is_none()
             && !diam.is_some_and(|d| d.1);
+        if tilted {
+            for (what, v, l) in [
+                ("CURV", s.curv.as_ref().map(|c| (c.v, c.line))),
+                ("CONI", s.coni.as_ref().map(|k| (k.v, k.line))),
+            ]
+            .into_iter()
+            .filter_map(|(w, x)| x.map(|(v, l)| (w, v, l)))
+            {
+                if v != 0.0 {
+                    warnings.push(format!(
+                        "line {l}: {what} {v} ignored: a tilted surface (TILTSURF) is a plane, as in OpticStudio"
+                    ));
+                }
+            }
+            if aperture.is_some() {
+                let t = tangents.unwrap_or_default();
+                let slope = t[0].hypot(t[1]);
+                warnings.push(format!(
+                    "line {}: the hard aperture of a tilted surface (TILTSURF) is applied in the tilted plane, OpticStudio's in its x-y frame: along the tilt, tolray's clips {:.3} % closer to the axis",
+                    s.aperture.as_ref().map_or(s.line, |x| x.line),
+                    100.0 * (1.0 - 1.0 / (1.0 + slope * slope).sqrt())
+                ));
+            }
+        }
         if !dummy {
             let (origin, rot, axis) = self.unfolded();
+            // A tilted surface turns against its frame, which the surfaces after it keep.
+            let (rot, axis) = match tangents {
+                Some(t) => {
+                    let r = snap(rot * tilted_surface_rotation(t));
+                    (r, r.apply(Vec3::cst(0.0, 0.0, 1.0)))
+                }
+                None => (rot, axis),
+            };
+            if tilted && mirror {
+                let t = tangents.unwrap_or_default();
+                let deg = t[0].hypot(t[1]).atan().to_degrees();
+                if deg >= FOLD_MIN_DEG {
+                    return Err(invalid(
+                        s.type_line(),
+                        format!("SURF {k} is a mirror tilted {deg:.1} degrees by TILTSURF, which keeps the frame; tolray turns the axis at a mirror tilted {FOLD_MIN_DEG} degrees or more: write it as coordinate break, mirror, coordinate break, as OpticStudio advises for fold mirrors"),
+                    ));
+                }
+            }
             if axis.z <= 1e-9 {
                 return Err(invalid(
                     s.line,
@@ -476,7 +564,11 @@ impl Walker {
             let mut surface = Surface {
                 role,
                 c,
-                k: s.coni.as_ref().map_or(0.0, |c| c.v),
+                k: if tilted {
+                    0.0
+                } else {
+                    s.coni.as_ref().map_or(0.0, |c| c.v)
+                },
                 asph,
                 shape,
                 semi_aperture_mm: semi.unwrap_or(0.0),
@@ -533,12 +625,17 @@ impl Walker {
     /// without a `DIAM`: the caller sizes it by the fields).
     pub(super) fn image(&mut self, img: &RawSurf) -> Result<Option<f64>> {
         let ty = img.type_name();
-        if !matches!(ty.as_str(), "STANDARD" | "EVENASPH") {
+        if !matches!(ty.as_str(), "STANDARD" | "EVENASPH" | "TILTSURF") {
             return Err(invalid(
                 img.type_line(),
-                format!("image surface type {ty} is not supported: the image is a plane"),
+                format!("image surface type {ty} is not supported: the image is a plane or a conic (STANDARD, EVENASPH without terms) or a tilted plane (TILTSURF)"),
             ));
         }
+        let tangents = if ty == "TILTSURF" {
+            Some(tilt_tangents(img)?)
+        } else {
+            None
+        };
         if let Some(&(_, _, l)) = img.parm.iter().find(|p| ty == "EVENASPH" && p.1 != 0.0) {
             return Err(invalid(
                 l,
@@ -546,8 +643,14 @@ impl Walker {
             ));
         }
         // A curved image surface: a conic about the image frame's axis.
-        let curvature_per_mm = img.curv.as_ref().map_or(0.0, |c| c.v) / self.scale;
-        let conic = img.coni.as_ref().map_or(0.0, |k| k.v);
+        let (curvature_per_mm, conic) = if tangents.is_some() {
+            (0.0, 0.0)
+        } else {
+            (
+                img.curv.as_ref().map_or(0.0, |c| c.v) / self.scale,
+                img.coni.as_ref().map_or(0.0, |k| k.v),
+            )
+        };
         if !(curvature_per_mm.abs() <= 1000.0 && conic.abs() <= 1e6) {
             let l = img.curv.as_ref().map_or(img.line, |c| c.line);
             return Err(invalid(
@@ -562,6 +665,13 @@ impl Walker {
         // axis); one turned by 90 degrees or more against that leg is not a plane the light
         // reaches along it.
         let (origin, rot, axis) = self.unfolded();
+        let (rot, axis) = match tangents {
+            Some(t) => {
+                let r = snap(rot * tilted_surface_rotation(t));
+                (r, r.apply(Vec3::cst(0.0, 0.0, 1.0)))
+            }
+            None => (rot, axis),
+        };
         if axis.z <= 1e-9 {
             return Err(invalid(
                 self.last_cb_line.unwrap_or(img.line),

@@ -7,7 +7,9 @@
 //! - `UNIT MM|CM|IN|METER` (lengths are converted to mm once, at load);
 //! - `SURF` blocks with `TYPE STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
 //!   `DGRATING`, `QED_TYPE` (the Q-type asphere of type 0, Forbes' Qbfs on a conic:
-//!   [`super::Shape::Qbfs`], or type 1, Qcon: [`super::Shape::Qcon`]) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
+//!   [`super::Shape::Qbfs`], or type 1, Qcon: [`super::Shape::Qcon`]), `TILTSURF` (the plane
+//!   z = x tan θx + y tan θy, PARM 1 and 2 the tangents: a flat surface turned against its frame,
+//!   which the surfaces after it keep; on the image, a tilted image plane) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
 //!   r¹⁶, odd-asphere terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal
 //!   lens' focal length, a grating's lines per µm and order ([`super::Grating`]), or the
 //!   coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
