@@ -16,10 +16,11 @@
 use super::{psf_options, rgb_psf_map_of, Design};
 use crate::decoder::Crop;
 use crate::error::{Error, Result};
-use crate::image::metrics::{paired_bootstrap, pooled_paired_bootstrap, psnr, ssim, YieldTable};
+use crate::image::metrics::{psnr, ssim};
 use crate::image::render::{blur_patch, pad_reflect, SensorNoise};
 use crate::image::Image;
 use crate::lens::{Lens, System};
+use crate::math::stats::{paired_bootstrap, pooled_paired_bootstrap, YieldTable};
 use crate::psf::PsfModel;
 use crate::tolerance::monte_carlo::{perturbed_rms, McOptions};
 use crate::tolerance::ToleranceSpec;

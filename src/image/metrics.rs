@@ -1,10 +1,9 @@
-//! Image-quality metrics and yield statistics: PSNR, SSIM, percentiles, the manufacturing-yield
-//! table and a paired bootstrap. Metrics compare sRGB-encoded images clamped to [0, 1].
+//! Image-quality metrics: PSNR and SSIM, comparing sRGB-encoded images clamped to [0, 1]. The
+//! statistics over units (percentiles, the yield table, bootstrap intervals) are
+//! [`crate::math::stats`].
 
 use super::Image;
 use crate::error::{Error, Result};
-use rand::{Rng, SeedableRng};
-use serde::{Deserialize, Serialize};
 
 fn same_size(a: &Image, b: &Image) -> Result<()> {
     if a.width != b.width || a.height != b.height {
@@ -118,162 +117,10 @@ pub fn ssim(a: &Image, b: &Image) -> Result<f64> {
     Ok(total / 3.0)
 }
 
-/// Percentile `p` (0 to 100) of `values` by linear interpolation between order statistics
-/// (numpy's default); NaN for no values.
-pub fn percentile(values: &[f64], p: f64) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let pos = (p / 100.0).clamp(0.0, 1.0) * (v.len() - 1) as f64;
-    let (i, f) = (pos.floor() as usize, pos - pos.floor());
-    if i + 1 < v.len() {
-        v[i] + f * (v[i + 1] - v[i])
-    } else {
-        v[i]
-    }
-}
-
-/// The manufacturing-yield table: the value that 90/70/50/10 % of units exceed (the 10th,
-/// 30th, 50th and 90th percentiles).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct YieldTable {
-    /// Exceeded by 90 % of units.
-    #[serde(rename = "90")]
-    pub y90: f64,
-    /// Exceeded by 70 %.
-    #[serde(rename = "70")]
-    pub y70: f64,
-    /// Exceeded by 50 % (the median).
-    #[serde(rename = "50")]
-    pub y50: f64,
-    /// Exceeded by 10 %.
-    #[serde(rename = "10")]
-    pub y10: f64,
-}
-
-impl YieldTable {
-    /// The table of `values`.
-    pub fn from(values: &[f64]) -> YieldTable {
-        YieldTable {
-            y90: percentile(values, 10.0),
-            y70: percentile(values, 30.0),
-            y50: percentile(values, 50.0),
-            y10: percentile(values, 90.0),
-        }
-    }
-}
-
-/// `stat(a) - stat(b)` and its 95 % bootstrap percentile interval over `resamples` paired
-/// resamples (the same resampled unit indices for `a` and `b`), seeded.
-///
-/// # Errors
-/// [`crate::ErrorKind::Argument`] for samples of different or zero length or no resamples.
-pub fn paired_bootstrap(
-    a: &[f64],
-    b: &[f64],
-    stat: impl Fn(&[f64]) -> f64,
-    resamples: usize,
-    seed: u64,
-) -> Result<(f64, [f64; 2])> {
-    if a.len() != b.len() || a.is_empty() || resamples == 0 {
-        return Err(Error::argument(format!(
-            "paired bootstrap of {} and {} values with {resamples} resamples",
-            a.len(),
-            b.len()
-        )));
-    }
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let n = a.len();
-    let (mut ra, mut rb) = (vec![0.0; n], vec![0.0; n]);
-    let diffs: Vec<f64> = (0..resamples)
-        .map(|_| {
-            for k in 0..n {
-                let i = rng.random_range(0..n);
-                ra[k] = a[i];
-                rb[k] = b[i];
-            }
-            stat(&ra) - stat(&rb)
-        })
-        .collect();
-    Ok((
-        stat(a) - stat(b),
-        [percentile(&diffs, 2.5), percentile(&diffs, 97.5)],
-    ))
-}
-
-/// Pooled over independent repetitions (training seeds) evaluated on the same units: the mean
-/// over groups of `stat(a_g) - stat(b_g)` and its 95 % bootstrap percentile interval. Each of
-/// the `resamples` draws both groups (with replacement: the spread between training seeds) and
-/// unit indices (with replacement, the same indices in every group and for `a` and `b`: the
-/// units are shared and paired), so the interval carries both sources of variation.
-///
-/// # Errors
-/// [`crate::ErrorKind::Argument`] for no group, groups or samples of different or zero length,
-/// or no resamples.
-///
-/// # Examples
-/// ```
-/// use tolray::image::metrics::pooled_paired_bootstrap;
-/// let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-/// // Two seeds whose designs differ by exactly 0.5 and 0.3 dB on every unit.
-/// let g1 = (vec![20.5, 21.5, 19.5], vec![20.0, 21.0, 19.0]);
-/// let g2 = (vec![20.3, 21.3, 19.3], vec![20.0, 21.0, 19.0]);
-/// let (d, ci) = pooled_paired_bootstrap(&[g1, g2], mean, 1000, 7)?;
-/// assert!((d - 0.4).abs() < 1e-12 && ci[0] >= 0.3 - 1e-12 && ci[1] <= 0.5 + 1e-12);
-/// # Ok::<(), tolray::Error>(())
-/// ```
-pub fn pooled_paired_bootstrap(
-    groups: &[(Vec<f64>, Vec<f64>)],
-    stat: impl Fn(&[f64]) -> f64,
-    resamples: usize,
-    seed: u64,
-) -> Result<(f64, [f64; 2])> {
-    let n = groups.first().map_or(0, |g| g.0.len());
-    if groups.is_empty()
-        || n == 0
-        || resamples == 0
-        || groups.iter().any(|g| g.0.len() != n || g.1.len() != n)
-    {
-        return Err(Error::argument(format!(
-            "pooled bootstrap of {} groups (every group needs the same, nonzero number of paired \
-             values) with {resamples} resamples",
-            groups.len()
-        )));
-    }
-    let m = groups.len();
-    let diff = |g: &(Vec<f64>, Vec<f64>)| stat(&g.0) - stat(&g.1);
-    let estimate = groups.iter().map(diff).sum::<f64>() / m as f64;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let (mut ra, mut rb) = (vec![0.0; n], vec![0.0; n]);
-    let mut units = vec![0usize; n];
-    let diffs: Vec<f64> = (0..resamples)
-        .map(|_| {
-            for u in units.iter_mut() {
-                *u = rng.random_range(0..n);
-            }
-            let mut sum = 0.0;
-            for _ in 0..m {
-                let g = &groups[rng.random_range(0..m)];
-                for (k, &i) in units.iter().enumerate() {
-                    ra[k] = g.0[i];
-                    rb[k] = g.1[i];
-                }
-                sum += stat(&ra) - stat(&rb);
-            }
-            sum / m as f64
-        })
-        .collect();
-    Ok((
-        estimate,
-        [percentile(&diffs, 2.5), percentile(&diffs, 97.5)],
-    ))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::stats::{paired_bootstrap, percentile, YieldTable};
 
     #[test]
     fn psnr_ssim_percentiles() {

@@ -1,7 +1,8 @@
 //! Small linear algebra generic over the number type: 3-vectors, rotations and rigid placements;
-//! and the crate's one normal sampler ([`normal`]).
+//! the crate's one normal sampler ([`normal`]) and its statistics over units ([`stats`]).
 
 pub mod normal;
+pub mod stats;
 
 use crate::real::Real;
 use std::ops::{Add, Mul, Neg, Sub};

@@ -7,6 +7,7 @@ use super::Perturbation;
 use crate::analysis::SpotMoments;
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
+use crate::math::stats::{percentile_sorted, yield_value, YIELD_PERCENTS};
 use crate::trace::{Bundles, Field, Pupil, TraceOptions};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -84,17 +85,6 @@ pub struct Stats {
     pub yield_above: Vec<[f64; 2]>,
 }
 
-/// Percentile `p` (0..100) of sorted values, linear interpolation between closest ranks.
-pub fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let x = p / 100.0 * (sorted.len() - 1) as f64;
-    let (i, f) = (x.floor() as usize, x - x.floor());
-    let j = (i + 1).min(sorted.len() - 1);
-    sorted[i] + f * (sorted[j] - sorted[i])
-}
-
 /// Statistics of `values` (in the given order).
 pub fn stats(values: &[f64]) -> Stats {
     let n = values.len().max(1) as f64;
@@ -109,11 +99,11 @@ pub fn stats(values: &[f64]) -> Stats {
         max: s.last().copied().unwrap_or(f64::NAN),
         percentiles: [10.0, 50.0, 70.0, 90.0]
             .iter()
-            .map(|&p| [p, percentile(&s, p)])
+            .map(|&p| [p, percentile_sorted(&s, p)])
             .collect(),
-        yield_below: [90.0, 70.0, 50.0, 10.0]
+        yield_below: YIELD_PERCENTS
             .iter()
-            .map(|&p| [p / 100.0, percentile(&s, p)])
+            .map(|&p| [p / 100.0, yield_value(&s, p, false)])
             .collect(),
         yield_above: Vec::new(),
     }
@@ -125,9 +115,9 @@ pub fn stats_for(values: &[f64], higher_is_better: bool) -> Stats {
     if higher_is_better {
         let mut s = values.to_vec();
         s.sort_by(f64::total_cmp);
-        st.yield_above = [90.0, 70.0, 50.0, 10.0]
+        st.yield_above = YIELD_PERCENTS
             .iter()
-            .map(|&p| [p / 100.0, percentile(&s, 100.0 - p)])
+            .map(|&p| [p / 100.0, yield_value(&s, p, true)])
             .collect();
     }
     st
