@@ -207,20 +207,24 @@ impl DeepConfig {
 }
 
 /// A lens and its decoder: what deep optics designs and what evaluation judges.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Design {
-    /// The lens.
+    /// The lens (in checkpoints as DeepLens JSON text, `lens_json`: exact).
+    #[serde(rename = "lens_json", with = "crate::lens::json::as_text")]
     pub lens: Lens,
     /// The decoder trained with it.
     pub decoder: Decoder,
 }
 
-/// The joint trainer's state: enough to continue exactly.
-#[derive(Clone, Debug)]
+/// The joint trainer's state: enough to continue exactly. Checkpoints store it as it is (the
+/// design's fields inline, its lens as DeepLens JSON text); one read back is made ready to run
+/// by [`DeepState::restored`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DeepState {
     /// Settings.
     pub config: DeepConfig,
     /// The current design.
+    #[serde(flatten)]
     pub design: Design,
     /// Design variables of the lens.
     pub vars: Vec<Param>,
@@ -334,80 +338,26 @@ impl DeepState {
         self.phase_iter >= self.phase_iters
     }
 
-    /// The state in serializable form (for checkpoints).
-    pub fn to_saved(&self) -> SavedState {
-        SavedState {
-            config: self.config.clone(),
-            lens_json: crate::lens::json::to_string(&self.design.lens),
-            decoder: self.design.decoder.clone(),
-            vars: self.vars.clone(),
-            adam_lens: self.adam_lens.clone(),
-            adam_decoder: self.adam_decoder.clone(),
-            phase: self.phase,
-            phase_iters: self.phase_iters,
-            phase_iter: self.phase_iter,
-            iter_offset: self.iter_offset,
-        }
-    }
-
-    /// The state saved by [`DeepState::to_saved`], exactly (a folder of training images is read
-    /// again).
+    /// A state read back from a checkpoint, checked and made ready to continue exactly: its
+    /// settings validated, a folder of training images read again, the optimizers' sizes
+    /// checked against the parameters.
     ///
     /// # Errors
-    /// An unreadable lens, invalid settings, a folder of training images that cannot be read.
-    pub fn from_saved(s: SavedState) -> Result<DeepState> {
-        let mut config = s.config;
-        config.validate()?;
-        let min_side = config.crop_px + config.optics.psf_ks - 1;
-        config.train_images.reload(min_side)?;
-        let lens = crate::lens::json::from_str(&s.lens_json)?;
-        if s.adam_decoder.m.len() != s.decoder.params().len() || s.vars.len() != s.adam_lens.m.len()
+    /// Invalid settings, a folder of training images that cannot be read, optimizer state that
+    /// does not match the parameters.
+    pub fn restored(mut self) -> Result<DeepState> {
+        self.config.validate()?;
+        let min_side = self.config.crop_px + self.config.optics.psf_ks - 1;
+        self.config.train_images.reload(min_side)?;
+        if self.adam_decoder.m.len() != self.design.decoder.params().len()
+            || self.vars.len() != self.adam_lens.m.len()
         {
             return Err(Error::invalid(
                 "checkpoint: optimizer state does not match the parameters",
             ));
         }
-        Ok(DeepState {
-            config,
-            design: Design {
-                lens,
-                decoder: s.decoder,
-            },
-            vars: s.vars,
-            adam_lens: s.adam_lens,
-            adam_decoder: s.adam_decoder,
-            phase: s.phase,
-            phase_iters: s.phase_iters,
-            phase_iter: s.phase_iter,
-            iter_offset: s.iter_offset,
-        })
+        Ok(self)
     }
-}
-
-/// A [`DeepState`] as a checkpoint stores it: the lens as DeepLens JSON text (exact), every
-/// other field as it is.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct SavedState {
-    /// Settings.
-    pub config: DeepConfig,
-    /// The lens, DeepLens JSON.
-    pub lens_json: String,
-    /// The decoder.
-    pub decoder: Decoder,
-    /// Design variables.
-    pub vars: Vec<Param>,
-    /// Adam over the lens variables.
-    pub adam_lens: Adam,
-    /// Adam over the decoder parameters.
-    pub adam_decoder: Adam,
-    /// Phase.
-    pub phase: Phase,
-    /// Iterations of the phase.
-    pub phase_iters: usize,
-    /// Next iteration of the phase.
-    pub phase_iter: usize,
-    /// Iterations before the phase.
-    pub iter_offset: usize,
 }
 
 fn lens_learning_rates(lens: &Lens, vars: &[Param], cfg: &DeepConfig) -> Vec<f64> {

@@ -276,11 +276,11 @@ pub struct Checkpoint {
     /// The spot-loss focus fit while it runs.
     pub spot: Option<TrainState>,
     /// Stage 1 (running, or finished: the branches' common start).
-    pub stage1: Option<super::SavedState>,
+    pub stage1: Option<DeepState>,
     /// Stage 1's log.
     pub stage1_logs: Vec<DeepLog>,
     /// The branch being trained: name, state, log (stage 1's included).
-    pub branch: Option<(String, super::SavedState, Vec<DeepLog>)>,
+    pub branch: Option<(String, DeepState, Vec<DeepLog>)>,
     /// Finished branches with their logs, in order.
     pub finished: Vec<(String, Vec<DeepLog>)>,
 }
@@ -412,7 +412,7 @@ pub fn run_resumable(
             Checkpoint {
                 config: cfg.clone(),
                 spot: None,
-                stage1: Some(s1.to_saved()),
+                stage1: Some(s1),
                 stage1_logs: Vec::new(),
                 branch: None,
                 finished: Vec::new(),
@@ -448,7 +448,7 @@ pub fn run_resumable(
             cfg.stage1_iters,
             0,
         )?;
-        ck.stage1 = Some(s1.to_saved());
+        ck.stage1 = Some(s1.clone());
     }
     let validate = |s: &DeepState, l: &mut DeepLog| -> Result<()> {
         let k = s.phase_iter;
@@ -461,17 +461,17 @@ pub fn run_resumable(
         .stage1
         .clone()
         .ok_or_else(|| Error::invalid("checkpoint: no stage-1 state"))?;
-    let mut s1 = DeepState::from_saved(saved1)?;
+    let mut s1 = saved1.restored()?;
     while !s1.done() {
         let mut l = step(&mut s1)?;
         validate(&s1, &mut l)?;
         (ctl.progress)(Progress::Image("stage 1", &l));
         ck.stage1_logs.push(l);
-        if pause(&ck, s1.phase_iter, &|c| c.stage1 = Some(s1.to_saved()))? {
+        if pause(&ck, s1.phase_iter, &|c| c.stage1 = Some(s1.clone()))? {
             return Ok(None);
         }
     }
-    ck.stage1 = Some(s1.to_saved());
+    ck.stage1 = Some(s1.clone());
     save_design(&s1.design, &out.join(STAGE1))?;
     save_sensor(&out.join(STAGE1), &cfg.deep.sensor())?;
     if cfg.evaluate_stage1 {
@@ -482,7 +482,7 @@ pub fn run_resumable(
             continue;
         }
         let (mut s, mut logs) = match ck.branch.take() {
-            Some((n, saved, logs)) if n == name => (DeepState::from_saved(saved)?, logs),
+            Some((n, saved, logs)) if n == name => (saved.restored()?, logs),
             _ => {
                 let mut s = s1.clone();
                 s.start_phase(phase, cfg.stage2_iters);
@@ -495,7 +495,7 @@ pub fn run_resumable(
             (ctl.progress)(Progress::Image(name, &l));
             logs.push(l);
             let fill = |c: &mut Checkpoint| {
-                c.branch = Some((name.to_string(), s.to_saved(), logs.clone()));
+                c.branch = Some((name.to_string(), s.clone(), logs.clone()));
             };
             if pause(&ck, s.phase_iter, &fill)? {
                 return Ok(None);
