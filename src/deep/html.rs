@@ -1,10 +1,12 @@
 //! The evaluation report as one self-contained HTML file: the paper's Table 2 layout, paired
-//! differences with bootstrap intervals, PSNR histograms per design (the paper's Fig. A2), PSF
-//! similarity per design, and for the best, median and worst unit of each design the sharp,
+//! differences with bootstrap intervals, the distribution of PSNR over the fabricated units of
+//! every design as yield curves (the paper's Fig. A2 as cumulative curves), PSF similarity
+//! likewise, and for the best, median and worst unit of each design the sharp,
 //! captured and reconstructed image, which a reader flips between. Pictures are inline (SVG and
 //! base64 PNG): the file needs nothing else.
 
 use super::eval::{DesignScores, Report};
+use crate::figures::{self, CurveSpec};
 use crate::image::Image;
 use base64::Engine;
 
@@ -19,109 +21,67 @@ fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-const COLOURS: [&str; 4] = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd"];
-
-/// Overlaid PSNR histograms of every design, as inline SVG.
-fn histogram_svg(
+/// The distribution of a score over the fabricated units of every design, as inline SVG drawn
+/// by the figures module: for each design the fraction of units that reach at least x (the
+/// yield curve, read off directly: where it crosses 0.9 is the value 90 % of units reach), with
+/// the 90 % line dashed.
+fn distribution_svg(
     scores: &[DesignScores],
     value: fn(&super::eval::TrialScore) -> f64,
-    label: &str,
+    x_desc: &str,
+    title: &str,
 ) -> String {
-    let all: Vec<f64> = scores
-        .iter()
-        .flat_map(|s| s.trials.iter().map(value))
-        .collect();
-    let (lo, hi) = all
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
-    if !(lo.is_finite() && hi.is_finite()) {
+    let mut series: Vec<CurveSpec> = Vec::new();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (d, sc) in scores.iter().enumerate() {
+        let mut v: Vec<f64> = sc
+            .trials
+            .iter()
+            .map(value)
+            .filter(|x| x.is_finite())
+            .collect();
+        if v.is_empty() {
+            continue;
+        }
+        v.sort_by(f64::total_cmp);
+        lo = lo.min(v[0]);
+        hi = hi.max(v[v.len() - 1]);
+        series.push((sc.name.clone(), d, false, survival_steps(&v)));
+    }
+    if series.is_empty() {
         return String::new();
     }
-    let (lo, hi) = if hi - lo < 1e-9 {
-        (lo - 0.5, hi + 0.5)
+    let pad = if hi - lo < 1e-9 {
+        0.5
     } else {
-        (lo, hi)
+        0.02 * (hi - lo)
     };
-    let bins = 20usize;
-    let (w, h, ml, mb, mt) = (640.0, 300.0, 56.0, 44.0, 14.0);
-    let pw = w - ml - 16.0;
-    let ph = h - mb - mt;
-    let counts: Vec<Vec<usize>> = scores
-        .iter()
-        .map(|s| {
-            let mut c = vec![0usize; bins];
-            for t in &s.trials {
-                let k = (((value(t) - lo) / (hi - lo)) * bins as f64).floor() as isize;
-                c[k.clamp(0, bins as isize - 1) as usize] += 1;
-            }
-            c
-        })
-        .collect();
-    let cmax = counts.iter().flatten().copied().max().unwrap_or(1).max(1) as f64;
-    let mut svg = format!(
-        "<svg xmlns='http://www.w3.org/2000/svg' viewBox='0 0 {w} {h}' width='{w}' height='{h}' font-family='sans-serif' font-size='12'>"
+    series.push((
+        "90 % of units".to_string(),
+        6,
+        true,
+        vec![(lo - pad, 0.9), (hi + pad, 0.9)],
+    ));
+    let fig = figures::curves_figure(
+        title,
+        x_desc,
+        "fraction of units at least x",
+        Some(0.0..1.02),
+        &series,
     );
-    svg.push_str(&format!(
-        "<line x1='{ml}' y1='{}' x2='{}' y2='{}' stroke='#333'/><line x1='{ml}' y1='{mt}' x2='{ml}' y2='{}' stroke='#333'/>",
-        mt + ph, ml + pw, mt + ph, mt + ph
-    ));
-    for k in 0..=4 {
-        let v = lo + (hi - lo) * k as f64 / 4.0;
-        let x = ml + pw * k as f64 / 4.0;
-        svg.push_str(&format!(
-            "<line x1='{x}' y1='{}' x2='{x}' y2='{}' stroke='#333'/><text x='{x}' y='{}' text-anchor='middle'>{v:.2}</text>",
-            mt + ph, mt + ph + 5.0, mt + ph + 18.0
-        ));
+    fig.to_svg().unwrap_or_default()
+}
+
+/// The step curve of the fraction of `sorted` values (ascending) that are at least x.
+fn survival_steps(sorted: &[f64]) -> Vec<(f64, f64)> {
+    let n = sorted.len() as f64;
+    let mut pts = vec![(sorted[0], 1.0)];
+    for (i, &x) in sorted.iter().enumerate() {
+        let above = (sorted.len() - i - 1) as f64 / n;
+        pts.push((x, pts[pts.len() - 1].1));
+        pts.push((x, above));
     }
-    // Whole-number count ticks.
-    let step = (cmax / 4.0).ceil().max(1.0);
-    let mut c = 0.0;
-    while c <= cmax {
-        let y = mt + ph - ph * c / cmax;
-        svg.push_str(&format!(
-            "<line x1='{}' y1='{y}' x2='{ml}' y2='{y}' stroke='#333'/><text x='{}' y='{}' text-anchor='end'>{c:.0}</text>",
-            ml - 5.0,
-            ml - 8.0,
-            y + 4.0
-        ));
-        c += step;
-    }
-    svg.push_str(&format!(
-        "<text x='{}' y='{}' text-anchor='middle'>{}</text><text x='14' y='{}' text-anchor='middle' transform='rotate(-90 14 {})'>units</text>",
-        ml + pw / 2.0,
-        h - 6.0,
-        esc(label),
-        mt + ph / 2.0,
-        mt + ph / 2.0
-    ));
-    let bw = pw / bins as f64;
-    for (d, c) in counts.iter().enumerate() {
-        let col = COLOURS[d % COLOURS.len()];
-        for (k, &n) in c.iter().enumerate() {
-            if n == 0 {
-                continue;
-            }
-            let bh = ph * n as f64 / cmax;
-            svg.push_str(&format!(
-                "<rect x='{:.1}' y='{:.1}' width='{:.1}' height='{bh:.1}' fill='{col}' fill-opacity='0.35' stroke='{col}'/>",
-                ml + k as f64 * bw,
-                mt + ph - bh,
-                bw
-            ));
-        }
-        svg.push_str(&format!(
-            "<rect x='{}' y='{}' width='12' height='12' fill='{col}' fill-opacity='0.5' stroke='{col}'/><text x='{}' y='{}'>{}</text>",
-            ml + pw - 170.0,
-            mt + 6.0 + 18.0 * d as f64,
-            ml + pw - 152.0,
-            mt + 16.0 + 18.0 * d as f64,
-            esc(&scores[d].name)
-        ));
-    }
-    svg.push_str("</svg>");
-    svg
+    pts
 }
 
 fn png_data_uri(img: &Image) -> String {
@@ -196,12 +156,18 @@ pub fn render(report: &Report, examples: &Examples) -> String {
         h.push_str("</table>");
     }
     h.push_str("<h2>PSNR over fabricated units</h2>");
-    h.push_str(&histogram_svg(&report.scores, |t| t.psnr, "PSNR (dB)"));
+    h.push_str(&distribution_svg(
+        &report.scores,
+        |t| t.psnr,
+        "PSNR (dB)",
+        "PSNR yield: fraction of units reaching at least x",
+    ));
     h.push_str("<h2>PSF similarity to the nominal design</h2>");
-    h.push_str(&histogram_svg(
+    h.push_str(&distribution_svg(
         &report.scores,
         |t| t.psf_similarity,
         "PSF similarity",
+        "PSF similarity: fraction of units reaching at least x",
     ));
     h.push_str("<h2>Examples</h2><p>The first evaluation image of the best, median and worst unit of each design; the buttons flip between the sharp, captured and reconstructed image.</p>");
     let mut id = 0;
