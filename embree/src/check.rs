@@ -618,7 +618,6 @@ pub fn check_system(
     opts: &CheckOptions,
 ) -> Result<CaseReport> {
     supported(sys)?;
-    let nb = rays.sets.len();
     let indices = bundle_indices(sys, rays);
     let start = |b: &Bundle| -> Vec<RayState> {
         b.rays
@@ -633,8 +632,8 @@ pub fn check_system(
             })
             .collect()
     };
-    let modes = [NormalMode::Analytic, NormalMode::Mesh];
-    let mut states: Vec<Vec<Vec<RayState>>> = modes
+    // One Embree trace per normal mode, all of them surface by surface.
+    let mut states: Vec<Vec<Vec<RayState>>> = NORMAL_MODES
         .iter()
         .map(|_| rays.sets.iter().map(start).collect())
         .collect();
@@ -642,13 +641,79 @@ pub fn check_system(
         ray_surfaces: (rays.ray_count() * sys.rows.len()) as u64,
         ..Timing::default()
     };
-    let mut surfaces = Vec::with_capacity(sys.rows.len());
     let mut failures = Vec::new();
-    let mut queries = Vec::new();
     let used = used_radii(sys, rays, &indices);
+    let mut surfaces = Vec::with_capacity(sys.rows.len());
     for (i, row) in sys.rows.iter().enumerate() {
+        let pass = SurfacePass {
+            device,
+            row,
+            index: i,
+            rays,
+            indices: &indices,
+            opts,
+        };
+        let (check, mesh_eps) = pass.run(used[i], &mut states, &mut timing)?;
+        check.failures(opts, mesh_eps, &mut failures);
+        surfaces.push(check);
+    }
+    cross_image(sys, &mut states);
+    let mut fields = Vec::with_capacity(rays.sets.len());
+    for (b, bundle) in rays.sets.iter().enumerate() {
+        let fc = field_check(
+            sys,
+            bundle,
+            &indices[b],
+            [&states[0][b], &states[1][b]],
+            &mut timing,
+        )?;
+        if fc.rms_diff_um > opts.spot_bound_um {
+            failures.push(format!(
+                "{}: the RMS spots differ by {:.3e} um, more than {} um",
+                field_label(bundle),
+                fc.rms_diff_um,
+                opts.spot_bound_um
+            ));
+        }
+        fields.push(fc);
+    }
+    Ok(CaseReport {
+        trial: None,
+        pattern: None,
+        surfaces,
+        fields,
+        timing,
+        failures,
+    })
+}
+
+/// The normal modes of the Embree traces, in the order of their ray states.
+const NORMAL_MODES: [NormalMode; 2] = [NormalMode::Analytic, NormalMode::Mesh];
+
+/// One surface's step of [`check_system`]: tessellate it, trace every live ray of every mode
+/// through it with Embree and compare each hit with the analytic one.
+struct SurfacePass<'a> {
+    device: &'a Device,
+    row: &'a SurfaceRow<f64>,
+    index: usize,
+    rays: &'a Bundles,
+    indices: &'a [Vec<f64>],
+    opts: &'a CheckOptions,
+}
+
+impl SurfacePass<'_> {
+    /// Meshes the surface (over a disk of at least `used_mm`, or the rays' footprint), advances
+    /// `states` through it and returns its check and the mesh's f32 allowance (mm), with the
+    /// build and Embree times in `timing`.
+    fn run(
+        &self,
+        used_mm: f64,
+        states: &mut [Vec<Vec<RayState>>],
+        timing: &mut Timing,
+    ) -> Result<(SurfaceCheck, f64)> {
+        let (row, i, opts) = (self.row, self.index, self.opts);
         let t_build = Instant::now();
-        let disk = mesh_disk(used[i], row);
+        let disk = mesh_disk(used_mm, row);
         let footprint: Option<Vec<(Vec3<f64>, Vec3<f64>)>> = match opts.cover {
             Cover::Disk => None,
             Cover::Footprint => Some(
@@ -670,7 +735,7 @@ pub fn check_system(
             footprint.as_deref(),
         )?;
         let scene = Scene::new(
-            device,
+            self.device,
             &mesh.vertices,
             &mesh.triangles,
             SceneOptions::default(),
@@ -687,14 +752,15 @@ pub fn check_system(
             scene: &scene,
         };
         let mut acc = SurfaceAcc::default();
-        for (m, &mode) in modes.iter().enumerate() {
+        let mut queries = Vec::new();
+        for (m, &mode) in NORMAL_MODES.iter().enumerate() {
             queries.clear();
             let t0 = Instant::now();
             for (b, rs) in states[m].iter_mut().enumerate() {
-                let n = &indices[b];
+                let n = &self.indices[b];
                 for s in rs.iter_mut().filter(|s| s.status.is_alive()) {
                     let q = st.query(s.o, s.d);
-                    st.advance(s, &q, mode, n[i], n[i + 1], rays.sets[b].wavelength_nm);
+                    st.advance(s, &q, mode, n[i], n[i + 1], self.rays.sets[b].wavelength_nm);
                     queries.push(q);
                 }
             }
@@ -705,80 +771,110 @@ pub fn check_system(
                 acc.compare(&st, q, opts);
             }
         }
-        let mesh_dev = mesh.deviation(row);
-        let vmax = mesh
-            .vertices
-            .iter()
-            .flatten()
-            .fold(0.0f32, |a, x| a.max(x.abs())) as f64;
-        let mesh_eps = vmax * (1.0 + mesh.max_slope) * 2f64.powi(-22);
-        let check = SurfaceCheck {
-            surface: i,
-            triangles: mesh.triangles.len(),
-            disk_triangles: mesh.layout_triangles,
-            rings: mesh.rings,
-            segments: mesh.segments,
-            max_second_derivative: mesh.max_second_derivative,
-            chord_bound_mm: mesh.chord_bound_mm,
-            mesh_deviation_mm: mesh_dev,
-            hits: acc.hits,
-            max_hit_distance_mm: acc.max_dist,
-            rms_hit_distance_mm: (acc.sum_sq / acc.hits.max(1) as f64).sqrt(),
-            max_hit_bound_mm: acc.max_hit_bound,
-            max_bound_ratio: acc.max_ratio,
-            max_surface_distance_mm: acc.max_surface,
-            max_f32_error_mm: acc.max_f32,
-            max_f32_allowance_mm: acc.max_eps,
-            sharp: acc.max_eps.max(mesh_eps) <= SHARP_FRACTION * mesh.chord_bound_mm,
-            rim_flips: acc.rim_flips,
-            disk_mm: mesh.disk_mm,
-            semi_aperture_mm: row.ap2.sqrt(),
-            leaks: acc.leaks,
-            uncovered: acc.uncovered,
-            unmatched: acc.unmatched,
-            grazing: acc.grazing,
-            build_ms: build_s * 1e3,
-        };
-        if check.max_bound_ratio > 1.0 {
+        let mesh_eps = mesh_f32_allowance(&mesh);
+        Ok((
+            surface_check(row, i, &mesh, &acc, build_s, mesh_eps),
+            mesh_eps,
+        ))
+    }
+}
+
+/// The float allowance of a mesh's single-precision vertices (Embree's arithmetic) at its
+/// largest coordinate, mm.
+fn mesh_f32_allowance(mesh: &Mesh) -> f64 {
+    let vmax = mesh
+        .vertices
+        .iter()
+        .flatten()
+        .fold(0.0f32, |a, x| a.max(x.abs())) as f64;
+    vmax * (1.0 + mesh.max_slope) * 2f64.powi(-22)
+}
+
+/// A surface's check from its mesh and the comparison of its hits.
+fn surface_check(
+    row: &SurfaceRow<f64>,
+    i: usize,
+    mesh: &Mesh,
+    acc: &SurfaceAcc,
+    build_s: f64,
+    mesh_eps: f64,
+) -> SurfaceCheck {
+    SurfaceCheck {
+        surface: i,
+        triangles: mesh.triangles.len(),
+        disk_triangles: mesh.layout_triangles,
+        rings: mesh.rings,
+        segments: mesh.segments,
+        max_second_derivative: mesh.max_second_derivative,
+        chord_bound_mm: mesh.chord_bound_mm,
+        mesh_deviation_mm: mesh.deviation(row),
+        hits: acc.hits,
+        max_hit_distance_mm: acc.max_dist,
+        rms_hit_distance_mm: (acc.sum_sq / acc.hits.max(1) as f64).sqrt(),
+        max_hit_bound_mm: acc.max_hit_bound,
+        max_bound_ratio: acc.max_ratio,
+        max_surface_distance_mm: acc.max_surface,
+        max_f32_error_mm: acc.max_f32,
+        max_f32_allowance_mm: acc.max_eps,
+        sharp: acc.max_eps.max(mesh_eps) <= SHARP_FRACTION * mesh.chord_bound_mm,
+        rim_flips: acc.rim_flips,
+        disk_mm: mesh.disk_mm,
+        semi_aperture_mm: row.ap2.sqrt(),
+        leaks: acc.leaks,
+        uncovered: acc.uncovered,
+        unmatched: acc.unmatched,
+        grazing: acc.grazing,
+        build_ms: build_s * 1e3,
+    }
+}
+
+impl SurfaceCheck {
+    /// Appends what fails this surface's check to `failures` (`mesh_eps`: the mesh's f32
+    /// allowance, mm).
+    fn failures(&self, opts: &CheckOptions, mesh_eps: f64, failures: &mut Vec<String>) {
+        let i = self.surface;
+        if self.max_bound_ratio > 1.0 {
             failures.push(format!(
                 "surface {i}: an Embree hit deviates {:.3e} mm from the analytic hit, {:.3}x its \
                  bound (chord bound {:.3e} mm x {})",
-                check.max_hit_distance_mm,
-                check.max_bound_ratio,
-                check.chord_bound_mm,
+                self.max_hit_distance_mm,
+                self.max_bound_ratio,
+                self.chord_bound_mm,
                 opts.bound_scale
             ));
         }
-        let mesh_allowed = opts.bound_scale * check.chord_bound_mm + mesh_eps;
-        if check.mesh_deviation_mm > mesh_allowed {
+        let mesh_allowed = opts.bound_scale * self.chord_bound_mm + mesh_eps;
+        if self.mesh_deviation_mm > mesh_allowed {
             failures.push(format!(
                 "surface {i}: the mesh deviates {:.3e} mm from the surface, more than {:.3e} mm",
-                check.mesh_deviation_mm, mesh_allowed
+                self.mesh_deviation_mm, mesh_allowed
             ));
         }
-        if check.leaks > 0 {
+        if self.leaks > 0 {
             failures.push(format!(
                 "surface {i}: {} rays passed through the mesh inside the clear aperture",
-                check.leaks
+                self.leaks
             ));
         }
-        if check.uncovered > 0 {
+        if self.uncovered > 0 {
             failures.push(format!(
                 "surface {i}: {} rays met the clear aperture outside the tessellated disk \
                  (radius {:.3} mm)",
-                check.uncovered, check.disk_mm
+                self.uncovered, self.disk_mm
             ));
         }
-        if check.unmatched > 0 {
+        if self.unmatched > 0 {
             failures.push(format!(
                 "surface {i}: Embree hit {} rays that miss the analytic surface",
-                check.unmatched
+                self.unmatched
             ));
         }
-        surfaces.push(check);
     }
-    // The image plane or curved image surface, crossed analytically (exactly, as the kernel
-    // does) for the Embree traces: the check is of the lens surfaces' meshes.
+}
+
+/// Carries the Embree traces' live rays to the image plane or curved image surface, crossed
+/// analytically (exactly, as the kernel does): the check is of the lens surfaces' meshes.
+fn cross_image(sys: &System<f64>, states: &mut [Vec<Vec<RayState>>]) {
     let n_img = sys.rows.len() as u32;
     for st in states.iter_mut().flatten().flatten() {
         if !st.status.is_alive() {
@@ -793,90 +889,87 @@ pub fn check_system(
         }
         st.o = sys.image.point_to_global(p + dl * t);
     }
-    // The analytic traces of the same rays: the f64 kernel (compared) and the scalar reference
-    // (timed only), one thread each.
-    let mut fields = Vec::with_capacity(nb);
-    for (b, bundle) in rays.sets.iter().enumerate() {
-        let mut batch = RayBatch::<f64>::with_capacity(bundle.rays.origins.len());
-        for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
-            batch.push(*o, *d);
-        }
-        let t0 = Instant::now();
-        trace_serial(
-            sys,
-            bundle.wavelength_nm,
-            &mut batch,
-            TraceOptions { apertures: true },
-        );
-        timing.kernel_s += t0.elapsed().as_secs_f64();
-        let t0 = Instant::now();
-        let mut alive_ref = 0usize;
-        for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
-            let r = trace_ray(sys, &indices[b], bundle.wavelength_nm, *o, *d, true, None);
-            alive_ref += r.status.is_alive() as usize;
-        }
-        timing.reference_s += t0.elapsed().as_secs_f64();
-        std::hint::black_box(alive_ref);
-        let sensor = |o: Vec3<f64>| {
-            let p = sys.image.point_to_local(o);
-            [p.x, p.y]
-        };
-        let (mut pa, mut pe, mut pm) = (Vec::new(), Vec::new(), Vec::new());
-        let mut mismatches = 0;
-        for ((ka, se), sm) in batch.iter().zip(&states[0][b]).zip(&states[1][b]) {
-            if ka.status.is_alive() != se.status.is_alive() {
-                mismatches += 1;
-            }
-            if ka.status.is_alive() && se.status.is_alive() && sm.status.is_alive() {
-                pa.push(sensor(ka.o));
-                pe.push(sensor(se.o));
-                pm.push(sensor(sm.o));
-            }
-        }
-        let label = format!(
-            "field {} at {} nm",
-            bundle.rays.field.label(),
-            bundle.wavelength_nm
-        );
-        let n = bundle.rays.origins.len();
-        let sa = spot_stats(&pa, n, None).map_err(|e| e.context(&label))?;
-        let se = spot_stats(&pe, n, None).map_err(|e| e.context(&label))?;
-        let sm = spot_stats(&pm, n, None).map_err(|e| e.context(&label))?;
-        let max_diff = |x: &[[f64; 2]]| {
-            x.iter()
-                .zip(&pa)
-                .map(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]) * 1e3)
-                .fold(0.0, f64::max)
-        };
-        let fc = FieldCheck {
-            field: bundle.rays.field,
-            wavelength_nm: bundle.wavelength_nm,
-            rays: n,
-            compared: pa.len(),
-            status_mismatches: mismatches,
-            rms_analytic_um: sa.rms_um,
-            rms_embree_um: se.rms_um,
-            rms_diff_um: (se.rms_um - sa.rms_um).abs(),
-            max_point_diff_um: max_diff(&pe),
-            rms_embree_mesh_normal_um: sm.rms_um,
-            rms_diff_mesh_normal_um: (sm.rms_um - sa.rms_um).abs(),
-            max_point_diff_mesh_normal_um: max_diff(&pm),
-        };
-        if fc.rms_diff_um > opts.spot_bound_um {
-            failures.push(format!(
-                "{label}: the RMS spots differ by {:.3e} um, more than {} um",
-                fc.rms_diff_um, opts.spot_bound_um
-            ));
-        }
-        fields.push(fc);
+}
+
+/// "field F at W nm", naming a bundle in errors and failures.
+fn field_label(bundle: &Bundle) -> String {
+    format!(
+        "field {} at {} nm",
+        bundle.rays.field.label(),
+        bundle.wavelength_nm
+    )
+}
+
+/// One bundle's spots: the analytic traces of its rays, the f64 kernel (compared) and the
+/// scalar reference (timed only), one thread each, against the Embree traces `embree` (analytic
+/// normals, mesh normals) already at the image.
+fn field_check(
+    sys: &System<f64>,
+    bundle: &Bundle,
+    indices: &[f64],
+    embree: [&[RayState]; 2],
+    timing: &mut Timing,
+) -> Result<FieldCheck> {
+    let mut batch = RayBatch::<f64>::with_capacity(bundle.rays.origins.len());
+    for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
+        batch.push(*o, *d);
     }
-    Ok(CaseReport {
-        trial: None,
-        pattern: None,
-        surfaces,
-        fields,
-        timing,
-        failures,
+    let t0 = Instant::now();
+    trace_serial(
+        sys,
+        bundle.wavelength_nm,
+        &mut batch,
+        TraceOptions { apertures: true },
+    );
+    timing.kernel_s += t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let mut alive_ref = 0usize;
+    for (o, d) in bundle.rays.origins.iter().zip(&bundle.rays.directions) {
+        let r = trace_ray(sys, indices, bundle.wavelength_nm, *o, *d, true, None);
+        alive_ref += r.status.is_alive() as usize;
+    }
+    timing.reference_s += t0.elapsed().as_secs_f64();
+    std::hint::black_box(alive_ref);
+    let sensor = |o: Vec3<f64>| {
+        let p = sys.image.point_to_local(o);
+        [p.x, p.y]
+    };
+    let (mut pa, mut pe, mut pm) = (Vec::new(), Vec::new(), Vec::new());
+    let mut mismatches = 0;
+    for ((ka, se), sm) in batch.iter().zip(embree[0]).zip(embree[1]) {
+        if ka.status.is_alive() != se.status.is_alive() {
+            mismatches += 1;
+        }
+        if ka.status.is_alive() && se.status.is_alive() && sm.status.is_alive() {
+            pa.push(sensor(ka.o));
+            pe.push(sensor(se.o));
+            pm.push(sensor(sm.o));
+        }
+    }
+    let label = field_label(bundle);
+    let n = bundle.rays.origins.len();
+    let sa = spot_stats(&pa, n, None).map_err(|e| e.context(&label))?;
+    let se = spot_stats(&pe, n, None).map_err(|e| e.context(&label))?;
+    let sm = spot_stats(&pm, n, None).map_err(|e| e.context(&label))?;
+    let max_diff = |x: &[[f64; 2]]| {
+        x.iter()
+            .zip(&pa)
+            .map(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]) * 1e3)
+            .fold(0.0, f64::max)
+    };
+    Ok(FieldCheck {
+        field: bundle.rays.field,
+        wavelength_nm: bundle.wavelength_nm,
+        rays: n,
+        compared: pa.len(),
+        status_mismatches: mismatches,
+        rms_analytic_um: sa.rms_um,
+        rms_embree_um: se.rms_um,
+        rms_diff_um: (se.rms_um - sa.rms_um).abs(),
+        max_point_diff_um: max_diff(&pe),
+        rms_embree_mesh_normal_um: sm.rms_um,
+        rms_diff_mesh_normal_um: (sm.rms_um - sa.rms_um).abs(),
+        max_point_diff_mesh_normal_um: max_diff(&pm),
     })
 }
 
