@@ -56,6 +56,22 @@ pub(super) fn tilted_surface_rotation(tangents: [f64; 2]) -> Mat3<f64> {
     turn_onto(Vec3::cst(0.0, 0.0, 1.0), n).unwrap_or_else(Mat3::identity)
 }
 
+/// The frame `rot` and axis `axis` of a surface, turned by a `TILTSURF`'s tangents when it has
+/// them ([`tilted_surface_rotation`]).
+fn tilt_frame(
+    rot: Mat3<f64>,
+    axis: Vec3<f64>,
+    tangents: Option<[f64; 2]>,
+) -> (Mat3<f64>, Vec3<f64>) {
+    match tangents {
+        Some(t) => {
+            let r = snap(rot * tilted_surface_rotation(t));
+            (r, r.apply(Vec3::cst(0.0, 0.0, 1.0)))
+        }
+        None => (rot, axis),
+    }
+}
+
 /// A `TILTSURF` surface's tangents (PARM 1 and 2); other parameters are refused, as is an angle
 /// that is not finite.
 fn tilt_tangents(s: &RawSurf) -> Result<[f64; 2]> {
@@ -463,8 +479,7 @@ impl Walker {
                     ));
                 }
             }
-            if aperture.is_some() {
-                let t = tangents.unwrap_or_default();
+            if let Some(t) = tangents.filter(|_| aperture.is_some()) {
                 let slope = t[0].hypot(t[1]);
                 warnings.push(format!(
                     "line {}: the hard aperture of a tilted surface (TILTSURF) is applied in the tilted plane, OpticStudio's in its x-y frame: along the tilt, tolray's clips {:.3} % closer to the axis",
@@ -476,15 +491,8 @@ impl Walker {
         if !dummy {
             let (origin, rot, axis) = self.unfolded();
             // A tilted surface turns against its frame, which the surfaces after it keep.
-            let (rot, axis) = match tangents {
-                Some(t) => {
-                    let r = snap(rot * tilted_surface_rotation(t));
-                    (r, r.apply(Vec3::cst(0.0, 0.0, 1.0)))
-                }
-                None => (rot, axis),
-            };
-            if tilted && mirror {
-                let t = tangents.unwrap_or_default();
+            let (rot, axis) = tilt_frame(rot, axis, tangents);
+            if let Some(t) = tangents.filter(|_| mirror) {
                 let deg = t[0].hypot(t[1]).atan().to_degrees();
                 if deg >= FOLD_MIN_DEG {
                     return Err(invalid(
@@ -665,13 +673,7 @@ impl Walker {
         // axis); one turned by 90 degrees or more against that leg is not a plane the light
         // reaches along it.
         let (origin, rot, axis) = self.unfolded();
-        let (rot, axis) = match tangents {
-            Some(t) => {
-                let r = snap(rot * tilted_surface_rotation(t));
-                (r, r.apply(Vec3::cst(0.0, 0.0, 1.0)))
-            }
-            None => (rot, axis),
-        };
+        let (rot, axis) = tilt_frame(rot, axis, tangents);
         if axis.z <= 1e-9 {
             return Err(invalid(
                 self.last_cb_line.unwrap_or(img.line),
