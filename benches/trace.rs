@@ -2,10 +2,13 @@
 //! f64, one thread and all threads; and, per surface kind that needs Newton's method on its sag
 //! (`trace/kinds/...`, all threads), Thorlabs' ASL5040-UV (a Qbfs asphere), the hand-made Qcon
 //! singlet of the tests and Thorlabs' LJ1598L1 cylinder lens (a toroid), each at its primary
-//! wavelength. Throughput is reported in elements = ray-surfaces (rays x (surfaces + image
-//! plane)).
+//! wavelength; and the spot analysis end to end (`spot/lens2`: ray generation, the f64 trace and
+//! the statistics of a 1024 x 1024 pupil grid at 0.7 field, one thread and all threads), the
+//! work `tolray spot` does. Throughput is reported in elements = ray-surfaces (rays x (surfaces +
+//! image plane)).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use tolray::analysis::{spot_diagram_rows, SpotOptions};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{zemax, GlassCatalogs, System};
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, RaySet, TraceOptions, Traceable};
@@ -86,12 +89,42 @@ fn bench_kinds(c: &mut Criterion) {
     g.finish();
 }
 
+/// The spot analysis end to end: rays generated, traced and reduced a chunk at a time.
+fn bench_spot(c: &mut Criterion, lens: &Lens) {
+    let opts = SpotOptions {
+        fields: vec![Field::fraction(0.7)],
+        wavelengths_nm: vec![LAMBDA_D_NM],
+        pupil: Pupil::grid(1024),
+        trace: TraceOptions::default(),
+    };
+    let sys = lens.compile();
+    let (rows, _) = spot_diagram_rows(lens, &sys, &opts).unwrap();
+    let launched = rows[0].stats.n_launched as u64;
+    let mut g = c.benchmark_group("spot/lens2/grid1024");
+    g.throughput(Throughput::Elements(
+        launched * (lens.surfaces.len() as u64 + 1),
+    ));
+    g.sample_size(10);
+    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for threads in [1, all] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| spot_diagram_rows(lens, &sys, &opts).unwrap()));
+        });
+    }
+    g.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let lens = Lens::load("lens2").unwrap();
     let set = rays(&lens, LAMBDA_D_NM);
     bench_type::<f32>(c, &lens, &set);
     bench_type::<f64>(c, &lens, &set);
     bench_kinds(c);
+    bench_spot(c, &lens);
 }
 
 criterion_group!(benches, bench);

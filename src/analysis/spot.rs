@@ -3,7 +3,7 @@
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
 use crate::real::{sqrt_or_zero, Real};
-use crate::trace::{self, Field, Pupil, RaySet, TraceOptions};
+use crate::trace::{self, Field, Pupil, RayBatch, RayStream, TraceOptions};
 use serde::Serialize;
 
 /// Spot statistics. Sizes in micrometres, positions on the sensor in millimetres.
@@ -26,7 +26,7 @@ pub struct SpotStats {
 }
 
 /// Statistics of `points` (sensor mm) out of `n_launched` rays, about their centroid and about
-/// `chief` when given (from their [`SpotMoments`]).
+/// `chief` when given.
 ///
 /// # Errors
 /// [`crate::ErrorKind::Numerical`] if no ray reached the image.
@@ -35,22 +35,167 @@ pub fn spot_stats(
     n_launched: usize,
     chief: Option<[f64; 2]>,
 ) -> Result<SpotStats> {
-    let m = SpotMoments::of_points(points)
-        .ok_or_else(|| Error::numerical("no ray reached the image plane"))?;
-    let [cx, cy] = m.centroid;
-    let geo = points
+    SpotSummary::of_points(points, |_| true).stats(n_launched, chief)
+}
+
+/// Points shown per spot in a picture, about at most: a spot of more rays shows a pseudo-random
+/// sample of them, chosen by each ray's pupil coordinates (a regular thinning of a grid would
+/// draw moiré); the statistics use every ray.
+pub const SHOWN_POINTS: usize = 1 << 16;
+
+/// A spot reduced to what its statistics need, so that it can be accumulated a chunk of rays at
+/// a time: the count, centroid and sum of squared distances to it (merged chunk after chunk by
+/// Chan's formula), the convex hull's vertices of each chunk (the point farthest from any centre
+/// is a hull vertex, so the geometric radius is exact) and the points kept for a picture.
+#[derive(Clone, Debug, Default)]
+struct SpotSummary {
+    n: usize,
+    mean: [f64; 2],
+    m2: f64,
+    hull: Vec<[f64; 2]>,
+    /// The length of `hull` when it was last reduced to the hull of its points.
+    hull_kept: usize,
+    shown: Vec<[f64; 2]>,
+}
+
+/// Hull points gathered from chunks before they are reduced to their own hull.
+const HULL_SLACK: usize = 4096;
+
+impl SpotSummary {
+    /// The summary of `points`, showing those `shown` keeps in a picture.
+    fn of_points(points: &[[f64; 2]], shown: impl Fn(usize) -> bool) -> SpotSummary {
+        let Some(mean) = SpotMoments::centroid_of(points) else {
+            return SpotSummary::default();
+        };
+        // As `SpotMoments::of_points` sums them, so that one chunk's statistics are its numbers.
+        let m2 = points.iter().fold(0.0, |a, q| {
+            let (px, py) = (q[0] - mean[0], q[1] - mean[1]);
+            a + (px * px + py * py)
+        });
+        SpotSummary {
+            n: points.len(),
+            mean,
+            m2,
+            hull: convex_hull(points),
+            hull_kept: 0,
+            shown: (points.iter().enumerate())
+                .filter(|(i, _)| shown(*i))
+                .map(|(_, p)| *p)
+                .collect(),
+        }
+    }
+
+    /// Adds `other`'s points (Chan et al.'s pairwise update of the centred sum of squares).
+    fn merge(&mut self, other: SpotSummary) {
+        if other.n == 0 {
+            return;
+        }
+        if self.n == 0 {
+            *self = other;
+            return;
+        }
+        let (na, nb) = (self.n as f64, other.n as f64);
+        let n = na + nb;
+        let d = [other.mean[0] - self.mean[0], other.mean[1] - self.mean[1]];
+        self.mean = [
+            self.mean[0] + d[0] * (nb / n),
+            self.mean[1] + d[1] * (nb / n),
+        ];
+        self.m2 += other.m2 + (d[0] * d[0] + d[1] * d[1]) * (na * nb / n);
+        self.n += other.n;
+        self.hull.extend(other.hull);
+        // The chunks' hulls are kept as the hull of their union once they outgrow it (a chunk of
+        // rays on a convex arc is all hull), so the memory stays that of the spot's outline.
+        if self.hull.len() > 2 * self.hull_kept.max(HULL_SLACK) {
+            self.hull = convex_hull(&self.hull);
+            self.hull_kept = self.hull.len();
+        }
+        self.shown.extend(other.shown);
+    }
+
+    /// The statistics of the spot out of `n_launched` rays, about `chief` when given.
+    fn stats(&self, n_launched: usize, chief: Option<[f64; 2]>) -> Result<SpotStats> {
+        if self.n == 0 {
+            return Err(Error::numerical("no ray reached the image plane"));
+        }
+        let m = SpotMoments {
+            centroid: self.mean,
+            a: self.m2 * (1.0 / self.n as f64),
+            b: 0.0,
+            c: 0.0,
+        };
+        let [cx, cy] = m.centroid;
+        let geo = self
+            .hull
+            .iter()
+            .map(|p| (p[0] - cx).hypot(p[1] - cy))
+            .fold(0.0, f64::max);
+        Ok(SpotStats {
+            n_launched,
+            n_valid: self.n,
+            centroid_mm: m.centroid,
+            rms_um: m.rms() * 1e3,
+            rms_chief_um: chief.map(|c| m.ms_about(c).sqrt() * 1e3),
+            geo_radius_um: geo * 1e3,
+            vignetted_fraction: 1.0 - self.n as f64 / n_launched.max(1) as f64,
+        })
+    }
+}
+
+/// Whether the ray through the pupil point `q` is one of the about `1/stride` shown in a picture:
+/// a hash of its coordinates (SplitMix64's finaliser), so the choice is the same in every chunk
+/// and at every thread count.
+fn shown(q: [f64; 2], stride: usize) -> bool {
+    if stride <= 1 {
+        return true;
+    }
+    let mut z = q[0].to_bits() ^ q[1].to_bits().rotate_left(32);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    z % stride as u64 == 0
+}
+
+/// The vertices of the convex hull of `points` (Andrew's monotone chain; points on an edge are
+/// left out, which changes no distance's maximum: a point on a segment is never farther from a
+/// centre than both its ends).
+fn convex_hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut p: Vec<[f64; 2]> = points
         .iter()
-        .map(|p| (p[0] - cx).hypot(p[1] - cy))
-        .fold(0.0, f64::max);
-    Ok(SpotStats {
-        n_launched,
-        n_valid: points.len(),
-        centroid_mm: m.centroid,
-        rms_um: m.rms() * 1e3,
-        rms_chief_um: chief.map(|c| m.ms_about(c).sqrt() * 1e3),
-        geo_radius_um: geo * 1e3,
-        vignetted_fraction: 1.0 - points.len() as f64 / n_launched.max(1) as f64,
-    })
+        .copied()
+        .filter(|q| q[0].is_finite() && q[1].is_finite())
+        .collect();
+    if p.len() < 3 {
+        return p;
+    }
+    // A stable sort merges the runs already in order: a pupil row's rays land along a curve.
+    p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(64);
+    for pass in 0..2 {
+        let start = hull.len();
+        let walk = |q: [f64; 2], hull: &mut Vec<[f64; 2]>| {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(q);
+        };
+        if pass == 0 {
+            p.iter().for_each(|&q| walk(q, &mut hull));
+        } else {
+            p.iter().rev().for_each(|&q| walk(q, &mut hull));
+        }
+        hull.pop();
+    }
+    if hull.is_empty() {
+        // Every point the same.
+        hull.push(p[0]);
+    }
+    hull
 }
 
 /// The second moments of a spot, in any number type: with the rays' sensor positions `p` and
@@ -329,7 +474,7 @@ fn rows(
     let mut out = Vec::new();
     let mut failures = Vec::new();
     for &field in &opts.fields {
-        let mut all = Vec::new();
+        let mut all = SpotSummary::default();
         let mut launched = 0;
         let mut chief0 = None;
         let mut complete = true;
@@ -340,8 +485,8 @@ fn rows(
                 wavelength_nm: Some(wl),
                 reason: e.context(&what).full_message(),
             };
-            let set = match RaySet::generate(lens, &para, field, &opts.pupil, wl) {
-                Ok(set) => set,
+            let stream = match RayStream::new(lens, &para, field, &opts.pupil, wl) {
+                Ok(s) => s,
                 Err(e) if e.kind() == crate::ErrorKind::Numerical => {
                     failures.push(fail(e));
                     complete = false;
@@ -349,10 +494,6 @@ fn rows(
                 }
                 Err(e) => return Err(e),
             };
-            let mut batch = set.batch::<f64>();
-            let (co, cd) = set.chief;
-            batch.push(co, cd);
-            trace::trace(sys, wl, &mut batch, opts.trace);
             let to_sensor = |r: crate::trace::Ray<f64>| {
                 if angular {
                     let d = sys.image.rotation.apply_t(r.d);
@@ -362,18 +503,40 @@ fn rows(
                     [p.x, p.y]
                 }
             };
-            let n = set.origins.len();
-            let points: Vec<[f64; 2]> = (0..n)
-                .map(|i| batch.get(i))
-                .filter(|r| r.status.is_alive())
-                .map(to_sensor)
-                .collect();
-            let chief_ray = batch.get(n);
+            let n = opts.pupil.pattern.max_points();
+            let stride = n.div_ceil(SHOWN_POINTS);
+            let mut spot = SpotSummary::default();
+            let mut launched_here = 0;
+            stream.fold_chunks(
+                sys,
+                wl,
+                opts.trace,
+                |pts, rays| {
+                    let (mut points, mut show) = (Vec::new(), Vec::new());
+                    for (q, r) in pts.iter().zip(rays.iter()) {
+                        if r.status.is_alive() {
+                            points.push(to_sensor(r));
+                            show.push(shown(*q, stride));
+                        }
+                    }
+                    let summary = SpotSummary::of_points(&points, |i| show[i]);
+                    (pts.len(), summary)
+                },
+                |(count, chunk)| {
+                    launched_here += count;
+                    spot.merge(chunk);
+                },
+            );
+            let mut chief_batch = RayBatch::<f64>::new();
+            let (co, cd) = stream.chief();
+            chief_batch.push(co, cd);
+            trace::trace_serial(sys, wl, &mut chief_batch, opts.trace);
+            let chief_ray = chief_batch.get(0);
             let chief = chief_ray.status.is_alive().then(|| to_sensor(chief_ray));
             if w == 0 {
                 chief0 = chief;
             }
-            let stats = match spot_stats(&points, n, chief) {
+            let stats = match spot.stats(launched_here, chief) {
                 Ok(s) => s,
                 Err(e) => {
                     failures.push(fail(e));
@@ -381,16 +544,16 @@ fn rows(
                     continue;
                 }
             };
-            all.extend_from_slice(&points);
-            launched += n;
+            launched += launched_here;
             out.push(SpotResult {
                 field,
                 wavelength_nm: Some(wl),
                 stats,
                 chief_mm: chief,
-                points,
+                points: spot.shown.clone(),
                 angular,
             });
+            all.merge(spot);
         }
         if opts.wavelengths_nm.len() > 1 {
             if !complete {
@@ -404,13 +567,13 @@ fn rows(
                 });
                 continue;
             }
-            let stats = spot_stats(&all, launched, chief0)?;
+            let stats = all.stats(launched, chief0)?;
             out.push(SpotResult {
                 field,
                 wavelength_nm: None,
                 stats,
                 chief_mm: chief0,
-                points: all,
+                points: all.shown,
                 angular,
             });
         }

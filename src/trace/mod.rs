@@ -11,10 +11,12 @@ mod kernel;
 pub mod raw;
 pub mod rays;
 pub mod reference;
+mod stream;
 
 pub use bundles::{Bundle, Bundles};
 pub use kernel::Traceable;
 pub use rays::{Field, FieldPoint, LaunchSource, Pupil, PupilPattern, RaySet, Vignetting};
+pub use stream::{RayStream, CHUNK_RAYS, FOLD_GROUP};
 
 use crate::lens::System;
 use crate::math::Vec3;
@@ -243,27 +245,47 @@ impl<S: Real> RayBatch<S> {
     /// kept); a ray with non-finite numbers is stored as [`RayStatus::Invalid`], as by
     /// [`RayBatch::from_unit_rays`].
     pub fn collect_unit(rays: impl IntoIterator<Item = (Vec3<S>, Vec3<S>)>) -> Self {
-        let mut blocks: Vec<Block<S>> = Vec::new();
-        let mut len = 0;
+        let mut b = RayBatch::new();
         for (o, d) in rays {
-            let l = len % LANES;
-            if l == 0 {
-                blocks.push(Block::dead());
-            }
-            let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
-            if let Some(blk) = blocks
-                .last_mut()
-                .filter(|_| o.iter().chain(&d).all(|v| v.value().is_finite()))
-            {
-                for k in 0..3 {
-                    blk.o[k][l] = o[k];
-                    blk.d[k][l] = d[k];
-                }
-                blk.status[l] = 0;
-            }
-            len += 1;
+            b.push_unit(o, d);
         }
-        RayBatch { blocks, len }
+        b
+    }
+
+    /// Appends the ray at `o` (mm) with the unit direction `d`, taken as they are (derivatives
+    /// kept), as [`RayBatch::collect_unit`] stores each of its rays: one with non-finite numbers
+    /// is [`RayStatus::Invalid`].
+    pub fn push_unit(&mut self, o: Vec3<S>, d: Vec3<S>) {
+        let l = self.len % LANES;
+        if l == 0 {
+            self.blocks.push(Block::dead());
+        }
+        let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
+        if let Some(blk) = self
+            .blocks
+            .last_mut()
+            .filter(|_| o.iter().chain(&d).all(|v| v.value().is_finite()))
+        {
+            debug_assert!(
+                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - S::cst(1.0))
+                    .value()
+                    .abs()
+                    < 1e-5,
+                "push_unit takes unit directions"
+            );
+            for k in 0..3 {
+                blk.o[k][l] = o[k];
+                blk.d[k][l] = d[k];
+            }
+            blk.status[l] = 0;
+        }
+        self.len += 1;
+    }
+
+    /// Removes every ray, keeping the allocation (a buffer reused chunk after chunk).
+    pub fn clear(&mut self) {
+        self.blocks.clear();
+        self.len = 0;
     }
     /// Ray `i`.
     ///

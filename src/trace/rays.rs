@@ -355,6 +355,95 @@ impl Pupil {
     }
 }
 
+impl Pupil {
+    /// The number of chunks [`Pupil::chunk_points`] splits the pattern into: rows of a grid, runs
+    /// of [`super::CHUNK_RAYS`] points otherwise. A function of the pattern alone, so work spread
+    /// over chunks gives the same results at any thread count.
+    pub fn chunks(&self) -> usize {
+        match self.pattern {
+            PupilPattern::Grid(n) => n.div_ceil(grid_rows_per_chunk(n)),
+            _ => self.pattern.max_points().div_ceil(super::CHUNK_RAYS),
+        }
+    }
+
+    /// Writes the points of chunk `k` (of [`Pupil::chunks`]) into `out` (cleared first): chunk
+    /// after chunk, the points of [`Pupil::points`] in their order and with their numbers.
+    ///
+    /// # Examples
+    /// ```
+    /// use tolray::trace::Pupil;
+    /// for text in ["grid:300", "hex:60", "random:9000"] {
+    ///     let pupil = Pupil::parse(text, 7)?;
+    ///     let mut all = Vec::new();
+    ///     let mut chunk = Vec::new();
+    ///     for k in 0..pupil.chunks() {
+    ///         pupil.chunk_points(k, &mut chunk);
+    ///         all.extend_from_slice(&chunk);
+    ///     }
+    ///     assert_eq!(all, pupil.points());
+    /// }
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    pub fn chunk_points(&self, k: usize, out: &mut Vec<[f64; 2]>) {
+        out.clear();
+        let s = self.scale;
+        match self.pattern {
+            PupilPattern::Grid(n) => {
+                let rows = grid_rows_per_chunk(n);
+                for j in (k * rows).min(n)..((k + 1) * rows).min(n) {
+                    for i in 0..n {
+                        let x = (2 * i + 1) as f64 / n as f64 - 1.0;
+                        let y = (2 * j + 1) as f64 / n as f64 - 1.0;
+                        if x * x + y * y <= 1.0 {
+                            out.push([x * s, y * s]);
+                        }
+                    }
+                }
+            }
+            PupilPattern::Hex(rings) => {
+                let total = self.pattern.max_points();
+                let start = (k * super::CHUNK_RAYS).min(total);
+                let end = ((k + 1) * super::CHUNK_RAYS).min(total);
+                for idx in start..end {
+                    if idx == 0 {
+                        out.push([0.0, 0.0]);
+                        continue;
+                    }
+                    // Ring k holds the points 3k(k-1)+1 .. 3k(k+1).
+                    let mut ring = ((idx as f64 / 3.0).sqrt() as usize).max(1);
+                    while 3 * ring * (ring + 1) < idx {
+                        ring += 1;
+                    }
+                    while ring > 1 && 3 * ring * (ring - 1) >= idx {
+                        ring -= 1;
+                    }
+                    let m = idx - (3 * ring * (ring - 1) + 1);
+                    let r = ring as f64 / rings as f64 * s;
+                    let a = std::f64::consts::TAU * m as f64 / (6 * ring) as f64;
+                    out.push([r * a.cos(), r * a.sin()]);
+                }
+            }
+            PupilPattern::Random { n, seed } => {
+                let start = (k * super::CHUNK_RAYS).min(n);
+                let end = ((k + 1) * super::CHUNK_RAYS).min(n);
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                // Each point takes two f64 draws of two 32-bit words each.
+                rng.set_word_pos(4 * start as u128);
+                for _ in start..end {
+                    let r = rng.random::<f64>().sqrt() * s;
+                    let a = std::f64::consts::TAU * rng.random::<f64>();
+                    out.push([r * a.cos(), r * a.sin()]);
+                }
+            }
+        }
+    }
+}
+
+/// Grid rows per chunk of an `n x n` grid: about [`super::CHUNK_RAYS`] points, at least a row.
+fn grid_rows_per_chunk(n: usize) -> usize {
+    (super::CHUNK_RAYS / n.max(1)).max(1)
+}
+
 /// The rays of one field: origins and directions in the global frame, plus the chief ray.
 #[derive(Clone, Debug)]
 pub struct RaySet {
@@ -405,62 +494,28 @@ impl RaySet {
         aim: bool,
         wavelength_nm: f64,
     ) -> Result<RaySet> {
-        let launched = field.resolved(lens, para, aim)?;
-        let beam = Beam::launch(lens, &LaunchOptics::of(para), launched)?;
-        let make = |px: f64, py: f64| beam.ray(px, py);
-        let r_ep = beam.r_ep;
-        // The field point's vignetted pupil (the whole pupil for fields the lens does not list).
-        let vig = lens.vignetting_of(field);
-        let pts: Vec<[f64; 2]> = if vig.is_none() {
-            pts.to_vec()
-        } else {
-            pts.iter().map(|&q| vig.apply(q)).collect()
-        };
-        let centre = vig.apply([0.0, 0.0]);
+        let launcher = Launcher::new(lens, para, field, aim, wavelength_nm)?;
+        let pts = launcher.vignetted(pts);
         let mut set = RaySet {
             origins: Vec::with_capacity(pts.len()),
             directions: Vec::with_capacity(pts.len()),
             // Filled with `pts` at the end (one copy of the pupil points, not two).
             pupil: Vec::new(),
-            chief: beam.at_pupil(centre),
+            chief: launcher.chief,
             field,
             unreachable: None,
         };
-        if aim {
-            let sys = lens.compile();
-            let stop = para.stop_surface;
-            let n = sys.indices(wavelength_nm);
-            let r_stop = lens.surfaces[stop].semi_aperture_mm;
-            let aim = |target: [f64; 2], guess: [f64; 2]| {
-                aim_ray(&sys, &n, wavelength_nm, stop, &make, target, guess)
-            };
-            let c0 = [centre[0] * r_ep, centre[1] * r_ep];
-            let c = aim([centre[0] * r_stop, centre[1] * r_stop], c0)?;
-            set.chief = make(c[0], c[1]);
-            let c = [c[0] - c0[0], c[1] - c0[1]];
-            let mut lost = Vec::new();
-            for (i, q) in pts.iter().enumerate() {
-                let guess = [c[0] + q[0] * r_ep, c[1] + q[1] * r_ep];
-                // A stop point no real ray reaches (those near it miss a surface first) is a
-                // vignetted ray, not a failed command; the chief ray must be aimed.
-                let e = match aim([q[0] * r_stop, q[1] * r_stop], guess) {
-                    Ok(e) => e,
-                    Err(_) => {
-                        lost.push(i);
-                        guess
-                    }
-                };
-                let (o, d) = make(e[0], e[1]);
-                set.origins.push(o);
-                set.directions.push(d);
+        let mut lost = Vec::new();
+        for (i, q) in pts.iter().enumerate() {
+            let ((o, d), reached) = launcher.ray(*q);
+            if !reached {
+                lost.push(i);
             }
-            set.unreachable = Some((stop, lost));
-        } else {
-            for q in &pts {
-                let (o, d) = beam.at_pupil(*q);
-                set.origins.push(o);
-                set.directions.push(d);
-            }
+            set.origins.push(o);
+            set.directions.push(d);
+        }
+        if let Some(a) = &launcher.aiming {
+            set.unreachable = Some((a.stop, lost));
         }
         set.pupil = pts;
         Ok(set)
@@ -508,6 +563,116 @@ impl RaySet {
             b.push_in(o, d);
         }
         b
+    }
+}
+
+/// How the rays of one field are launched: its beam through the paraxial entrance pupil, the
+/// field's vignetting factors and, with ray aiming, the aim at the real stop. Shared by
+/// [`RaySet`] (every ray at once) and [`super::RayStream`] (a chunk at a time), so both launch
+/// the same numbers.
+pub(crate) struct Launcher {
+    beam: Beam,
+    vig: Vignetting,
+    /// The chief ray.
+    pub(crate) chief: (Vec3<f64>, Vec3<f64>),
+    pub(crate) aiming: Option<Aiming>,
+}
+
+/// Real ray aiming at the stop: the nominal system, its indices, the stop and the chief ray's
+/// offset from its paraxial guess (the first guess of every other ray).
+pub(crate) struct Aiming {
+    sys: System<f64>,
+    n: Vec<f64>,
+    wavelength_nm: f64,
+    pub(crate) stop: usize,
+    r_stop: f64,
+    offset: [f64; 2],
+}
+
+impl Launcher {
+    /// The launch of `field` (resolved, with `aim` at the real stop).
+    ///
+    /// # Errors
+    /// As [`RaySet::generate`].
+    pub(crate) fn new(
+        lens: &Lens,
+        para: &Paraxial,
+        field: Field,
+        aim: bool,
+        wavelength_nm: f64,
+    ) -> Result<Launcher> {
+        let launched = field.resolved(lens, para, aim)?;
+        let beam = Beam::launch(lens, &LaunchOptics::of(para), launched)?;
+        // The field point's vignetted pupil (the whole pupil for fields the lens does not list).
+        let vig = lens.vignetting_of(field);
+        let centre = vig.apply([0.0, 0.0]);
+        let mut launcher = Launcher {
+            chief: beam.at_pupil(centre),
+            beam,
+            vig,
+            aiming: None,
+        };
+        if aim {
+            let sys = lens.compile();
+            let stop = para.stop_surface;
+            let n = sys.indices(wavelength_nm);
+            let r_stop = lens.surfaces[stop].semi_aperture_mm;
+            let mut a = Aiming {
+                sys,
+                n,
+                wavelength_nm,
+                stop,
+                r_stop,
+                offset: [0.0; 2],
+            };
+            let r_ep = launcher.beam.r_ep;
+            let c0 = [centre[0] * r_ep, centre[1] * r_ep];
+            let c = launcher.aim(&a, [centre[0] * r_stop, centre[1] * r_stop], c0)?;
+            launcher.chief = launcher.beam.ray(c[0], c[1]);
+            a.offset = [c[0] - c0[0], c[1] - c0[1]];
+            launcher.aiming = Some(a);
+        }
+        Ok(launcher)
+    }
+
+    /// The entrance-pupil point (mm) whose ray crosses the stop at `target` (mm).
+    fn aim(&self, a: &Aiming, target: [f64; 2], guess: [f64; 2]) -> Result<[f64; 2]> {
+        let make = |px: f64, py: f64| self.beam.ray(px, py);
+        aim_ray(&a.sys, &a.n, a.wavelength_nm, a.stop, &make, target, guess)
+    }
+
+    /// The normalized pupil points `pts` moved into the field's vignetted pupil.
+    pub(crate) fn vignetted(&self, pts: &[[f64; 2]]) -> Vec<[f64; 2]> {
+        if self.vig.is_none() {
+            pts.to_vec()
+        } else {
+            pts.iter().map(|&q| self.vig.apply(q)).collect()
+        }
+    }
+
+    /// True when the field has no vignetting factors ([`Launcher::vignette`] is the identity).
+    pub(crate) fn vignetted_is_none(&self) -> bool {
+        self.vig.is_none()
+    }
+
+    /// The normalized pupil point `q` moved into the field's vignetted pupil.
+    pub(crate) fn vignette(&self, q: [f64; 2]) -> [f64; 2] {
+        self.vig.apply(q)
+    }
+
+    /// The ray through the (vignetted) normalized pupil point `q`, and whether it reaches its
+    /// point of the stop: with aiming, a stop point no real ray reaches (those near it miss a
+    /// surface first) gives the ray of its first guess, to be marked vignetted at the stop.
+    pub(crate) fn ray(&self, q: [f64; 2]) -> ((Vec3<f64>, Vec3<f64>), bool) {
+        let Some(a) = &self.aiming else {
+            return (self.beam.at_pupil(q), true);
+        };
+        let r_ep = self.beam.r_ep;
+        let guess = [a.offset[0] + q[0] * r_ep, a.offset[1] + q[1] * r_ep];
+        match self.aim(a, [q[0] * a.r_stop, q[1] * a.r_stop], guess) {
+            Ok(e) => (self.beam.ray(e[0], e[1]), true),
+            Err(_) => (self.beam.ray(guess[0], guess[1]), false),
+        }
     }
 }
 

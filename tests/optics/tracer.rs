@@ -702,3 +702,144 @@ fn an_afocal_telescope_has_an_angular_magnification_and_parallel_beams() {
         );
     }
 }
+
+/// Rays generated a chunk at a time (`RayStream`) are the rays of `RaySet::generate`, bit for
+/// bit and in order: through aimed, vignetted, grid, hexapolar and random pupils.
+#[test]
+fn streamed_rays_are_the_ray_sets_rays() {
+    use tolray::trace::{Field, Pupil, RaySet, RayStream};
+    let vignetted = format!(
+        "{}/tests/data/zemax/real/rayoptics/US00583336-2-scaled.zmx",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let cases = [
+        ("lens1", "grid:100", false, Field::fraction(0.7)),
+        ("lens2", "hex:40", false, Field::fraction(1.0)),
+        ("cooke-triplet", "random:5000", true, Field::fraction(1.0)),
+        (vignetted.as_str(), "grid:90", false, Field::fraction(1.0)),
+    ];
+    for (name, pattern, aim, field) in cases {
+        let lens = Lens::load(name).unwrap();
+        let wl = lens.primary_wavelength_nm;
+        let para = lens.paraxial(wl).unwrap();
+        let mut pupil = Pupil::parse(pattern, 3).unwrap();
+        pupil.aim = aim;
+        let set = RaySet::generate(&lens, &para, field, &pupil, wl).unwrap();
+        let whole = set.batch::<f64>();
+        let stream = RayStream::new(&lens, &para, field, &pupil, wl).unwrap();
+        assert_eq!(stream.chief(), set.chief, "{name}");
+        let (mut pts, mut chunk) = (Vec::new(), RayBatch::<f64>::new());
+        let (mut all_pts, mut all) = (Vec::new(), Vec::new());
+        assert!(stream.chunks() > 1, "{name}: one chunk tests no seam");
+        for k in 0..stream.chunks() {
+            stream.fill(k, &mut pts, &mut chunk);
+            all_pts.extend_from_slice(&pts);
+            all.extend(chunk.iter());
+        }
+        assert_eq!(all_pts, set.pupil, "{name}");
+        assert_eq!(all, whole.iter().collect::<Vec<_>>(), "{name}");
+    }
+}
+
+/// The spot analysis reduces its rays a chunk at a time; its statistics are those of all the
+/// rays at once (centroid, RMS about it and about the chief ray, the farthest ray found by
+/// brute force), and the same at any thread count.
+#[test]
+fn streamed_spot_statistics_are_those_of_all_rays() {
+    use tolray::analysis::{spot_diagram_rows, SpotOptions};
+    use tolray::trace::{Field, Pupil, RaySet};
+    let lens = Lens::load("lens2").unwrap();
+    let sys = lens.compile();
+    let wls = [486.1327, 656.2725];
+    let opts = SpotOptions {
+        fields: vec![Field::fraction(0.0), Field::fraction(0.9)],
+        wavelengths_nm: wls.to_vec(),
+        pupil: Pupil::grid(300),
+        trace: TraceOptions::default(),
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| spot_diagram_rows(&lens, &sys, &opts).unwrap().0)
+    };
+    let rows = run(1);
+    let bits = |rows: &[tolray::analysis::SpotResult]| {
+        rows.iter()
+            .map(|r| {
+                let s = &r.stats;
+                [
+                    s.rms_um,
+                    s.geo_radius_um,
+                    s.centroid_mm[0],
+                    s.centroid_mm[1],
+                ]
+                .map(f64::to_bits)
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&rows), bits(&run(3)));
+    let para = lens.paraxial(wls[0]).unwrap();
+    for (f, &field) in opts.fields.iter().enumerate() {
+        let mut poly = Vec::new();
+        for (w, &wl) in wls.iter().enumerate() {
+            let set = RaySet::generate(&lens, &para, field, &opts.pupil, wl).unwrap();
+            let mut batch = set.batch::<f64>();
+            trace(&sys, wl, &mut batch, TraceOptions::default());
+            let pts: Vec<[f64; 2]> = batch
+                .iter()
+                .filter(|r| r.status.is_alive())
+                .map(|r| {
+                    let p = sys.image.point_to_local(r.o);
+                    [p.x, p.y]
+                })
+                .collect();
+            poly.extend_from_slice(&pts);
+            let got = &rows[f * 3 + w];
+            assert_eq!(got.wavelength_nm, Some(wl));
+            check_spot(&pts, set.origins.len(), &got.stats);
+        }
+        check_spot(
+            &poly,
+            2 * rows[f * 3].stats.n_launched,
+            &rows[f * 3 + 2].stats,
+        );
+    }
+}
+
+/// `stats` against the spot of `pts` computed here directly.
+fn check_spot(pts: &[[f64; 2]], launched: usize, stats: &tolray::analysis::SpotStats) {
+    let n = pts.len() as f64;
+    let c = [0, 1].map(|k| pts.iter().map(|p| p[k]).sum::<f64>() / n);
+    let ms = pts
+        .iter()
+        .map(|p| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2))
+        .sum::<f64>()
+        / n;
+    let geo = pts
+        .iter()
+        .map(|p| (p[0] - c[0]).hypot(p[1] - c[1]))
+        .fold(0.0, f64::max);
+    assert_eq!((stats.n_valid, stats.n_launched), (pts.len(), launched));
+    let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1e-3);
+    assert!(
+        close(stats.rms_um, ms.sqrt() * 1e3, 1e-12),
+        "{} {}",
+        stats.rms_um,
+        ms.sqrt() * 1e3
+    );
+    assert!(
+        close(stats.geo_radius_um, geo * 1e3, 1e-12),
+        "{} {}",
+        stats.geo_radius_um,
+        geo * 1e3
+    );
+    for k in 0..2 {
+        assert!(
+            (stats.centroid_mm[k] - c[k]).abs() < 1e-12 * c[k].abs().max(1.0),
+            "{:?} {c:?}",
+            stats.centroid_mm
+        );
+    }
+}
