@@ -10,6 +10,7 @@ use tolray::deep::{
 };
 use tolray::lens::Adjustments;
 use tolray::lens::Param;
+use tolray::optim::train::{Checkpoints, RunControl};
 use tolray::optim::{param_value, set_param};
 use tolray::Lens;
 
@@ -346,7 +347,7 @@ fn evaluation_shards_merge_into_the_single_run_report() {
 #[test]
 fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     use std::cell::Cell;
-    use tolray::deep::study::{read_checkpoint, run, run_resumable, Control, Start, StudyConfig};
+    use tolray::deep::study::{read_checkpoint, run, run_resumable, Start, StudyConfig};
     let lens = focused_lens1();
     let cfg = StudyConfig {
         deep: small(&lens, DecoderKind::Wiener),
@@ -419,12 +420,11 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
                 n.set(n.get() + 1);
                 Some(n.get()) == at
             };
-            let mut ctl = Control {
-                progress: &mut |_| {},
+            let ctl = RunControl {
+                checkpoints: Checkpoints::WhenStopped,
                 stop: &stop,
-                checkpoint_every: 0,
             };
-            match run_resumable(start, &cfg, &images, &dir, &mut ctl).unwrap() {
+            match run_resumable(start, &cfg, &images, &dir, ctl, &mut |_| {}).unwrap() {
                 Some(r) => break r,
                 None => {
                     rounds += 1;
@@ -443,17 +443,17 @@ fn a_stopped_study_resumes_to_the_uninterrupted_result() {
     let mut other = cfg.clone();
     other.stage2_iters = 3;
     let ck = read_checkpoint(&base.join("_4_")).unwrap();
-    let mut ctl = Control {
-        progress: &mut |_| {},
+    let ctl = RunControl {
+        checkpoints: Checkpoints::WhenStopped,
         stop: &|| false,
-        checkpoint_every: 0,
     };
     let e = run_resumable(
         Start::Checkpoint(Box::new(ck)),
         &other,
         &images,
         &base,
-        &mut ctl,
+        ctl,
+        &mut |_| {},
     );
     assert!(e.is_err());
     let _ = std::fs::remove_dir_all(&base);
@@ -500,15 +500,21 @@ fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
     let start = load_design(&base.join("a").join(STAGE1)).unwrap();
     (cfg.spot_iters, cfg.stage1_iters, cfg.stage2_iters) = (0, 0, 2);
     cfg.decoder_only = true;
-    let mut ctl = tolray::deep::study::Control {
-        progress: &mut |_| {},
+    let ctl = RunControl {
+        checkpoints: Checkpoints::WhenStopped,
         stop: &|| false,
-        checkpoint_every: 0,
     };
     let b = base.join("b");
-    let r2 = tolray::deep::study::run_resumable(Start::Design(&start), &cfg, &images, &b, &mut ctl)
-        .unwrap()
-        .unwrap();
+    let r2 = tolray::deep::study::run_resumable(
+        Start::Design(&start),
+        &cfg,
+        &images,
+        &b,
+        ctl,
+        &mut |_| {},
+    )
+    .unwrap()
+    .unwrap();
     let names: Vec<&str> = r2.designs.iter().map(|d| d.name.as_str()).collect();
     assert_eq!(names, [STAGE1, DECODER_ONLY]);
     assert_eq!(
@@ -540,14 +546,20 @@ fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
     assert!(e.message().contains("nothing to report"), "{}", e.message());
     let mut unet = cfg.clone();
     unet.deep.decoder = DecoderKind::Unet;
-    let mut ctl = tolray::deep::study::Control {
-        progress: &mut |_| {},
+    let ctl = RunControl {
+        checkpoints: Checkpoints::WhenStopped,
         stop: &|| false,
-        checkpoint_every: 0,
     };
-    let e = tolray::deep::study::run_resumable(Start::Design(&start), &unet, &images, &b, &mut ctl)
-        .err()
-        .unwrap();
+    let e = tolray::deep::study::run_resumable(
+        Start::Design(&start),
+        &unet,
+        &images,
+        &b,
+        ctl,
+        &mut |_| {},
+    )
+    .err()
+    .unwrap();
     assert!(e.message().contains("decoder (wiener"), "{}", e.message());
     let _ = std::fs::remove_dir_all(&base);
 }

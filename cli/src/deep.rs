@@ -13,6 +13,7 @@ use tolray::deep::{psf_options, rgb_psf_map_of, DeepConfig};
 use tolray::image::render::{render, Blend, PsfMap, SensorNoise};
 use tolray::image::source::TrainImages;
 use tolray::image::Image;
+use tolray::optim::train::{Checkpoints, RunControl};
 use tolray::tolerance::{Perturbation, ToleranceSpec};
 use tolray::Lens;
 
@@ -342,12 +343,12 @@ pub(crate) fn run_study(
     };
     crate::app::GRACEFUL_STOP.store(true, std::sync::atomic::Ordering::SeqCst);
     let stop = || crate::app::STOP_REQUESTED.load(std::sync::atomic::Ordering::SeqCst);
-    let mut ctl = study::Control {
-        progress: &mut progress,
+    // `--checkpoint-every 0`: only when stopped.
+    let ctl = RunControl {
+        checkpoints: Checkpoints::every(checkpoint_every),
         stop: &stop,
-        checkpoint_every,
     };
-    let Some(report) = study::run_resumable(start, &cfg, images, out, &mut ctl)? else {
+    let Some(report) = study::run_resumable(start, &cfg, images, out, ctl, &mut progress)? else {
         eprintln!(
             "interrupted: checkpoint written to {}; continue with `{command} --resume {}`",
             out.join("checkpoint.json").display(),
@@ -620,25 +621,25 @@ fn examples(
 }
 
 fn print_report(r: &Report) {
-    emit_line(&format!(
-        "{:<18} {:>8} {:>14} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8}",
-        "design", "spot µm", "PSNR dB", "SSIM", "PSF sim", "@90%", "@70%", "@50%", "@10%"
-    ));
-    for d in &r.designs {
-        let y = &d.psnr.yield_table;
-        emit_line(&format!(
-            "{:<18} {:>8.2} {:>8.2} ± {:<4.2} {:>7.4} {:>7.3} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
-            d.name,
-            d.rms_spot_um.mean,
-            d.psnr.mean,
-            d.psnr.std,
-            d.ssim.mean,
-            d.psf_similarity.mean,
-            y.y90,
-            y.y70,
-            y.y50,
-            y.y10
-        ));
+    let (header, rows) = r.design_table();
+    let width = |k: usize| {
+        rows.iter()
+            .map(|row| row[k].chars().count())
+            .chain([header[k].chars().count()])
+            .max()
+            .unwrap_or(0)
+    };
+    let widths: Vec<usize> = (0..header.len()).map(width).collect();
+    let line = |cells: &[&str]| {
+        let mut s = format!("{:<w$}", cells[0], w = widths[0]);
+        for (c, w) in cells.iter().zip(&widths).skip(1) {
+            s.push_str(&format!("  {c:>w$}"));
+        }
+        s
+    };
+    emit_line(&line(&header));
+    for row in &rows {
+        emit_line(&line(&row.iter().map(String::as_str).collect::<Vec<_>>()));
     }
     for p in &r.pairs {
         emit_line(&format!(

@@ -16,7 +16,7 @@ use tolray::deep::study::{self, StudyConfig};
 use tolray::deep::DeepConfig;
 use tolray::image::source::TrainImages;
 use tolray::optim::train::{
-    run_to_report, OpticalLoss, RunEnd, RunOptions, TrainConfig, TrainState,
+    run_to_report, Checkpoints, OpticalLoss, RunControl, RunEnd, TrainConfig, TrainState,
 };
 use tolray::tolerance::{Criterion, ToleranceSpec};
 use tolray::{Lens, Object};
@@ -288,7 +288,6 @@ pub fn run(a: TrainArgs) -> anyhow::Result<()> {
     train(
         state,
         &out,
-        resume.is_some(),
         checkpoint_every.max(1),
         eval_trials.unwrap_or(400),
     )
@@ -459,7 +458,6 @@ fn image_stage(a: TrainArgs) -> anyhow::Result<()> {
 fn train(
     mut state: TrainState,
     out: &Path,
-    resumed: bool,
     every: usize,
     eval_trials: usize,
 ) -> anyhow::Result<()> {
@@ -472,10 +470,9 @@ fn train(
     // Ctrl-C now asks for a stop at the end of the iteration (an exact checkpoint), instead of
     // main's default of removing partial files and exiting at once.
     GRACEFUL_STOP.store(true, Ordering::SeqCst);
-    let opts = RunOptions {
-        resumed,
-        every,
-        stop: &STOP_REQUESTED,
+    let opts = RunControl {
+        checkpoints: Checkpoints::every(every),
+        stop: &|| STOP_REQUESTED.load(Ordering::SeqCst),
     };
     let end = run_to_report(&mut state, out, opts, eval_trials, |l| {
         bar.set_message(format!(

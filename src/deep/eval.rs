@@ -445,6 +445,56 @@ pub struct Report {
     pub scores: Vec<DesignScores>,
 }
 
+impl Report {
+    /// The design table in the paper's Table 2 layout, as its column headers and one row of
+    /// formatted cells per design: the one table the text report and the HTML report print.
+    ///
+    /// # Examples
+    /// ```
+    /// # fn show(report: &tolray::deep::eval::Report) {
+    /// let (header, rows) = report.design_table();
+    /// assert_eq!(header[2], "PSNR (dB)");
+    /// for row in &rows {
+    ///     println!("{}", row.join(" | "));
+    /// }
+    /// # }
+    /// ```
+    pub fn design_table(&self) -> ([&'static str; 10], Vec<[String; 10]>) {
+        let header = [
+            "design",
+            "RMS spot (µm)",
+            "PSNR (dB)",
+            "SSIM",
+            "PSF similarity",
+            "PSNR @90 %",
+            "@70 %",
+            "@50 %",
+            "@10 %",
+            "nominal PSNR",
+        ];
+        let rows = self
+            .designs
+            .iter()
+            .map(|d| {
+                let y = &d.psnr.yield_table;
+                [
+                    d.name.clone(),
+                    format!("{:.2}", d.rms_spot_um.mean),
+                    format!("{:.2} ± {:.2}", d.psnr.mean, d.psnr.std),
+                    format!("{:.4}", d.ssim.mean),
+                    format!("{:.3}", d.psf_similarity.mean),
+                    format!("{:.2}", y.y90),
+                    format!("{:.2}", y.y70),
+                    format!("{:.2}", y.y50),
+                    format!("{:.2}", y.y10),
+                    format!("{:.2}", d.nominal_psnr),
+                ]
+            })
+            .collect();
+        (header, rows)
+    }
+}
+
 /// Mean of `v` (0 for none): the paired comparisons' first statistic.
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64

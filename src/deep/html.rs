@@ -119,23 +119,18 @@ pub fn render(report: &Report, examples: &Examples) -> String {
         if c.compensate_focus { "each unit refocused (focus compensator)" } else { "no refocus" },
         esc(&report.images.join(", "))
     ));
-    h.push_str("<h2>Table 2 layout</h2><table id='designs'><tr><th>design</th><th>RMS spot (µm)</th><th>PSNR (dB)</th><th>SSIM</th><th>PSF similarity</th><th>PSNR @90 %</th><th>@70 %</th><th>@50 %</th><th>@10 %</th><th>nominal PSNR</th></tr>");
-    for d in &report.designs {
-        let y = &d.psnr.yield_table;
-        h.push_str(&format!(
-            "<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{:.4}</td><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td></tr>",
-            esc(&d.name),
-            d.rms_spot_um.mean,
-            d.psnr.mean,
-            d.psnr.std,
-            d.ssim.mean,
-            d.psf_similarity.mean,
-            y.y90,
-            y.y70,
-            y.y50,
-            y.y10,
-            d.nominal_psnr
-        ));
+    let (header, rows) = report.design_table();
+    h.push_str("<h2>Table 2 layout</h2><table id='designs'><tr>");
+    for c in header {
+        h.push_str(&format!("<th>{}</th>", esc(c)));
+    }
+    h.push_str("</tr>");
+    for row in &rows {
+        h.push_str("<tr>");
+        for c in row {
+            h.push_str(&format!("<td>{}</td>", esc(c)));
+        }
+        h.push_str("</tr>");
     }
     h.push_str("</table>");
     if !report.pairs.is_empty() {

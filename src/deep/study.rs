@@ -12,7 +12,7 @@ use crate::error::{Error, ErrorKind, Result};
 use crate::files::write_atomic;
 use crate::image::render::SensorNoise;
 use crate::lens::Lens;
-use crate::optim::train::{IterLog, TrainState};
+use crate::optim::train::{Checkpoints, IterLog, RunControl, TrainState};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -294,17 +294,6 @@ pub enum Progress<'a> {
     Image(&'a str, &'a DeepLog),
 }
 
-/// How [`run_resumable`] is driven.
-pub struct Control<'a> {
-    /// Receives each iteration's log.
-    pub progress: &'a mut dyn FnMut(Progress<'_>),
-    /// Polled after every iteration; when it returns true the study writes its checkpoint and
-    /// returns `Ok(None)`.
-    pub stop: &'a dyn Fn() -> bool,
-    /// Iterations between checkpoints (0: only when stopped).
-    pub checkpoint_every: usize,
-}
-
 /// Runs the study on `lens`, writing the designs and their training logs under `out`; returns
 /// the evaluation report. `progress` receives each iteration's log.
 ///
@@ -317,12 +306,11 @@ pub fn run(
     out: &Path,
     progress: &mut dyn FnMut(Progress<'_>),
 ) -> Result<Report> {
-    let mut ctl = Control {
-        progress,
+    let ctl = RunControl {
+        checkpoints: Checkpoints::WhenStopped,
         stop: &|| false,
-        checkpoint_every: 0,
     };
-    run_resumable(Start::Lens(lens), cfg, images, out, &mut ctl)?
+    run_resumable(Start::Lens(lens), cfg, images, out, ctl, progress)?
         .ok_or_else(|| Error::new(ErrorKind::Invalid, "the study stopped without a request"))
 }
 
@@ -334,9 +322,10 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint> {
     crate::files::read_json(&dir.join("checkpoint.json"))
 }
 
-/// [`run`] with checkpoints every `ctl.checkpoint_every` iterations, a stop request, and an
-/// exact resume from a checkpoint of the same study: the designs, logs and report are those of
-/// an uninterrupted run. Returns `None` when stopped (the checkpoint is written).
+/// [`run`] with checkpoints as `ctl` says (and after each finished design unless only when
+/// stopped), a stop request, and an exact resume from a checkpoint of the same study: the
+/// designs, logs and report are those of an uninterrupted run. `progress` receives each
+/// iteration's log. Returns `None` when stopped (the checkpoint is written).
 ///
 /// # Errors
 /// As [`run`]; a checkpoint whose settings differ from `cfg`.
@@ -345,7 +334,8 @@ pub fn run_resumable(
     cfg: &StudyConfig,
     images: &EvalImages,
     out: &Path,
-    ctl: &mut Control<'_>,
+    ctl: RunControl<'_>,
+    progress: &mut dyn FnMut(Progress<'_>),
 ) -> Result<Option<Report>> {
     cfg.validate()?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
@@ -419,13 +409,12 @@ pub fn run_resumable(
             }
         }
     };
-    let every = ctl.checkpoint_every;
     let stop_requested = ctl.stop;
     // After iteration `k` of a phase: when a stop is requested or a checkpoint is due, writes
     // `ck` with the running state put in by `fill`; true when the study is to stop.
     let pause = |ck: &Checkpoint, k: usize, fill: &dyn Fn(&mut Checkpoint)| -> Result<bool> {
         let stop = stop_requested();
-        if stop || (every > 0 && k % every == 0) {
+        if stop || ctl.checkpoints.due(k) {
             let mut c = ck.clone();
             fill(&mut c);
             save(&c)?;
@@ -435,7 +424,7 @@ pub fn run_resumable(
     if let Some(mut st) = ck.spot.take() {
         while st.next_iter < cfg.spot_iters {
             let l = crate::optim::train::step(&mut st)?;
-            (ctl.progress)(Progress::Focus(&l, cfg.spot_iters));
+            progress(Progress::Focus(&l, cfg.spot_iters));
             if pause(&ck, st.next_iter, &|c| c.spot = Some(st.clone()))? {
                 return Ok(None);
             }
@@ -465,7 +454,7 @@ pub fn run_resumable(
     while !s1.done() {
         let mut l = step(&mut s1)?;
         validate(&s1, &mut l)?;
-        (ctl.progress)(Progress::Image("stage 1", &l));
+        progress(Progress::Image("stage 1", &l));
         ck.stage1_logs.push(l);
         if pause(&ck, s1.phase_iter, &|c| c.stage1 = Some(s1.clone()))? {
             return Ok(None);
@@ -492,7 +481,7 @@ pub fn run_resumable(
         while !s.done() {
             let mut l = step(&mut s)?;
             validate(&s, &mut l)?;
-            (ctl.progress)(Progress::Image(name, &l));
+            progress(Progress::Image(name, &l));
             logs.push(l);
             let fill = |c: &mut Checkpoint| {
                 c.branch = Some((name.to_string(), s.clone(), logs.clone()));
@@ -506,7 +495,7 @@ pub fn run_resumable(
         save_sensor(&dir, &cfg.deep.sensor())?;
         write_log(&dir, &logs)?;
         ck.finished.push((name.to_string(), logs));
-        if every > 0 {
+        if ctl.checkpoints != Checkpoints::WhenStopped {
             save(&ck)?;
         }
     }

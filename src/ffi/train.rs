@@ -4,7 +4,9 @@
 
 use super::handles::tolray_lens;
 use super::{boundary, c_str, nonnull, tolray_status, FfiError, FfiResult};
-use crate::optim::train::{run_to_report, RunEnd, RunOptions, TrainConfig, TrainState};
+use crate::optim::train::{
+    run_to_report, Checkpoints, RunControl, RunEnd, TrainConfig, TrainState,
+};
 use std::ffi::{c_char, c_void};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -85,7 +87,6 @@ fn config(lens: &crate::Lens, text: Option<&str>) -> FfiResult<TrainConfig> {
 unsafe fn drive(
     mut state: TrainState,
     out: &Path,
-    resumed: bool,
     checkpoint_every: u32,
     eval_trials: u32,
     progress: tolray_train_progress,
@@ -102,10 +103,10 @@ unsafe fn drive(
     }
     let stop = AtomicBool::new(false);
     let total = state.total_iters();
-    let opts = RunOptions {
-        resumed,
-        every: checkpoint_every.max(1) as usize,
-        stop: &stop,
+    // `checkpoint_every` 0 counts as 1 (tolray.h).
+    let opts = RunControl {
+        checkpoints: Checkpoints::every(checkpoint_every.max(1) as usize),
+        stop: &|| stop.load(Ordering::SeqCst),
     };
     let end = run_to_report(&mut state, out, opts, eval_trials as usize, |l| {
         if let Some(f) = progress {
@@ -167,7 +168,6 @@ pub unsafe extern "C" fn tolray_train(
             drive(
                 state,
                 out,
-                false,
                 checkpoint_every,
                 eval_trials,
                 progress,
@@ -206,7 +206,6 @@ pub unsafe extern "C" fn tolray_train_resume(
             drive(
                 state,
                 out,
-                true,
                 checkpoint_every,
                 eval_trials,
                 progress,

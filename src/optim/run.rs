@@ -13,22 +13,57 @@ use super::train::{held_out, step, HeldOut, IterLog, TrainConfig, TrainState};
 use crate::error::{Error, ErrorKind, Result};
 use crate::files::write_atomic;
 use crate::lens::{json, Lens};
+use std::num::NonZeroUsize;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
 
-/// How [`run_training`] is driven.
-#[derive(Clone, Copy, Debug)]
-pub struct RunOptions<'a> {
-    /// Whether the state continues a run saved in the output directory (`tolray train --resume`):
-    /// the log is then cut to the checkpoint's iterations (it may hold later ones, logged after
-    /// the last checkpoint). Otherwise the log starts empty.
-    pub resumed: bool,
-    /// Write a checkpoint every this many iterations (0 counts as 1); one is always written after
-    /// the last iteration and when stopped.
-    pub every: usize,
-    /// Polled after every iteration: when set, the run writes a checkpoint and returns
-    /// [`RunOutcome::Stopped`] (unless that iteration was the last).
-    pub stop: &'a AtomicBool,
+/// When a run writes a checkpoint, besides when it is stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Checkpoints {
+    /// After every this many iterations.
+    Every(NonZeroUsize),
+    /// Only when stopped ([`run_training`] also writes one after its last iteration).
+    WhenStopped,
+}
+
+impl Checkpoints {
+    /// Every `n` iterations, 0 meaning only when stopped (`tolray deep --checkpoint-every 0`).
+    ///
+    /// ```
+    /// use tolray::optim::train::Checkpoints;
+    /// assert!(Checkpoints::every(5).due(10) && !Checkpoints::every(5).due(11));
+    /// assert!(!Checkpoints::every(0).due(10));
+    /// ```
+    pub fn every(n: usize) -> Checkpoints {
+        NonZeroUsize::new(n).map_or(Checkpoints::WhenStopped, Checkpoints::Every)
+    }
+
+    /// Whether a checkpoint is due after iteration `k` (counted from 1).
+    pub fn due(self, k: usize) -> bool {
+        match self {
+            Checkpoints::Every(n) => k % n.get() == 0,
+            Checkpoints::WhenStopped => false,
+        }
+    }
+}
+
+/// How a training run is driven: the one control of both runners, `tolray train`'s
+/// ([`run_training`], [`run_to_report`], the C ABI's `tolray_train`) and the deep-optics study's
+/// ([`crate::deep::study::run_resumable`]).
+#[derive(Clone, Copy)]
+pub struct RunControl<'a> {
+    /// When to write checkpoints.
+    pub checkpoints: Checkpoints,
+    /// Polled after every iteration: when it returns true the run writes its checkpoint and
+    /// returns as stopped (unless that iteration was the last).
+    pub stop: &'a dyn Fn() -> bool,
+}
+
+impl std::fmt::Debug for RunControl<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunControl")
+            .field("checkpoints", &self.checkpoints)
+            .finish_non_exhaustive()
+    }
 }
 
 /// How [`run_training`] ended.
@@ -40,7 +75,7 @@ pub enum RunOutcome {
         logs: Vec<IterLog>,
     },
     /// Stopped on request, with a checkpoint written after iteration `next_iter - 1`:
-    /// resume with [`RunOptions::resumed`] from that checkpoint.
+    /// resume by running the state read back from that checkpoint.
     Stopped {
         /// The next iteration to run (global, over both stages).
         next_iter: usize,
@@ -58,7 +93,10 @@ fn save_checkpoint(state: &TrainState, out: &Path) -> Result<()> {
 /// Runs (or continues) training from `state` to its last iteration, writing into `out_dir`
 /// (created if missing): each iteration's [`IterLog`] as a line of `log.jsonl`, and a checkpoint
 /// (`checkpoint.json`, the [`TrainState`] to resume from, with `lens-latest.json`) and
-/// `lens-iterN.json` every [`RunOptions::every`] iterations, after the last one and when stopped.
+/// `lens-iterN.json` as [`RunControl::checkpoints`] says, after the last iteration and when
+/// stopped. A state past its first iteration (a checkpoint read back, `tolray train --resume`)
+/// continues the run saved in `out_dir`: the log is cut to the checkpoint's iterations (it may
+/// hold later ones, logged after the last checkpoint); otherwise the log starts empty.
 /// Every file but the log, which grows by one appended line per iteration, is written atomically
 /// (a temporary file and a rename). `progress` receives each iteration's log after it is written.
 /// On return `state` is the state after the last iteration run, equal to the last checkpoint.
@@ -73,8 +111,7 @@ fn save_checkpoint(state: &TrainState, out: &Path) -> Result<()> {
 ///
 /// # Examples
 /// ```
-/// use std::sync::atomic::AtomicBool;
-/// use tolray::optim::train::{final_report, run_training, RunOptions, RunOutcome};
+/// use tolray::optim::train::{final_report, run_training, Checkpoints, RunControl, RunOutcome};
 /// use tolray::optim::train::{TrainConfig, TrainState};
 ///
 /// # fn main() -> tolray::Result<()> {
@@ -83,9 +120,8 @@ fn save_checkpoint(state: &TrainState, out: &Path) -> Result<()> {
 /// let mut cfg = TrainConfig::for_lens(&lens);
 /// (cfg.pretrain_iters, cfg.tolerance_iters) = (2, 0);
 /// let mut state = TrainState::new(&lens, cfg);
-/// let stop = AtomicBool::new(false);
-/// let opts = RunOptions { resumed: false, every: 1, stop: &stop };
-/// let outcome = run_training(&mut state, &out, opts, |l| println!("loss {:.4}", l.loss))?;
+/// let ctl = RunControl { checkpoints: Checkpoints::every(1), stop: &|| false };
+/// let outcome = run_training(&mut state, &out, ctl, |l| println!("loss {:.4}", l.loss))?;
 /// let RunOutcome::Finished { logs } = outcome else { unreachable!() };
 /// assert_eq!(logs.len(), 2);
 /// assert!(out.join("lens-iter2.json").exists());
@@ -99,7 +135,7 @@ fn save_checkpoint(state: &TrainState, out: &Path) -> Result<()> {
 pub fn run_training(
     state: &mut TrainState,
     out_dir: &Path,
-    opts: RunOptions<'_>,
+    ctl: RunControl<'_>,
     mut progress: impl FnMut(&IterLog),
 ) -> Result<RunOutcome> {
     use std::io::Write;
@@ -111,7 +147,7 @@ pub fn run_training(
     })?;
     let log_path = out_dir.join("log.jsonl");
     // The log holds exactly one line per finished iteration: on resume, cut it to the checkpoint.
-    let mut logs: Vec<IterLog> = if opts.resumed {
+    let mut logs: Vec<IterLog> = if state.next_iter > 0 {
         std::fs::read_to_string(&log_path)
             .unwrap_or_default()
             .lines()
@@ -137,7 +173,6 @@ pub fn run_training(
                 format!("{}: cannot open: {e}", log_path.display()),
             )
         })?;
-    let every = opts.every.max(1);
     let total = state.total_iters();
     while state.next_iter < total {
         let l = step(state)?;
@@ -150,8 +185,8 @@ pub fn run_training(
         progress(&l);
         logs.push(l);
         let done = state.next_iter == total;
-        let stop = opts.stop.load(Ordering::SeqCst);
-        if done || state.next_iter % every == 0 || stop {
+        let stop = (ctl.stop)();
+        if done || ctl.checkpoints.due(state.next_iter) || stop {
             save_checkpoint(state, out_dir)?;
             json::write_file(
                 &state.lens,
@@ -180,7 +215,7 @@ pub enum RunEnd {
 }
 
 /// A whole run, as `tolray train` and the C ABI's `tolray_train` drive it: for a fresh run
-/// (not [`RunOptions::resumed`]) the starting design is written to `lens-initial.json`; then
+/// (a state at its first iteration) the starting design is written to `lens-initial.json`; then
 /// [`run_training`]; when it finishes, `training.png` (the loss and spot curves), and the
 /// [`final_report`] on `eval_trials` held-out patterns, written by [`TrainReport::write`].
 ///
@@ -189,15 +224,15 @@ pub enum RunEnd {
 pub fn run_to_report(
     state: &mut TrainState,
     out_dir: &Path,
-    opts: RunOptions<'_>,
+    ctl: RunControl<'_>,
     eval_trials: usize,
     progress: impl FnMut(&IterLog),
 ) -> Result<RunEnd> {
-    if !opts.resumed {
+    if state.next_iter == 0 {
         std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
         json::write_file(&state.lens, &out_dir.join("lens-initial.json"))?;
     }
-    let logs = match run_training(state, out_dir, opts, progress)? {
+    let logs = match run_training(state, out_dir, ctl, progress)? {
         RunOutcome::Finished { logs } => logs,
         RunOutcome::Stopped { next_iter } => return Ok(RunEnd::Stopped { next_iter }),
     };
@@ -375,17 +410,25 @@ mod tests {
     /// one; a stale log line past the checkpoint is cut on resume.
     #[test]
     fn stopped_and_resumed_equals_uninterrupted() {
+        // Unoptimised (the unit tests' build), the dual-number training's frames outgrow the
+        // 2 MiB stacks of the test's thread and of rayon's workers: run it on a pool of larger.
+        rayon::ThreadPoolBuilder::new()
+            .stack_size(64 << 20)
+            .build()
+            .unwrap()
+            .install(stopped_and_resumed);
+    }
+
+    fn stopped_and_resumed() {
         let dir = std::env::temp_dir().join(format!("tolray-run-test-{}", std::process::id()));
         let lens = Lens::load("lens1").unwrap();
         let mut cfg = TrainConfig::for_lens(&lens);
         (cfg.pretrain_iters, cfg.tolerance_iters) = (2, 1);
         (cfg.samples, cfg.psf_spp) = (2, 32);
-        let no = AtomicBool::new(false);
         let mut full = TrainState::new(&lens, cfg.clone());
-        let opts = RunOptions {
-            resumed: false,
-            every: 0,
-            stop: &no,
+        let opts = RunControl {
+            checkpoints: Checkpoints::every(1),
+            stop: &|| false,
         };
         let RunOutcome::Finished { logs } =
             run_training(&mut full, &dir.join("full"), opts, |_| {}).unwrap()
@@ -398,13 +441,11 @@ mod tests {
         }
 
         let part = dir.join("part");
-        let yes = AtomicBool::new(true);
         let mut state = TrainState::new(&lens, cfg);
         let mut seen = 0;
-        let opts = RunOptions {
-            resumed: false,
-            every: 10,
-            stop: &yes,
+        let opts = RunControl {
+            checkpoints: Checkpoints::every(10),
+            stop: &|| true,
         };
         let end = run_training(&mut state, &part, opts, |_| seen += 1).unwrap();
         assert_eq!(end, RunOutcome::Stopped { next_iter: 1 });
@@ -415,10 +456,9 @@ mod tests {
         let log = part.join("log.jsonl");
         let text = std::fs::read_to_string(&log).unwrap();
         std::fs::write(&log, text.clone() + &text).unwrap();
-        let opts = RunOptions {
-            resumed: true,
-            every: 10,
-            stop: &no,
+        let opts = RunControl {
+            checkpoints: Checkpoints::every(10),
+            stop: &|| false,
         };
         let RunOutcome::Finished { logs: resumed } =
             run_training(&mut state, &part, opts, |_| {}).unwrap()

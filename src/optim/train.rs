@@ -9,8 +9,8 @@
 
 use super::adam::{cosine_schedule, Adam};
 pub use super::run::{
-    final_report, fmt_list, run_to_report, run_training, DesignReport, RunEnd, RunOptions,
-    RunOutcome, TrainReport,
+    final_report, fmt_list, run_to_report, run_training, Checkpoints, DesignReport, RunControl,
+    RunEnd, RunOutcome, TrainReport,
 };
 use super::{
     gradient, param_value, set_param, spot_size, spot_sum, value, MtfLoss, Objective, SpotMeasure,
