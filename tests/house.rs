@@ -1,6 +1,7 @@
 //! The repository's own rules, checked so that they hold after every change: every relative
 //! link in the front door, the manual and the maps resolves; the README and ARCHITECTURE.md stay
-//! short; the library's layers point down; no source file grows past 1,200 lines.
+//! short; the library's layers point down; no source file grows past 1,200 lines; the unit tests'
+//! package depends on what the library depends on.
 
 use std::path::{Path, PathBuf};
 
@@ -193,4 +194,29 @@ fn no_source_file_grows_past_1200_lines() {
         }
     }
     assert!(long.is_empty(), "split these by job:\n{}", long.join("\n"));
+}
+
+/// The `[dependencies]` table of a manifest, as its lines.
+fn dependencies(manifest: &str) -> Vec<String> {
+    let text = std::fs::read_to_string(Path::new(ROOT).join(manifest)).unwrap();
+    text.lines()
+        .skip_while(|l| l.trim() != "[dependencies]")
+        .skip(1)
+        .take_while(|l| !l.starts_with('['))
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+        .map(String::from)
+        .collect()
+}
+
+/// unit/ builds the library's own sources for their unit tests: it must depend on the same
+/// crates with the same features, or the tests would run against another build of them.
+#[test]
+fn the_unit_test_package_has_the_librarys_dependencies() {
+    let (lib, unit) = (dependencies("Cargo.toml"), dependencies("unit/Cargo.toml"));
+    assert!(!lib.is_empty());
+    assert_eq!(
+        lib, unit,
+        "unit/Cargo.toml's [dependencies] differ from the library's"
+    );
 }

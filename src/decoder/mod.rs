@@ -265,6 +265,11 @@ impl Decoder {
 
     fn unet(&self) -> Result<unet::Unet> {
         let mut u = unet::Unet::new(Self::unet_config(self.unet_width), 0)?;
+        debug_assert_eq!(
+            u.params.len(),
+            self.params.len() - self.n_wiener,
+            "the U-Net takes every parameter after the Wiener filters"
+        );
         for (d, s) in u.params.iter_mut().zip(&self.params[self.n_wiener..]) {
             *d = *s as f32;
         }

@@ -57,6 +57,8 @@ pub struct Cache {
 
 /// im2col for a 3x3 (zero padding 1) or 1x1 convolution: `(cin · k²) x (h · w)`.
 fn im2col(inp: &[f32], cin: usize, h: usize, w: usize, k: usize) -> Vec<f32> {
+    debug_assert!(k == 1 || k == 3, "only 1x1 and 3x3 kernels");
+    debug_assert_eq!(inp.len(), cin * h * w, "input is cin x h x w");
     if k == 1 {
         return inp.to_vec();
     }
@@ -87,6 +89,12 @@ fn im2col(inp: &[f32], cin: usize, h: usize, w: usize, k: usize) -> Vec<f32> {
 
 /// The adjoint of [`im2col`]: adds the columns back into `dinp`.
 fn col2im(col: &[f32], cin: usize, h: usize, w: usize, k: usize, dinp: &mut [f32]) {
+    debug_assert_eq!(
+        col.len(),
+        cin * k * k * h * w,
+        "columns are (cin k²) x (h w)"
+    );
+    debug_assert_eq!(dinp.len(), cin * h * w, "the input gradient is cin x h x w");
     let hw = h * w;
     if k == 1 {
         for (d, c) in dinp.iter_mut().zip(col) {
@@ -161,6 +169,7 @@ fn gemm(
 fn conv_forward(p: &[f32], cv: &Conv, inp: &[f32], h: usize, w: usize) -> Vec<f32> {
     let hw = h * w;
     let kk = cv.cin * cv.k * cv.k;
+    debug_assert!(cv.w + cv.cout * kk <= p.len() && cv.b + cv.cout <= p.len());
     let col = im2col(inp, cv.cin, h, w, cv.k);
     let mut out = vec![0f32; cv.cout * hw];
     for (co, o) in out.chunks_mut(hw).enumerate() {
@@ -195,6 +204,12 @@ fn conv_backward(
 ) {
     let hw = h * w;
     let kk = cv.cin * cv.k * cv.k;
+    debug_assert_eq!(
+        dout.len(),
+        cv.cout * hw,
+        "the output gradient is cout x h x w"
+    );
+    debug_assert_eq!(dp.len(), p.len(), "one gradient per parameter");
     let col = im2col(inp, cv.cin, h, w, cv.k);
     // dW (cout x kk) += dout (cout x hw) · colᵀ (hw x kk).
     gemm(

@@ -698,8 +698,11 @@ mod tests {
     /// An ideal thin lens is drawn with arrowheads at both ends: out for f > 0, in for f < 0.
     #[test]
     fn thin_lenses_carry_arrowheads_that_tell_their_sign() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/thinlens.zmx");
-        let mut lens = Lens::load(path).unwrap();
+        let bytes = include_bytes!("../../tests/data/zemax/thinlens.zmx");
+        let catalogs = crate::lens::GlassCatalogs::builtin();
+        let mut lens = crate::lens::zemax::from_bytes(bytes, &catalogs)
+            .unwrap()
+            .lens;
         let i = (lens.surfaces.iter())
             .position(|s| matches!(s.shape, Shape::Paraxial { .. }))
             .unwrap();

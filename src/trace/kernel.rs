@@ -187,6 +187,15 @@ pub(crate) fn trace_blocks_generic<S: Real>(
     clip: bool,
     blocks: &mut [Block<S>],
 ) {
+    debug_assert_eq!(
+        n.len(),
+        sys.rows.len() + 1,
+        "an index in front of each surface and one after the last"
+    );
+    debug_assert!(
+        n.iter().all(|v| v.value().is_finite() && v.value() > 0.0),
+        "finite positive indices"
+    );
     let mut scratch = vec![Block::dead(); GROUP.min(blocks.len())];
     let n_last = n.last().copied().unwrap_or(S::cst(1.0));
     let n_rows = sys.rows.len();
