@@ -26,6 +26,18 @@ fn rays(lens: &Lens, wl: f64) -> RaySet {
     RaySet::generate(lens, &para, Field::fraction(0.7), &pupil, wl).unwrap()
 }
 
+/// Thread pools of one thread and of every core, with their sizes.
+fn pools() -> Vec<(usize, rayon::ThreadPool)> {
+    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
+    [1, all]
+        .into_iter()
+        .map(|n| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build();
+            (n, pool.unwrap())
+        })
+        .collect()
+}
+
 fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
     let sys: System<S> = lens.compile().convert();
     let fresh: RayBatch<S> = set.batch();
@@ -33,12 +45,7 @@ fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
     let mut g = c.benchmark_group(format!("trace/lens2/{}", S::NAME));
     g.throughput(Throughput::Elements(RAYS as u64 * surfaces));
     g.sample_size(10);
-    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
-    for threads in [1, all] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+    for (threads, pool) in pools() {
         g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
             let mut batch = fresh.clone();
             b.iter(|| {
@@ -105,12 +112,7 @@ fn bench_spot(c: &mut Criterion, lens: &Lens) {
         launched * (lens.surfaces.len() as u64 + 1),
     ));
     g.sample_size(10);
-    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
-    for threads in [1, all] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+    for (threads, pool) in pools() {
         g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
             b.iter(|| pool.install(|| spot_diagram_rows(lens, &sys, &opts).unwrap()));
         });

@@ -546,10 +546,6 @@ fn a_study_can_stop_after_stage_1_and_continue_from_its_design() {
     assert!(e.message().contains("nothing to report"), "{}", e.message());
     let mut unet = cfg.clone();
     unet.deep.decoder = DecoderKind::Unet;
-    let ctl = RunControl {
-        checkpoints: Checkpoints::WhenStopped,
-        stop: &|| false,
-    };
     let e = tolray::deep::study::run_resumable(
         Start::Design(&start),
         &unet,

@@ -285,7 +285,7 @@ pub struct Checkpoint {
     pub finished: Vec<(String, Vec<DeepLog>)>,
 }
 
-/// One iteration's log, as [`Control::progress`] receives it.
+/// One iteration's log, as the `progress` callback of [`run_resumable`] and [`run`] receives it.
 #[derive(Clone, Copy, Debug)]
 pub enum Progress<'a> {
     /// An iteration of the spot-loss focus fit (stage 0) and its number of iterations.
