@@ -62,8 +62,8 @@ struct SpotSummary {
 const HULL_SLACK: usize = 4096;
 
 impl SpotSummary {
-    /// The summary of `points`, showing those `shown` keeps in a picture.
-    fn of_points(points: &[[f64; 2]], shown: impl Fn(usize) -> bool) -> SpotSummary {
+    /// The summary of `points`, keeping for a picture the points whose index `keep` accepts.
+    fn of_points(points: &[[f64; 2]], keep: impl Fn(usize) -> bool) -> SpotSummary {
         let Some(mean) = SpotMoments::centroid_of(points) else {
             return SpotSummary::default();
         };
@@ -79,7 +79,7 @@ impl SpotSummary {
             hull: convex_hull(points),
             hull_kept: 0,
             shown: (points.iter().enumerate())
-                .filter(|(i, _)| shown(*i))
+                .filter(|(i, _)| keep(*i))
                 .map(|(_, p)| *p)
                 .collect(),
         }
