@@ -594,12 +594,112 @@ fn intersect<S: Real, const KIND: u8>(
     (t, ok, Vec3::new(two * h.x * dz, two * h.y * dz, -one))
 }
 
+/// How a ray leaves a surface, for one lane: the kernel's form of [`reference::bend`]
+/// (refraction, reflection, a grating's order, an ideal thin lens, or straight through a bare
+/// aperture). `d` is the unit direction in, `h` the crossing and `nrm` the unnormalized normal
+/// (either sign), all in the surface's frame; `eta` = n1 / n2 and `ruling` = m λ T / n1. Returns
+/// the direction out and whether the ray ends here (total internal reflection, or an order that
+/// does not propagate). Written without branches: every case is computed where it can apply and
+/// chosen by selects, so that the lane loop stays vectorizable.
+///
+/// [`reference::bend`]: super::reference::bend
+#[inline(always)]
+fn turn<S: Real, const KIND: u8>(
+    row: &SurfaceRow<S>,
+    d: Vec3<S>,
+    h: Vec3<S>,
+    nrm: Vec3<S>,
+    eta: S,
+    ruling: S,
+) -> (Vec3<S>, bool) {
+    let one = S::cst(1.0);
+    let zero = S::cst(0.0);
+    let mirror = row.reflect;
+    if KIND == PLANE {
+        // A bare aperture passes rays straight.
+        return (d, false);
+    }
+    if KIND == SHAPED && row.grating.is_some() {
+        return diffract_lane(d, nrm, eta, ruling, mirror);
+    }
+    if KIND == SHAPED && !row.power.is_zero() {
+        // An ideal thin lens: the slopes turn by -h P; the direction (d.x - h.x P d.z,
+        // d.y - h.y P d.z, d.z), normalized, keeps the sign of travel.
+        let v = Vec3::new(
+            d.x - h.x * row.power * d.z,
+            d.y - h.y * row.power * d.z,
+            d.z,
+        );
+        return (v * (one / v.dot(v).sqrt()), false);
+    }
+    // Refraction (vector Snell) with the normal N flipped to face the incoming ray: with
+    // a = -N.d = |N| cos i, the refracted direction is eta d + (eta a - sqrt(k N.N)) / N.N N
+    // (one division and one square root). A mirror reflects: d + 2 (a / N.N) N.
+    let (nrm, a, nn, inv_nn) = facing(nrm, d);
+    let k = one - eta * eta * (one - a * a * inv_nn);
+    let tir = !mirror & k.lt(zero);
+    let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
+    let refl = S::cst(2.0) * a * inv_nn;
+    let (gm, em) = (S::pick(mirror, refl, g), S::pick(mirror, one, eta));
+    (d * em + nrm * gm, tir)
+}
+
+/// The normal `nrm` turned to face a ray going `d` (so that `a = -N.d >= 0`), with `a`, `N.N`
+/// and `1 / N.N` (taken before the turn: the selects would hide from LLVM that they are equal).
+#[inline(always)]
+fn facing<S: Real>(nrm: Vec3<S>, d: Vec3<S>) -> (Vec3<S>, S, S, S) {
+    let nn = nrm.dot(nrm);
+    let inv_nn = S::cst(1.0) / nn;
+    let a = -nrm.dot(d);
+    let flip = a.lt(S::cst(0.0));
+    let nrm = Vec3::new(
+        S::pick(flip, -nrm.x, nrm.x),
+        S::pick(flip, -nrm.y, nrm.y),
+        S::pick(flip, -nrm.z, nrm.z),
+    );
+    (nrm, S::pick(flip, -a, a), nn, inv_nn)
+}
+
+/// A grating's order, for one lane (the kernel's form of [`reference::diffract`]): the grating
+/// equation on the tangential parts. With e = n1 / n_out (1 for a mirror) and q = m λ T / n_out,
+/// v = e d + q ŷ_t, where ŷ_t = ŷ - (N_y / N.N) N is the groove normal in the tangent plane;
+/// v.N = -e a, and d' = v + β N is the unit root behind the surface (refraction) or in front of
+/// it (reflection). Returns d' and whether the order does not propagate.
+///
+/// [`reference::diffract`]: super::reference::diffract
+#[inline(always)]
+fn diffract_lane<S: Real>(
+    d: Vec3<S>,
+    nrm: Vec3<S>,
+    eta: S,
+    ruling: S,
+    mirror: bool,
+) -> (Vec3<S>, bool) {
+    let one = S::cst(1.0);
+    let (nrm, a, nn, inv_nn) = facing(nrm, d);
+    let e = S::pick(mirror, one, eta);
+    let q = ruling * e;
+    let qy = q * nrm.y * inv_nn;
+    let v = Vec3::new(
+        e * d.x - qy * nrm.x,
+        e * d.y + q - qy * nrm.y,
+        e * d.z - qy * nrm.z,
+    );
+    let disc = e * e * a * a - nn * (v.dot(v) - one);
+    let evanescent = disc.lt(S::cst(0.0));
+    let s = S::pick(evanescent, S::cst(0.0), disc).sqrt();
+    (
+        v + nrm * ((e * a + S::pick(mirror, s, -s)) * inv_nn),
+        evanescent,
+    )
+}
+
 /// One surface for every lane of a group of blocks, from `src` into `dst`. `KIND`, `ROT`
 /// (rotated frame) and `CLIP` (apertures on) are compile-time so that the lane loop has no control
 /// flow left and vectorizes. A plane surface is a bare aperture: it clips but never refracts. A
 /// mirror is a runtime select (a compile-time flag doubled the kernel's instances and the build
 /// time of every dual-number width). A grating (`ruling` = m λ T / n1) is traced in the
-/// `SHAPED` loop only.
+/// `SHAPED` loop only. How each ray leaves the surface is [`turn`].
 #[inline(always)]
 fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     row: &SurfaceRow<S>,
@@ -610,11 +710,8 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
-    let one = S::cst(1.0);
-    let zero = S::cst(0.0);
     // A stack copy, which LLVM can see is not aliased by `dst` (see the module documentation).
     let row = &row.clone();
-    let mirror = row.reflect;
     let ruled = KIND == SHAPED && row.grating.is_some();
     for (s, b) in src.iter().zip(dst.iter_mut()) {
         for l in 0..LANES {
@@ -629,69 +726,14 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             let backward = !row.virtual_ok & behind(t, p);
             let h = p + d * t;
             let vignetted = CLIP & row.clip.stops(h.x, h.y);
-            // Refraction (vector Snell). The normal is flipped to face the incoming ray.
-            // With the unnormalized normal N and a = -N.d = |N| cos i, the refracted direction is
-            // eta d + (eta a - sqrt(k N.N)) / N.N N: one division and one square root.
-            let nn = nrm.dot(nrm);
-            let inv_nn = one / nn;
-            let mut a = -nrm.dot(d);
-            let flip = a.lt(zero);
-            a = S::pick(flip, -a, a);
-            let nrm = Vec3::new(
-                S::pick(flip, -nrm.x, nrm.x),
-                S::pick(flip, -nrm.y, nrm.y),
-                S::pick(flip, -nrm.z, nrm.z),
-            );
-            let k = one - eta * eta * (one - a * a * inv_nn);
-            // An ideal thin lens (a flat row of nonzero power, only in the shaped loop).
-            let paraxial = KIND == SHAPED && !row.power.is_zero();
-            let tir = (KIND != PLANE) & !mirror & !paraxial & !ruled & k.lt(zero);
-            let g = (eta * a - S::pick(tir, zero, k * nn).sqrt()) * inv_nn;
-            // A diffraction order that does not propagate (set by the grating below).
-            let mut evanescent = false;
-            let dr = if ruled {
-                // Grating equation on the tangential parts: with e = n1 / n_out (1 for a
-                // mirror) and q = m λ T / n_out, v = e d + q ŷ_t where ŷ_t = ŷ - (N_y / N.N) N
-                // is the groove normal in the tangent plane; v.N = -e a, and d' = v + β N is the
-                // unit root behind the surface (refraction) or in front of it (reflection).
-                let e = S::pick(mirror, one, eta);
-                let q = ruling * e;
-                let qy = q * nrm.y * inv_nn;
-                let v = Vec3::new(
-                    e * d.x - qy * nrm.x,
-                    e * d.y + q - qy * nrm.y,
-                    e * d.z - qy * nrm.z,
-                );
-                let disc = e * e * a * a - nn * (v.dot(v) - one);
-                evanescent = disc.lt(zero);
-                let s = S::pick(evanescent, zero, disc).sqrt();
-                v + nrm * ((e * a + S::pick(mirror, s, -s)) * inv_nn)
-            } else if paraxial {
-                // The slopes turn by -h P: the direction (d.x - h.x P d.z, d.y - h.y P d.z, d.z),
-                // normalized, keeps the sign of travel.
-                let v = Vec3::new(
-                    d.x - h.x * row.power * d.z,
-                    d.y - h.y * row.power * d.z,
-                    d.z,
-                );
-                v * (one / v.dot(v).sqrt())
-            } else if KIND != PLANE {
-                // A mirror reflects: d + 2 (a / N.N) N, with N facing the incoming ray; the
-                // select keeps the lane loop free of branches.
-                let refl = S::cst(2.0) * a * inv_nn;
-                let (gm, em) = (S::pick(mirror, refl, g), S::pick(mirror, one, eta));
-                d * em + nrm * gm
-            } else {
-                // A bare aperture passes rays straight.
-                d
-            };
+            let (dr, dead) = turn::<S, KIND>(row, d, h, nrm, eta, ruling);
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))
             } else {
                 (h + row.pos, dr)
             };
             // The first failure in the order missed, backward, vignetted, TIR; 0 if the ray goes on.
-            let mut why = select_u32(tir | evanescent, CODE_TIR | code, 0);
+            let mut why = select_u32(dead, CODE_TIR | code, 0);
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
             why = select_u32(backward, CODE_BACKWARD | code, why);
             why = select_u32(!hit, CODE_MISSED | code, why);
