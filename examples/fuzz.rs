@@ -1009,16 +1009,12 @@ fn pattern_work(p: &Perturbation) -> Verdict {
     match p.apply(l) {
         Ok((perturbed, adj)) => {
             let v = lens_work(&perturbed, false)?;
-            // `tolray convert --perturb`: the pattern baked into a prescription survives its
-            // own JSON and .zmx files. (That the baked prescription traces as the perturbed
-            // system is checked with TOLRAY_FUZZ_BAKE=1: it does not yet, by up to ~1 µm on the
-            // sensor for despaced and tilted elements; see docs/fuzzing.md.)
+            // `tolray convert --perturb`: the pattern baked into a prescription traces as the
+            // perturbed system and survives its own JSON and .zmx files.
             if let Ok(baked) = perturbed.with_adjustments(&adj) {
-                if std::env::var_os("TOLRAY_FUZZ_BAKE").is_some() {
-                    let sys = tolray::lens::System::compile(&perturbed, &adj, &|_, v| v);
-                    // (Not its first-order data: the perturbed lens' is the nominal geometry's.)
-                    same_lens(&perturbed, &sys, &baked, "baked pattern", false)?;
-                }
+                let sys = tolray::lens::System::compile(&perturbed, &adj, &|_, v| v);
+                // (Not its first-order data: the perturbed lens' is the nominal geometry's.)
+                same_lens(&perturbed, &sys, &baked, "baked pattern", false)?;
                 round_trip(&baked, &baked.compile())?;
             }
             Ok(v)

@@ -136,10 +136,21 @@ pub(crate) fn same_lens(
             }
         }
     }
+    // The same rays relative to the lens: a prescription keeps its first vertex at z = 0, so a
+    // baked pattern that moves that vertex along the axis moves the global frame with it (rays
+    // launched at one global point would enter a slanted beam elsewhere in the pupil).
+    let dz = sys_b.rows[0].pos.z - sys_a.rows[0].pos.z;
+    let rays_b: Vec<raw::RawRay> = rays
+        .iter()
+        .map(|r| raw::RawRay {
+            oz: r.oz + dz,
+            ..*r
+        })
+        .collect();
     let opts = TraceOptions { apertures: true };
     let (ha, hb) = (
         raw::trace_raw(sys_a, &rays, opts),
-        raw::trace_raw(&sys_b, &rays, opts),
+        raw::trace_raw(&sys_b, &rays_b, opts),
     );
     // Where each ray lands as a user sees it: x, y in the image surface's own frame, and the
     // direction there.

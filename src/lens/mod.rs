@@ -761,7 +761,8 @@ impl Lens {
     /// exported, e.g. to Zemax.
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Invalid`] if a surface ends up behind the previous one or a surface or
+    /// [`crate::ErrorKind::Invalid`] if a surface or the image plane ends up on the other side of
+    /// the surface before it (a gap changes its sign along the light's travel), or a surface or
     /// the image plane is turned by 90 degrees or more.
     pub fn with_adjustments(&self, adj: &Adjustments) -> Result<Lens> {
         let n = self.surfaces.len();
@@ -824,10 +825,26 @@ impl Lens {
             out.image_plane.roll_deg = system::roll_of(&frame, out.image_plane.normal);
             disp.push(c2.z - z_img);
         }
+        // Whether the next surface (or the image) is reached virtually is the sign of the gap
+        // along the light's travel (`System::compile`); a motion that flips it would trace
+        // otherwise once baked: the moved system's rays end there as going backward.
+        let dirs = self.travel_directions();
         for i in 0..n {
             let dz = disp[i + 1] - disp[i];
             if dz != 0.0 {
-                out.surfaces[i].d_next_mm += dz;
+                let gap = out.surfaces[i].d_next_mm;
+                let moved = gap + dz;
+                if (gap * dirs[i + 1] < 0.0) != (moved * dirs[i + 1] < 0.0) {
+                    let next = if i + 1 == n {
+                        "the image plane".to_string()
+                    } else {
+                        format!("surface {}", i + 1)
+                    };
+                    return Err(Error::invalid(format!(
+                        "the adjustments move {next} to the other side of surface {i} (the gap of {gap} mm becomes {moved} mm)"
+                    )));
+                }
+                out.surfaces[i].d_next_mm = moved;
             }
         }
         // The first vertex stays at z = 0: moving it along z moves the lens away from the object.

@@ -505,6 +505,19 @@ fn perturbed_lenses_round_trip_through_coordinate_breaks() {
     assert_eq!(json::from_str(&json::to_string(&z2.lens)).unwrap(), z2.lens);
     // A lens without adjustments is unchanged by baking.
     assert_eq!(lens.with_adjustments(&Adjustments::none(11)).unwrap(), lens);
+    // A pattern that moves the image plane behind the last surface cannot be baked: the moved
+    // system's rays end there going backward, a prescription with that gap would image
+    // virtually (found by the fuzzer's baked-pattern check, `examples/fuzz.rs`).
+    let behind: Perturbation =
+        serde_json::from_str(r#"{"surfaces": [{"surface": 10, "gap_mm": -100}]}"#).unwrap();
+    let (perturbed, adj) = behind.apply(&lens).unwrap();
+    let err = perturbed.with_adjustments(&adj).unwrap_err();
+    assert!(
+        err.message()
+            .contains("move the image plane to the other side of surface 10"),
+        "{}",
+        err.message()
+    );
 }
 
 /// OpticStudio's own way to tilt an element (Tilt/Decenter Elements): a coordinate break at the
