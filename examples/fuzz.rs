@@ -154,8 +154,13 @@ fn run(args: &[String]) -> Result<usize, String> {
     }
     // Panics are findings, reported with their message once per execution, not printed by the
     // default hook from every thread.
-    panic::set_hook(Box::new(|info| {
+    // A replay also prints the default report (with RUST_BACKTRACE=1, where it panicked from).
+    let default_hook = s.replay.is_some().then(panic::take_hook);
+    panic::set_hook(Box::new(move |info| {
         LAST_PANIC.with(|p| *p.borrow_mut() = Some(info.to_string()));
+        if let Some(h) = &default_hook {
+            h(info);
+        }
     }));
     if let Some(file) = &s.replay {
         let bytes = std::fs::read(file).map_err(|e| format!("{}: {e}", file.display()))?;
@@ -1035,7 +1040,10 @@ fn run_rays(b: &[u8]) -> Verdict {
     let Ok(rays) = parsed else {
         return Ok(Outcome::Refused);
     };
-    let hits = raw::trace_raw(&lens1().compile(), &rays, TraceOptions { apertures: true });
+    let Ok(hits) = raw::trace_raw(&lens1().compile(), &rays, TraceOptions { apertures: true })
+    else {
+        return Ok(Outcome::Refused);
+    };
     if hits.len() != rays.len() {
         return Err(format!(
             "trace: {} rays in, {} rows out",

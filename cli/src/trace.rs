@@ -51,7 +51,8 @@ pub fn run(a: TraceArgs) -> anyhow::Result<()> {
         TraceOptions {
             apertures: !no_apertures,
         },
-    );
+    )
+    .map_err(|e| e.context(rays.display()))?;
     let body = if is_json(&out) {
         serde_json::to_string_pretty(&hits)? + "\n"
     } else {

@@ -148,10 +148,25 @@ pub(crate) fn same_lens(
         })
         .collect();
     let opts = TraceOptions { apertures: true };
-    let (ha, hb) = (
+    // Both refuse a wavelength at which a medium has no index, or neither does.
+    let (ha, hb) = match (
         raw::trace_raw(sys_a, &rays, opts),
         raw::trace_raw(&sys_b, &rays_b, opts),
-    );
+    ) {
+        (Ok(ha), Ok(hb)) => (ha, hb),
+        (Err(_), Err(_)) => return Ok(()),
+        (x, y) => {
+            let says = |r: &tolray::Result<Vec<raw::RawHit>>| match r {
+                Ok(_) => "traced".to_string(),
+                Err(e) => format!("refused ({})", e.message()),
+            };
+            return Err(format!(
+                "{what}: the raw trace was {}, read back {}",
+                says(&x),
+                says(&y)
+            ));
+        }
+    };
     // Where each ray lands as a user sees it: x, y in the image surface's own frame, and the
     // direction there.
     let on_sensor = |sys: &tolray::lens::System<f64>, h: &raw::RawHit| {

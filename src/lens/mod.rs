@@ -38,6 +38,12 @@ use std::path::Path;
 /// Number of even-asphere coefficients stored per surface: a2, a4, ..., a16.
 pub const N_ASPH: usize = 8;
 
+/// The farthest finite object accepted, mm (10^9 km). A field's rays start at the object point,
+/// so the launch's rounding grows with the distance (about a nanometre at 1e10 mm, a tenth of a
+/// millimetre here) and its squares overflow not far beyond: a farther object is at infinity
+/// (`inf`).
+pub const MAX_OBJECT_DISTANCE_MM: f64 = 1e15;
+
 /// Where the object is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Object {
@@ -63,11 +69,12 @@ impl Object {
     /// assert_eq!(Object::parse("virtual:50").unwrap(), Object::Finite { distance_mm: -50.0 });
     /// assert_eq!(Object::parse("inf").unwrap(), Object::Infinite);
     /// assert!(Object::parse("virtual:inf").is_err());
+    /// assert!(Object::parse("1e300").is_err()); // beyond MAX_OBJECT_DISTANCE_MM: write inf
     /// ```
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for anything else, a zero distance, or a virtual object
-    /// that is not a finite positive distance.
+    /// [`crate::ErrorKind::Argument`] for anything else, a zero distance, a distance beyond
+    /// [`MAX_OBJECT_DISTANCE_MM`], or a virtual object that is not a finite positive distance.
     pub fn parse(s: &str) -> Result<Object> {
         let t = s.trim().to_ascii_lowercase();
         if matches!(t.as_str(), "inf" | "infinity" | "-inf") {
@@ -75,7 +82,9 @@ impl Object {
         }
         if let Some(v) = t.strip_prefix("virtual:") {
             return match v.trim().parse::<f64>() {
-                Ok(v) if v.is_finite() && v > 0.0 => Ok(Object::Finite { distance_mm: -v }),
+                Ok(v) if v > 0.0 && v <= MAX_OBJECT_DISTANCE_MM => {
+                    Ok(Object::Finite { distance_mm: -v })
+                }
                 _ => Err(Error::argument(format!(
                     "object distance \"{s}\": a virtual object needs a distance in mm behind the first vertex, greater than 0 (e.g. virtual:50)"
                 ))),
@@ -83,11 +92,11 @@ impl Object {
         }
         match t.parse::<f64>() {
             Ok(v) if v.is_infinite() => Ok(Object::Infinite),
-            Ok(v) if v.is_finite() && v != 0.0 => Ok(Object::Finite {
+            Ok(v) if v != 0.0 && v.abs() <= MAX_OBJECT_DISTANCE_MM => Ok(Object::Finite {
                 distance_mm: v.abs(),
             }),
             _ => Err(Error::argument(format!(
-                "object distance \"{s}\": give a distance in mm (e.g. 1000), \"inf\", or virtual:MM for a virtual object MM behind the first vertex"
+                "object distance \"{s}\": give a distance in mm (e.g. 1000, at most 1e15), \"inf\", or virtual:MM for a virtual object MM behind the first vertex"
             ))),
         }
     }
@@ -598,10 +607,12 @@ impl Lens {
         }
         // A negative distance is a virtual object behind the first vertex (a converging beam).
         if let Object::Finite { distance_mm } = self.object {
-            if distance_mm == 0.0 || !distance_mm.is_finite() {
-                return Err(Error::invalid(
-                    "object distance must be finite and not 0 (negative: a virtual object)",
-                ));
+            if distance_mm == 0.0 || !(distance_mm.abs() <= MAX_OBJECT_DISTANCE_MM) {
+                return Err(Error::invalid(format!(
+                    "object distance {distance_mm} mm: it must be finite, not 0 and at most 1e15 \
+                     mm in magnitude (farther is an object at infinity; negative: a virtual \
+                     object)"
+                )));
             }
         }
         let ip = &self.image_plane;

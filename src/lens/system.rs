@@ -454,6 +454,25 @@ impl<S: Real> System<S> {
             .collect()
     }
 
+    /// The first medium without a usable index at `wavelength_nm` (not a finite number from
+    /// [`crate::lens::material::MIN_INDEX`] to [`crate::lens::material::MAX_INDEX`], the range
+    /// [`crate::Lens::check_indices`] asks for): its place in [`System::indices`] (0 the object
+    /// medium, `i + 1` the medium after surface `i`) and its index; `None` when all are usable.
+    ///
+    /// ```
+    /// let sys = tolray::lens::builtin("lens1").unwrap().compile();
+    /// assert_eq!(sys.unusable_index(587.6), None);
+    /// assert!(sys.unusable_index(1e-300).is_some());
+    /// ```
+    pub fn unusable_index(&self, wavelength_nm: f64) -> Option<(usize, f64)> {
+        use crate::lens::material::{MAX_INDEX, MIN_INDEX};
+        self.indices(wavelength_nm)
+            .iter()
+            .map(|n| n.value())
+            .enumerate()
+            .find(|(_, n)| !(MIN_INDEX..=MAX_INDEX).contains(n))
+    }
+
     /// The same system in another number type (derivatives dropped).
     pub fn convert<T: Real>(&self) -> System<T> {
         let m3 = |m: &Mat3<S>| Mat3 {

@@ -26,7 +26,7 @@
 //! Each surface is applied to a group of blocks before the next surface, which amortizes the
 //! per-surface setup (about 7% faster than block by block).
 
-use super::{Block, CODE_BACKWARD, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
+use super::{Block, CODE_BACKWARD, CODE_INVALID, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::real::{Dual, Real};
@@ -192,10 +192,19 @@ pub(crate) fn trace_blocks_generic<S: Real>(
         sys.rows.len() + 1,
         "an index in front of each surface and one after the last"
     );
-    debug_assert!(
-        n.iter().all(|v| v.value().is_finite() && v.value() > 0.0),
-        "finite positive indices"
-    );
+    // Refraction needs a finite positive index in every medium: at a wavelength where one has
+    // none (a model glass of absurd dispersion, a raw ray's wavelength far outside every
+    // formula), no ray has a defined path, so none is traced as if it had.
+    if !n.iter().all(|v| v.value().is_finite() && v.value() > 0.0) {
+        for b in blocks.iter_mut() {
+            for s in b.status.iter_mut() {
+                if *s == 0 {
+                    *s = CODE_INVALID;
+                }
+            }
+        }
+        return;
+    }
     let mut scratch = vec![Block::dead(); GROUP.min(blocks.len())];
     let n_last = n.last().copied().unwrap_or(S::cst(1.0));
     let n_rows = sys.rows.len();

@@ -48,7 +48,50 @@ pub struct RawHit {
 
 /// Traces `rays` (any mix of wavelengths) through `sys` in f64; output in input order.
 /// Rays that did not reach the image carry their last position and a status naming the surface.
-pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Vec<RawHit> {
+///
+/// # Errors
+/// [`ErrorKind::Invalid`] naming the first ray (1-based, in input order) whose wavelength gives
+/// some medium no usable index (not a finite number from 0.9 to 5: a wavelength far outside
+/// the glasses' formulas), the medium and its index there.
+///
+/// ```
+/// use tolray::trace::{raw::{trace_raw, RawRay}, TraceOptions};
+/// let sys = tolray::lens::builtin("lens1").unwrap().compile();
+/// let ray = |wavelength_nm| RawRay {
+///     ox: 0.0, oy: 1.0, oz: -10.0, dx: 0.0, dy: 0.0, dz: 1.0, wavelength_nm,
+/// };
+/// let hits = trace_raw(&sys, &[ray(587.6)], TraceOptions::default()).unwrap();
+/// assert_eq!(hits[0].status, "alive");
+/// let e = trace_raw(&sys, &[ray(587.6), ray(1e-300)], TraceOptions::default()).unwrap_err();
+/// assert!(e.message().starts_with("ray 2 (wavelength 1e-300 nm)"), "{}", e.message());
+/// ```
+pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Result<Vec<RawHit>> {
+    if let Some((i, (k, n))) = rays
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.wavelength_nm.is_finite() && r.wavelength_nm > 0.0)
+        .find_map(|(i, r)| sys.unusable_index(r.wavelength_nm).map(|m| (i, m)))
+    {
+        let medium = match k {
+            0 => "the object medium".to_string(),
+            k => format!("the medium after surface {}", k - 1),
+        };
+        // (Display writes 1e-300 with 300 zeros.)
+        let short = |x: f64| {
+            if x == 0.0 || (1e-3..1e9).contains(&x.abs()) || !x.is_finite() {
+                x.to_string()
+            } else {
+                format!("{x:e}")
+            }
+        };
+        return Err(Error::invalid(format!(
+            "ray {} (wavelength {} nm): {medium} has index {} there; a traced wavelength needs \
+             every medium's index finite and from 0.9 to 5 (wavelengths are in nanometres)",
+            i + 1,
+            short(rays[i].wavelength_nm),
+            short(n)
+        )));
+    }
     let mut out: Vec<Option<RawHit>> = vec![None; rays.len()];
     let mut wavelengths: Vec<f64> = rays.iter().map(|r| r.wavelength_nm).collect();
     wavelengths.sort_by(f64::total_cmp);
@@ -83,7 +126,7 @@ pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Vec<
             });
         }
     }
-    out.into_iter().flatten().collect()
+    Ok(out.into_iter().flatten().collect())
 }
 
 /// Column names of the CSV input.

@@ -142,7 +142,7 @@ impl Field {
     /// ray's image height an image height), in any number type. A real image height must be
     /// resolved first ([`Field::resolved`]).
     pub(crate) fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
-        Ok(match *self {
+        let (tx, ty) = match *self {
             Field::AngleDeg { x, y } => {
                 // tan flips sign past 90°: a field there is not a direction toward the lens.
                 if !(x.abs() < 90.0 && y.abs() < 90.0) {
@@ -204,9 +204,29 @@ impl Field {
                      for the field that reaches it first"
                 )))
             }
-        })
+        };
+        // A direction toward the lens: beyond this the beam's z component (below 1e-6) leaves
+        // the launch geometry to rounding, and its squares overflow long before 1e300.
+        let t = tx.value().hypot(ty.value());
+        if !(t <= MAX_FIELD_TANGENT) {
+            return Err(Error::argument(format!(
+                "field {}: its chief ray leaves the object {} from the axis (tangent {t:e}); a \
+                 field is a direction toward the lens, at most {:.4}° from the axis",
+                self.label(),
+                if t.is_finite() {
+                    format!("{:.6}°", t.atan().to_degrees())
+                } else {
+                    "at 90°".into()
+                },
+                MAX_FIELD_TANGENT.atan().to_degrees()
+            )));
+        }
+        Ok((tx, ty))
     }
 }
+
+/// Largest tangent of a field's chief ray to the axis that is launched (89.99994°).
+pub(crate) const MAX_FIELD_TANGENT: f64 = 1e6;
 
 /// How the entrance pupil is sampled.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -601,6 +621,9 @@ impl Launcher {
         aim: bool,
         wavelength_nm: f64,
     ) -> Result<Launcher> {
+        // Every medium needs a usable index at the traced wavelength (the lens' own wavelengths
+        // are checked by `Lens::validate`; an analysis may trace others, such as F and C).
+        lens.check_indices(wavelength_nm)?;
         let launched = field.resolved(lens, para, aim)?;
         let beam = Beam::launch(lens, &LaunchOptics::of(para), launched)?;
         // The field point's vignetted pupil (the whole pupil for fields the lens does not list).

@@ -502,7 +502,7 @@ fn raw_trace_keeps_every_row() {
         wavelength_nm: wl,
     };
     let rays = [ray(0.0), ray(-0.0), ray(f64::NAN), ray(587.5618), ray(-0.0)];
-    let out = trace_raw(&sys, &rays, TraceOptions::default());
+    let out = trace_raw(&sys, &rays, TraceOptions::default()).unwrap();
     assert_eq!(out.len(), rays.len());
     let st: Vec<&str> = out.iter().map(|h| h.status.as_str()).collect();
     assert_eq!(st, ["invalid", "invalid", "invalid", "alive", "invalid"]);
@@ -537,6 +537,74 @@ fn field_angles_of_90_degrees_or_more_are_refused() {
         assert_eq!(e.kind(), tolray::ErrorKind::Argument, "({x}, {y})");
         assert!(e.message().contains("below 90°"), "{}", e.message());
     }
+}
+
+/// Inputs the fuzzer's debug build caught reaching the kernel with numbers it cannot trace
+/// (examples/fuzz.rs, `--target flags` and `rays`): each is now refused with its reason, and the
+/// kernel marks every ray invalid rather than tracing through a medium without a usable index.
+#[test]
+fn unlaunchable_fields_objects_and_wavelengths_are_refused() {
+    use tolray::analysis::{spot_diagram, SpotOptions};
+    use tolray::trace::{Field, Pupil};
+    let lens = Lens::load("lens1").unwrap();
+    let spot = |lens: &Lens, field: Field, wl: f64| {
+        let opts = SpotOptions {
+            fields: vec![field],
+            wavelengths_nm: vec![wl],
+            pupil: Pupil::grid(8),
+            trace: TraceOptions { apertures: true },
+        };
+        spot_diagram(lens, &lens.compile(), &opts)
+    };
+    let wl = lens.primary_wavelength_nm;
+    assert!(spot(&lens, Field::fraction(0.7), wl).is_ok());
+    // A field whose chief ray would leave the object at 90° (tangents overflowing on the way).
+    for f in ["1e300", "0:1e300mm@image", "0:1e9", "0:1e10mm"] {
+        let e = spot(&lens, Field::parse(f).unwrap(), wl).unwrap_err();
+        assert_eq!(e.kind(), tolray::ErrorKind::Argument, "{f}");
+        assert!(
+            e.message()
+                .contains("a field is a direction toward the lens"),
+            "{f}: {}",
+            e.message()
+        );
+    }
+    // An object beyond 1e15 mm is refused by the parser and by validation.
+    for d in ["1e300", "-1e308", "virtual:1e16"] {
+        assert!(Object::parse(d).is_err(), "{d}");
+    }
+    let mut far = lens.clone();
+    far.object = Object::Finite { distance_mm: 1e300 };
+    assert!(far
+        .validate()
+        .unwrap_err()
+        .message()
+        .contains("at most 1e15"));
+    far.object = Object::Finite { distance_mm: 1e14 };
+    assert!(far.validate().is_ok() && spot(&far, Field::fraction(0.5), wl).is_ok());
+    // A model glass of absurd dispersion (V_d 1e-4) has an index at the d line only: a spot at
+    // the C line is refused naming the medium, and the kernel traces no ray there.
+    let mut odd = lens.clone();
+    odd.surfaces[0].material = Material::parse("1.6/1e-4").unwrap();
+    assert!(odd.validate().is_ok() && spot(&odd, Field::fraction(0.5), wl).is_ok());
+    let e = spot(&odd, Field::fraction(0.5), 656.2725).unwrap_err();
+    assert!(
+        e.message()
+            .starts_with("surface 0: the medium after it (1.6/0.0001) has index -"),
+        "{}",
+        e.message()
+    );
+    let sys = odd.compile();
+    assert_eq!(sys.unusable_index(656.2725).map(|(k, _)| k), Some(1));
+    let mut batch = RayBatch::<f64>::new();
+    for y in [0.0, 1.0, 2.0] {
+        batch.push(Vec3::new(0.0, y, -5.0), Vec3::new(0.0, 0.0, 1.0));
+    }
+    let mut at_d = batch.clone();
+    trace(&sys, 656.2725, &mut batch, TraceOptions::default());
+    assert!((0..3).all(|i| batch.get(i).status == RayStatus::Invalid));
+    trace(&sys, LAMBDA_D_NM, &mut at_d, TraceOptions::default());
+    assert!((0..3).all(|i| at_d.get(i).status == RayStatus::Alive));
 }
 
 /// An ideal thin lens (OpticStudio PARAXIAL, DeepLens ThinLens) images perfectly: every ray of

@@ -237,6 +237,24 @@ fn errors_and_exit_codes() {
         "{err}"
     );
     assert!(!out.exists(), "no output file on error");
+    // A wavelength at which a glass has no index names the file, the ray and the medium (the
+    // release build reported such a ray as "tir@1").
+    std::fs::write(&rays, "0,0,-1,0,0,1,587\n0,0,-1,0,0,1,5e-324\n").unwrap();
+    let (code, _, err) = tolray(&[
+        "trace",
+        "lens1",
+        "--rays",
+        rays.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("bad.csv")
+            && err.contains("ray 2 (wavelength 5e-324 nm): the medium after surface 0"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no output file on error");
     let (code, _, err) = tolray(&["spot", "lens1", "--fields", "abc"]);
     assert_eq!(code, 2, "a bad flag value is a usage error");
     assert!(err.contains("field \"abc\""), "{err}");

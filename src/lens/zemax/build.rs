@@ -34,10 +34,12 @@ pub(super) fn object_distance(
         }
         Some(At { v: None, .. }) => None,
         // A negative thickness is a virtual object behind the first surface.
-        Some(At { v: Some(d), line }) if *d == 0.0 || !d.is_finite() => {
+        Some(At { v: Some(d), line })
+            if *d == 0.0 || !((d * scale).abs() <= crate::lens::MAX_OBJECT_DISTANCE_MM) =>
+        {
             return Err(invalid(
                 *line,
-                format!("object distance {d}: it must be finite and not 0 (or INFINITY; negative for a virtual object)"),
+                format!("object distance {d}: it must be finite, not 0 and at most 1e15 mm (or INFINITY; negative for a virtual object)"),
             ))
         }
         Some(At { v: Some(d), .. }) => Some(d * scale),
