@@ -54,26 +54,73 @@ pub trait Traceable: Real {
     }
 }
 
-#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-fn trace_blocks_f32(
-    sys: &System<f32>,
-    n: &[f32],
-    wavelength_nm: f64,
-    clip: bool,
-    blocks: &mut [Block<f32>],
-) {
-    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
-}
+// Each build of the kernel sits in a module of its own. rustc starts with a codegen unit per
+// module and the optimiser then works on units in parallel: with every build in this module,
+// one unit held most of the library's optimisation and the second core idled.
+use builds::{trace_blocks_dual1, trace_blocks_dual_grad, trace_blocks_f32, trace_blocks_f64};
 
-#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-fn trace_blocks_f64(
-    sys: &System<f64>,
-    n: &[f64],
-    wavelength_nm: f64,
-    clip: bool,
-    blocks: &mut [Block<f64>],
-) {
-    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+mod builds {
+    pub(super) use build_dual1::trace_blocks_dual1;
+    pub(super) use build_dual_grad::trace_blocks_dual_grad;
+    pub(super) use build_f32::trace_blocks_f32;
+    pub(super) use build_f64::trace_blocks_f64;
+
+    mod build_f32 {
+        use super::super::{trace_blocks_generic, Block, System};
+        #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
+        pub(in super::super) fn trace_blocks_f32(
+            sys: &System<f32>,
+            n: &[f32],
+            wavelength_nm: f64,
+            clip: bool,
+            blocks: &mut [Block<f32>],
+        ) {
+            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        }
+    }
+
+    mod build_f64 {
+        use super::super::{trace_blocks_generic, Block, System};
+        #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
+        pub(in super::super) fn trace_blocks_f64(
+            sys: &System<f64>,
+            n: &[f64],
+            wavelength_nm: f64,
+            clip: bool,
+            blocks: &mut [Block<f64>],
+        ) {
+            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        }
+    }
+
+    mod build_dual_grad {
+        use super::super::{trace_blocks_generic, Block, Dual, System};
+        use crate::real::GRAD_WIDTH;
+        #[inline(never)]
+        pub(in super::super) fn trace_blocks_dual_grad(
+            sys: &System<Dual<f64, GRAD_WIDTH>>,
+            n: &[Dual<f64, GRAD_WIDTH>],
+            wavelength_nm: f64,
+            clip: bool,
+            blocks: &mut [Block<Dual<f64, GRAD_WIDTH>>],
+        ) {
+            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        }
+    }
+
+    mod build_dual1 {
+        use super::super::{trace_blocks_generic, Block, Dual, System};
+        #[inline(never)]
+        pub(in super::super) fn trace_blocks_dual1(
+            sys: &System<Dual<f64, 1>>,
+            n: &[Dual<f64, 1>],
+            wavelength_nm: f64,
+            clip: bool,
+            blocks: &mut [Block<Dual<f64, 1>>],
+        ) {
+            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        }
+    }
 }
 
 impl Traceable for f32 {
@@ -150,28 +197,6 @@ fn same_width<'a, const A: usize, const B: usize>(
             ),
         )
     }
-}
-
-#[inline(never)]
-fn trace_blocks_dual_grad(
-    sys: &System<Dual<f64, { crate::real::GRAD_WIDTH }>>,
-    n: &[Dual<f64, { crate::real::GRAD_WIDTH }>],
-    wavelength_nm: f64,
-    clip: bool,
-    blocks: &mut [Block<Dual<f64, { crate::real::GRAD_WIDTH }>>],
-) {
-    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
-}
-
-#[inline(never)]
-fn trace_blocks_dual1(
-    sys: &System<Dual<f64, 1>>,
-    n: &[Dual<f64, 1>],
-    wavelength_nm: f64,
-    clip: bool,
-    blocks: &mut [Block<Dual<f64, 1>>],
-) {
-    trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
 }
 
 /// Blocks per group: a group and its scratch copy stay in the L1 cache.
