@@ -1,7 +1,8 @@
 //! `trace`: ray-surfaces per second for lens2 at the d line, 1,000,000 rays, value-only f32 and
 //! f64, one thread and all threads; and, per surface kind that needs Newton's method on its sag
 //! (`trace/kinds/...`, all threads), Thorlabs' ASL5040-UV (a Qbfs asphere), the hand-made Qcon
-//! singlet of the tests and Thorlabs' LJ1598L1 cylinder lens (a toroid), each at its primary
+//! singlet of the tests, Thorlabs' LJ1598L1 cylinder lens (a toroid) and the tests' Zernike sag
+//! singlet (a 17-term Fringe front, a 12-term Standard back), each at its primary
 //! wavelength; and the spot analysis end to end (`spot/lens2`: ray generation, the f64 trace and
 //! the statistics of a 1024 x 1024 pupil grid at 0.7 field, one thread and all threads), the
 //! work `tolray spot` does. Throughput is reported in elements = ray-surfaces (rays x (surfaces +
@@ -57,7 +58,8 @@ fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
     g.finish();
 }
 
-/// The kernel on surface kinds traced by Newton's method (Q-type aspheres, toroids), all threads.
+/// The kernel on surface kinds traced by Newton's method (Q-type aspheres, toroids, Zernike sag
+/// surfaces), all threads.
 fn bench_kinds(c: &mut Criterion) {
     let mut g = c.benchmark_group("trace/kinds");
     g.sample_size(10);
@@ -65,6 +67,7 @@ fn bench_kinds(c: &mut Criterion) {
         ("qbfs-asl5040", "real/rayoptics/ASL5040-UV-Zemax(ZMX).zmx"),
         ("qcon-singlet", "qcon.zmx"),
         ("toroid-lj1598l1", "real/optiland/thorlabs_lj1598l1.zmx"),
+        ("zernike-singlet", "zernike.zmx"),
     ] {
         let path = format!("{}/tests/data/zemax/{file}", env!("CARGO_MANIFEST_DIR"));
         let lens = zemax::read_file(std::path::Path::new(&path), &GlassCatalogs::builtin())

@@ -102,6 +102,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
             (SurfaceRole::Aperture, _, _) => "stop",
             (SurfaceRole::Mirror, _, _) => match sf.shape {
                 Shape::Toroidal { .. } => "tor. mirror",
+                Shape::Zernike { .. } => "Zern. mirr.",
                 _ => "mirror",
             },
             (_, _, true) => match sf.shape {
@@ -110,6 +111,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 Shape::Toroidal { .. } => "toroid",
                 Shape::Paraxial { .. } => "thin lens",
                 Shape::Qbfs { .. } | Shape::Qcon { .. } => "Q asphere",
+                Shape::Zernike { .. } => "Zernike",
                 Shape::Even => "asphere",
             },
             (_, true, _) => "sphere/stop",
@@ -178,7 +180,26 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 "",
                 if matches!(sf.shape, Shape::Qbfs { .. }) { "Qbfs" } else { "Qcon" },
                 terms.join(", "),
-                1.0 / sf.shape.paraxial_curvature(sf.c, &sf.asph)
+                1.0 / sf.paraxial_curvature()
+            ));
+        }
+        if let Shape::Zernike {
+            ordering,
+            norm_radius_mm,
+            decenter_mm,
+            extrapolate,
+        } = sf.shape
+        {
+            let nonzero = sf.zernike.iter().filter(|a| **a != 0.0).count();
+            s.push_str(&format!(
+                "  {:>4} {:>10} {nonzero} of {} Zernike {ordering:?} terms on the asphere above: normalization radius {norm_radius_mm:.4} mm, centred at ({}, {}) mm, {} (paraxial radius in y {:.4} mm)\n",
+                "",
+                "",
+                sf.zernike.len(),
+                decenter_mm[0],
+                decenter_mm[1],
+                if extrapolate { "extrapolated beyond it" } else { "0 beyond it" },
+                1.0 / sf.paraxial_curvature()
             ));
         }
         if let Shape::Toroidal { c_rot } = sf.shape {

@@ -520,7 +520,8 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 }
 
 /// Refuses surfaces the check cannot mesh: it tessellates rotationally symmetric surfaces of
-/// bounded curvature (rings of equal sag), so toroids and odd aspheres with a cone term are
+/// bounded curvature (rings of equal sag), so toroids, Zernike sag surfaces and odd aspheres
+/// with a cone term are
 /// refused by name. (Gratings and ideal thin lenses are meshed as their substrate, a plane for
 /// the thin lens, and turn the rays as the reference tracer does: [`bend`].)
 fn supported(sys: &System<f64>) -> Result<()> {
@@ -536,6 +537,7 @@ fn supported(sys: &System<f64>) -> Result<()> {
             | Shape::Qcon { .. }
             | Shape::Paraxial { .. } => continue,
             Shape::Toroidal { .. } => "a toroid",
+            Shape::Zernike { .. } => "a Zernike sag surface",
         };
         return Err(Error::invalid(format!(
             "surface {i} is {what}; the Embree check covers even, odd (without r^1) and Q-type aspheres, conics, spheres, planes, mirrors, gratings on them and ideal thin lenses"

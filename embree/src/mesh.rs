@@ -533,6 +533,7 @@ impl Mesh {
                 "surface {surface}: the Embree check tessellates rotationally symmetric surfaces with a bounded curvature (rings of equal sag); this surface is {}",
                 match row.shape {
                     Shape::Odd => "an odd asphere with a cone term (r^1): a point at the vertex",
+                    Shape::Zernike { .. } => "a Zernike sag surface",
                     _ => "a toroid",
                 }
             )));

@@ -19,7 +19,11 @@
 //! β1..β8 on ρ¹..ρ⁸, OpticStudio ODDASPHE), `"toroidal"` with `"c_rot"` (1/mm; `roc`, `k`
 //! and `ai` describe the y-z profile, OpticStudio TOROIDAL), `"qbfs"` or `"qcon"` with
 //! `"norm_radius"` (mm; `ai` = a_0..a_7 on Forbes' Q_0..Q_7, OpticStudio's Q-type asphere of
-//! type 0 or 1; [`Shape::Qbfs`], [`Shape::Qcon`]). DeepLens' `ThinLens` (`"f"`, the
+//! type 0 or 1; [`Shape::Qbfs`], [`Shape::Qcon`]), `"zernike_fringe"` or `"zernike_standard"`
+//! with `"norm_radius"` (mm), `"zernike"` (the coefficients of Z1, Z2, ... in mm), and optional
+//! `"zernike_decenter"` (`[x, y]` mm, default 0) and `"zernike_extrapolate"` (default true;
+//! `ai` = α1..α8 on ρ²..ρ¹⁶; OpticStudio FZERNSAG and SZERNSAG, [`Shape::Zernike`]).
+//! DeepLens' `ThinLens` (`"f"`, the
 //! focal length in mm, between equal media) is an ideal thin lens (OpticStudio PARAXIAL).
 //!
 //! Two more surface keys of tolray's: `"roll_deg"`, the surface's rotation about its own axis
@@ -687,9 +691,47 @@ fn surface_from(
                     Shape::Qcon { norm_radius_mm }
                 }
             }
+            z @ ("zernike_fringe" | "zernike_standard") => {
+                let norm_radius_mm = finite(
+                    num(s, "norm_radius", at)?.ok_or_else(|| {
+                        Error::invalid(format!(
+                            "{at}missing \"norm_radius\" (mm) of the \"{z}\" shape"
+                        ))
+                    })?,
+                    at,
+                    "norm_radius",
+                )?;
+                let decenter_mm = match num_array::<2>(s, "zernike_decenter", at)? {
+                    Some([x, y]) => [
+                        finite(x, at, "zernike_decenter")?,
+                        finite(y, at, "zernike_decenter")?,
+                    ],
+                    None => [0.0; 2],
+                };
+                let extrapolate = match s.get("zernike_extrapolate") {
+                    None => true,
+                    Some(Value::Bool(b)) => *b,
+                    Some(other) => {
+                        return Err(Error::new(
+                            ErrorKind::Parse,
+                            format!("{at}\"zernike_extrapolate\" must be true or false, found {other}"),
+                        ))
+                    }
+                };
+                Shape::Zernike {
+                    ordering: if z == "zernike_fringe" {
+                        crate::math::zernike::Ordering::Fringe
+                    } else {
+                        crate::math::zernike::Ordering::Standard
+                    },
+                    norm_radius_mm,
+                    decenter_mm,
+                    extrapolate,
+                }
+            }
             other => {
                 return Err(Error::invalid(format!(
-                    "{at}unknown \"shape\" \"{other}\" (even, odd, toroidal, qbfs or qcon)"
+                    "{at}unknown \"shape\" \"{other}\" (even, odd, toroidal, qbfs, qcon, zernike_fringe or zernike_standard)"
                 )))
             }
         },
@@ -714,12 +756,31 @@ fn surface_from(
             "{at}an {ty} surface is flat; \"shape\" belongs on Aspheric or Mirror surfaces"
         )));
     }
+    let zernike = match s.get("zernike") {
+        None => Vec::new(),
+        Some(Value::Array(v)) => v
+            .iter()
+            .map(|a| finite(a.as_f64().unwrap_or(f64::NAN), at, "zernike"))
+            .collect::<Result<Vec<f64>>>()?,
+        Some(other) => {
+            return Err(Error::new(
+                ErrorKind::Parse,
+                format!("{at}\"zernike\" must be an array of numbers (mm), found {other}"),
+            ))
+        }
+    };
+    if !zernike.is_empty() && !matches!(shape, Shape::Zernike { .. }) {
+        return Err(Error::invalid(format!(
+            "{at}\"zernike\" coefficients belong on a \"zernike_fringe\" or \"zernike_standard\" shape"
+        )));
+    }
     let surface = Surface {
         role,
         c,
         k,
         asph,
         shape,
+        zernike,
         semi_aperture_mm: r,
         aperture: aperture(s, at)?,
         d_next_mm: d_next,
@@ -897,6 +958,26 @@ pub fn to_value(lens: &Lens) -> Value {
                     Shape::Qcon { norm_radius_mm } => {
                         m.insert("shape".into(), json!("qcon"));
                         m.insert("norm_radius".into(), json!(norm_radius_mm));
+                    }
+                    Shape::Zernike {
+                        ordering,
+                        norm_radius_mm,
+                        decenter_mm,
+                        extrapolate,
+                    } => {
+                        let name = match ordering {
+                            crate::math::zernike::Ordering::Fringe => "zernike_fringe",
+                            crate::math::zernike::Ordering::Standard => "zernike_standard",
+                        };
+                        m.insert("shape".into(), json!(name));
+                        m.insert("norm_radius".into(), json!(norm_radius_mm));
+                        m.insert("zernike".into(), json!(s.zernike));
+                        if decenter_mm != [0.0; 2] {
+                            m.insert("zernike_decenter".into(), json!(decenter_mm));
+                        }
+                        if !extrapolate {
+                            m.insert("zernike_extrapolate".into(), json!(false));
+                        }
                     }
                 }
             }

@@ -23,6 +23,7 @@ mod surface;
 mod system;
 mod text;
 pub mod zemax;
+pub mod zernike;
 
 pub use builtin::{builtin, builtin_names};
 pub use field::{Field, FieldPoint, Vignetting};
@@ -426,6 +427,7 @@ impl Lens {
             let finite = [s.c, s.k, s.semi_aperture_mm, s.d_next_mm]
                 .iter()
                 .chain(s.asph.iter())
+                .chain(s.zernike.iter())
                 .all(|v| v.is_finite());
             if !finite {
                 return Err(at("a number is not finite".into()));
@@ -470,9 +472,41 @@ impl Lens {
                     )));
                 }
             }
+            if let Shape::Zernike {
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                ..
+            } = s.shape
+            {
+                if !(norm_radius_mm > 1e-6 && norm_radius_mm <= 1e6) {
+                    return Err(at(format!(
+                        "Zernike normalization radius {norm_radius_mm} mm: needs 1e-6 < radius <= 1e6"
+                    )));
+                }
+                if !decenter_mm.iter().all(|d| d.abs() <= 1e6) {
+                    return Err(at(format!(
+                        "Zernike decenter {decenter_mm:?} mm is not finite or beyond ±1e6"
+                    )));
+                }
+                let max = zernike::max_terms(ordering);
+                if s.zernike.len() > max {
+                    return Err(at(format!(
+                        "{} Zernike {ordering:?} terms: a Zernike sag surface has at most {max}",
+                        s.zernike.len()
+                    )));
+                }
+                if let Some(a) = s.zernike.iter().find(|a| a.abs() > 1e6) {
+                    return Err(at(format!("Zernike coefficient {a} mm is beyond ±1e6")));
+                }
+            } else if !s.zernike.is_empty() {
+                return Err(at(
+                    "Zernike coefficients on a surface that is not a Zernike sag surface".into(),
+                ));
+            }
             if s.shape != Shape::Even && s.role == SurfaceRole::Aperture {
                 return Err(at(
-                    "a bare aperture is flat; it cannot be an odd asphere, a toroid or a Q-type asphere".into(),
+                    "a bare aperture is flat; it cannot be an odd asphere, a toroid, a Q-type asphere or a Zernike sag surface".into(),
                 ));
             }
             // Magnitudes past these give no lens but overflow in the tracer (NaN or inf spots):
@@ -489,7 +523,7 @@ impl Lens {
             }
             // The paraxial curvature adds twice the r² (a toroid: y²) term; past this bound the
             // paraxial model overflows (an infinite power: EFL -0, a NaN exit pupil).
-            let c_par = s.shape.paraxial_curvature(s.c, &s.asph);
+            let c_par = s.paraxial_curvature();
             if !(c_par.abs() <= 1e3) {
                 return Err(at(format!(
                     "paraxial curvature {c_par} (1/mm; the curvature plus twice the r² term) is beyond ±1e3"

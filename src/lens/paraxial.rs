@@ -149,6 +149,19 @@ impl<S: Real> Prescription<S> {
                     c_par += S::cst(2.0 * w) * a;
                 }
             }
+            // A Zernike sag surface's terms add their y² coefficients at the vertex, and their
+            // sag there moves the vertex along the axis (the gaps before and after it).
+            let mut vertex_sag = S::cst(0.0);
+            for (j, [z0, w]) in s.zernike_vertex_weights().into_iter().enumerate() {
+                if w != 0.0 || z0 != 0.0 {
+                    let a = lift(Param::Zernike(i, j), S::cst(s.zernike[j]));
+                    c_par += S::cst(2.0 * w) * a;
+                    vertex_sag += S::cst(z0) * a;
+                }
+            }
+            if let Some(g) = p.gap.last_mut() {
+                *g += vertex_sag;
+            }
             p.curvature.push(c_par);
             // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
             p.thin_power.push(match s.shape {
@@ -168,7 +181,8 @@ impl<S: Real> Prescription<S> {
                 ref m => S::cst(m.index(wavelength_nm)),
             };
             p.n.push(n * S::cst(dirs[i + 1]));
-            p.gap.push(lift(Param::Gap(i), S::cst(s.d_next_mm)));
+            p.gap
+                .push(lift(Param::Gap(i), S::cst(s.d_next_mm)) - vertex_sag);
         }
         p
     }

@@ -220,6 +220,22 @@ pub enum Shape {
         /// Normalization radius ρ_n, mm (positive).
         norm_radius_mm: f64,
     },
+    /// A Zernike sag surface (OpticStudio's Zernike Fringe Sag `FZERNSAG` and Zernike Standard
+    /// Sag `SZERNSAG`): the even asphere (`asph` = α1..α8 on ρ², ..., ρ¹⁶) plus
+    /// `Σ A_j Z_j` over a normalization circle, the coefficients `A_j` (mm) in
+    /// [`Surface::zernike`]; the formula is in [`super::zernike`].
+    Zernike {
+        /// Standard (Noll, normalised; up to 231 terms) or Fringe (37 terms).
+        ordering: crate::math::zernike::Ordering,
+        /// Normalization radius R, mm (positive).
+        norm_radius_mm: f64,
+        /// Where the polynomials are centred on the surface, (x, y) mm (OpticStudio's Zernike
+        /// decenter, PARM 9 and 10).
+        decenter_mm: [f64; 2],
+        /// False: the Zernike terms are 0 beyond the normalization radius (OpticStudio's
+        /// Extrapolate = 0, PARM 0); true: the polynomials continue.
+        extrapolate: bool,
+    },
 }
 
 impl Shape {
@@ -237,7 +253,7 @@ impl Shape {
     pub fn r2_weights(self) -> [f64; N_ASPH] {
         let mut w = [0.0; N_ASPH];
         match self {
-            Shape::Even | Shape::Toroidal { .. } => w[0] = 1.0,
+            Shape::Even | Shape::Toroidal { .. } | Shape::Zernike { .. } => w[0] = 1.0,
             Shape::Odd => w[1] = 1.0,
             Shape::Paraxial { .. } => {}
             Shape::Qbfs { norm_radius_mm } => {
@@ -279,9 +295,10 @@ impl Shape {
                 .map(|(w, a)| w * a)
                 .sum::<f64>()
     }
-    /// True for shapes without rotational symmetry about the surface's axis.
+    /// True for shapes with rotational symmetry about the surface's axis (a Zernike sag surface
+    /// counts as without, whatever its terms).
     pub fn is_rotational(self) -> bool {
-        !matches!(self, Shape::Toroidal { .. })
+        !matches!(self, Shape::Toroidal { .. } | Shape::Zernike { .. })
     }
 }
 
@@ -326,6 +343,9 @@ pub struct Surface {
     /// On a fold mirror: how the axis turns here for every surface after this one (and the
     /// image), or `None` for a straight axis.
     pub fold: Option<Fold>,
+    /// The Zernike coefficients A_1, A_2, ... (mm) of a [`Shape::Zernike`] surface, in its
+    /// ordering (empty for other shapes).
+    pub zernike: Vec<f64>,
 }
 
 /// The turn of the optical axis at a fold mirror.
@@ -414,6 +434,7 @@ impl Surface {
             roll_deg: 0.0,
             grating: None,
             fold: None,
+            zernike: Vec::new(),
         }
     }
     /// A flat aperture stop in air.
@@ -445,6 +466,52 @@ impl Surface {
             }
         };
         self.shape.is_rotational() && self.grating.is_none() && round
+    }
+    /// The paraxial (vertex) curvature in the y-z plane, 1/mm: [`Shape::paraxial_curvature`]
+    /// plus, on a Zernike sag surface, twice the y² coefficient its terms add at the vertex
+    /// ([`super::zernike::vertex_weights`]).
+    ///
+    /// ```
+    /// use tolray::lens::{Material, Shape, Surface};
+    /// use tolray::math::zernike::Ordering;
+    /// let mut s = Surface::sphere(0.01, 5.0, 2.0, Material::Air);
+    /// s.shape = Shape::Zernike {
+    ///     ordering: Ordering::Fringe,
+    ///     norm_radius_mm: 10.0,
+    ///     decenter_mm: [0.0; 2],
+    ///     extrapolate: true,
+    /// };
+    /// s.zernike = vec![0.0, 0.0, 0.0, 0.05]; // 0.05 (2ρ² − 1): 0.001 y² more
+    /// assert!((s.paraxial_curvature() - 0.012).abs() < 1e-15);
+    /// ```
+    pub fn paraxial_curvature(&self) -> f64 {
+        self.shape.paraxial_curvature(self.c, &self.asph)
+            + 2.0
+                * self
+                    .zernike_vertex_weights()
+                    .iter()
+                    .zip(&self.zernike)
+                    .map(|(w, a)| w[1] * a)
+                    .sum::<f64>()
+    }
+    /// What each of [`Surface::zernike`]'s terms adds at the vertex per mm, `[sag, y²
+    /// coefficient]` ([`super::zernike::vertex_weights`]); empty for other shapes.
+    pub fn zernike_vertex_weights(&self) -> Vec<[f64; 2]> {
+        match self.shape {
+            Shape::Zernike {
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+            } => super::zernike::vertex_weights(
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+                self.zernike.len(),
+            ),
+            _ => Vec::new(),
+        }
     }
     /// True if the surface is not a plain conic: an asphere coefficient is non-zero or the
     /// shape is not the even asphere.
@@ -491,6 +558,21 @@ impl Surface {
             }
             Shape::Qcon { norm_radius_mm } => {
                 qcon::sag(self.c, self.k, &self.asph, norm_radius_mm, x * x + y * y)
+            }
+            Shape::Zernike {
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+            } => {
+                let terms = super::zernike::ZernikeSag::new(
+                    ordering,
+                    norm_radius_mm,
+                    decenter_mm,
+                    extrapolate,
+                    &self.zernike,
+                );
+                Some(even(x * x + y * y)? + terms.eval(x, y).0)
             }
             Shape::Toroidal { c_rot } => {
                 let zy = even(y * y)?;

@@ -1,5 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
+use super::zernike::ZernikeSag;
 use super::{Aperture, ApertureShape, Grating, Lens, Material, Shape, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
 use crate::real::Real;
@@ -29,6 +30,9 @@ pub enum Param {
     Gap(usize),
     /// n_d of the model glass after surface `i`.
     GlassNd(usize),
+    /// Zernike coefficient `j` of surface `i` (mm): [`crate::lens::Surface::zernike`]`[j]`, the
+    /// coefficient of Z_(j+1) on a Zernike sag surface.
+    Zernike(usize, usize),
     /// V_d of the model glass after surface `i`.
     GlassVd(usize),
 }
@@ -180,6 +184,9 @@ pub struct SurfaceRow<S> {
     /// The sag's form (what `asph` means); anything but [`Shape::Even`] is traced by the
     /// asphere routine.
     pub shape: Shape,
+    /// The Zernike terms of a [`Shape::Zernike`] surface, merged for evaluation (`None`
+    /// otherwise).
+    pub zernike: Option<Box<ZernikeSag<S>>>,
     /// Curvature of a toroid's rotation, 1/mm (0 otherwise).
     pub c_rot: S,
     /// 1 / a Q-type asphere's normalization radius², 1/mm² (0 otherwise).
@@ -350,6 +357,26 @@ impl<S: Real> System<S> {
                 .iter()
                 .rposition(|a| a.value() != 0.0 || !a.is_constant())
                 .map_or(0, |j| j + 1);
+            let zernike = match s.shape {
+                Shape::Zernike {
+                    ordering,
+                    norm_radius_mm,
+                    decenter_mm,
+                    extrapolate,
+                } => {
+                    let terms: Vec<S> = (s.zernike.iter().enumerate())
+                        .map(|(j, &a)| lift(Param::Zernike(i, j), S::cst(a)))
+                        .collect();
+                    Some(Box::new(ZernikeSag::new(
+                        ordering,
+                        norm_radius_mm,
+                        decenter_mm,
+                        extrapolate,
+                        &terms,
+                    )))
+                }
+                _ => None,
+            };
             // Flat refracting surfaces use the quadric routine, which is exact at c = 0 and keeps
             // curvature derivatives; only bare apertures take the plane shortcut.
             let kind = if matches!(s.shape, Shape::Paraxial { .. }) {
@@ -370,6 +397,7 @@ impl<S: Real> System<S> {
                 asph,
                 n_asph,
                 shape: s.shape,
+                zernike,
                 c_rot: S::cst(match s.shape {
                     Shape::Toroidal { c_rot } => c_rot,
                     _ => 0.0,
@@ -491,6 +519,7 @@ impl<S: Real> System<S> {
                     asph: r.asph.map(|a| T::cst(a.value())),
                     n_asph: r.n_asph,
                     shape: r.shape,
+                    zernike: r.zernike.as_ref().map(|z| Box::new(z.convert())),
                     c_rot: T::cst(r.c_rot.value()),
                     inv_norm2: T::cst(r.inv_norm2.value()),
                     power: T::cst(r.power.value()),

@@ -1,8 +1,10 @@
 //! Small linear algebra generic over the number type: 3-vectors, rotations and rigid placements;
-//! the crate's one normal sampler ([`normal`]) and its statistics over units ([`stats`]).
+//! the crate's one normal sampler ([`normal`]), its statistics over units ([`stats`]) and the
+//! Zernike polynomials ([`zernike`]).
 
 pub mod normal;
 pub mod stats;
+pub mod zernike;
 
 use crate::real::Real;
 use std::ops::{Add, Mul, Neg, Sub};

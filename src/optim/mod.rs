@@ -44,6 +44,13 @@ pub fn param_value(lens: &Lens, p: Param) -> Result<f64> {
             .asph
             .get(j)
             .ok_or_else(|| Error::argument(format!("{p:?}: asphere term {j} does not exist")))?,
+        Param::Zernike(i, j) => *s(i)?.zernike.get(j).ok_or_else(|| {
+            Error::argument(format!(
+                "{p:?}: surface {i} has no Zernike term {} (Z{})",
+                j,
+                j + 1
+            ))
+        })?,
         Param::Gap(i) => s(i)?.d_next_mm,
         Param::GlassNd(i) | Param::GlassVd(i) => match s(i)?.material {
             crate::lens::Material::Model { nd, vd } => {
@@ -72,6 +79,7 @@ pub fn set_param(lens: &mut Lens, p: Param, v: f64) -> Result<()> {
         Param::Curvature(i) => lens.surfaces[i].c = v,
         Param::Conic(i) => lens.surfaces[i].k = v,
         Param::Asphere(i, j) => lens.surfaces[i].asph[j] = v,
+        Param::Zernike(i, j) => lens.surfaces[i].zernike[j] = v,
         Param::Gap(i) => lens.surfaces[i].d_next_mm = v,
         Param::GlassNd(i) | Param::GlassVd(i) => {
             if let crate::lens::Material::Model { nd, vd } = &mut lens.surfaces[i].material {

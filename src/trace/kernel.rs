@@ -478,6 +478,16 @@ pub(crate) fn sag_xy<S: Real>(row: &SurfaceRow<S>, x: S, y: S) -> (S, S, S, bool
         }
         Shape::Odd => odd_sag(row, x, y),
         Shape::Toroidal { .. } => toroid_sag(row, x, y),
+        Shape::Zernike { .. } => {
+            // The even asphere plus the merged Zernike terms.
+            let (z, dz, ok) = asphere_sag(row, x * x + y * y);
+            let two = S::cst(2.0);
+            let (zz, zx, zy) = match &row.zernike {
+                Some(t) => t.eval(x, y),
+                None => (S::cst(0.0), S::cst(0.0), S::cst(0.0)),
+            };
+            (z + zz, two * x * dz + zx, two * y * dz + zy, ok)
+        }
         Shape::Qbfs { .. } | Shape::Qcon { .. } => {
             // Direct calls (not a function pointer): both inline into the Newton loop.
             let (c, k1, a, n, s, u) = (

@@ -96,6 +96,27 @@ pub fn surface_sag_xy(row: &SurfaceRow<f64>, x: f64, y: f64) -> Option<(f64, f64
             Some((z, x * slope_over_r, y * slope_over_r))
         }
         Shape::Paraxial { .. } => Some((0.0, 0.0, 0.0)),
+        Shape::Zernike {
+            ordering,
+            norm_radius_mm,
+            decenter_mm,
+            extrapolate,
+        } => {
+            let (mut z, dzu) = sag(row.c, row.k1, asph, x * x + y * y)?;
+            let (mut gx, mut gy) = (2.0 * x * dzu, 2.0 * y * dzu);
+            let terms = row.zernike.as_ref().map_or(&[][..], |t| t.terms());
+            let (zz, zx, zy) = zernike_sum(
+                ordering,
+                terms,
+                (x - decenter_mm[0]) / norm_radius_mm,
+                (y - decenter_mm[1]) / norm_radius_mm,
+                extrapolate,
+            );
+            z += zz;
+            gx += zx / norm_radius_mm;
+            gy += zy / norm_radius_mm;
+            Some((z, gx, gy))
+        }
         Shape::Qbfs { .. } | Shape::Qcon { .. } => {
             let norm = row.inv_norm2.sqrt().recip();
             let sag_and_slope = if matches!(row.shape, Shape::Qbfs { .. }) {
@@ -124,6 +145,66 @@ pub fn surface_sag_xy(row: &SurfaceRow<f64>, x: f64, y: f64) -> Option<(f64, f64
             Some((rr - s, x / s, w * dzy / s))
         }
     }
+}
+
+/// `Σ A_j Z_j` and its gradient in the normalized coordinates (X, Y), from the polar
+/// definitions: each term's normalisation times R_n^m(ρ) times cos mθ or sin mθ, differentiated
+/// by ∂/∂X = cos θ ∂/∂ρ − (sin θ / ρ) ∂/∂θ and ∂/∂Y = sin θ ∂/∂ρ + (cos θ / ρ) ∂/∂θ; at ρ = 0
+/// only the m = 1 terms have a slope, R_n^1'(0) along x (cosine) or y (sine).
+fn zernike_sum(
+    ordering: crate::math::zernike::Ordering,
+    terms: &[f64],
+    px: f64,
+    py: f64,
+    extrapolate: bool,
+) -> (f64, f64, f64) {
+    use crate::math::zernike::{radial, term_nm, Ordering};
+    let rho = px.hypot(py);
+    if !extrapolate && rho > 1.0 {
+        return (0.0, 0.0, 0.0);
+    }
+    let theta = py.atan2(px);
+    let fact = |k: usize| (1..=k).map(|v| v as f64).product::<f64>();
+    let (mut z, mut gx, mut gy) = (0.0, 0.0, 0.0);
+    for (j, &a) in terms.iter().enumerate() {
+        let (n, m, sine) = term_nm(ordering, j + 1);
+        let norm = match ordering {
+            Ordering::Standard if m == 0 => ((n + 1) as f64).sqrt(),
+            Ordering::Standard => (2.0 * (n + 1) as f64).sqrt(),
+            Ordering::Fringe => 1.0,
+        };
+        // dR/dρ from R's definition, term by term.
+        let mut dr = 0.0;
+        for k in 0..=(n - m) / 2 {
+            let c = fact(n - k) / (fact(k) * fact((n + m) / 2 - k) * fact((n - m) / 2 - k));
+            let p = n - 2 * k;
+            if p >= 1 {
+                let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+                dr += sign * c * p as f64 * rho.powi(p as i32 - 1);
+            }
+        }
+        let r = radial(n, m, rho);
+        let mt = m as f64 * theta;
+        let (ang, dang) = match (m, sine) {
+            (0, _) => (1.0, 0.0),
+            (_, false) => (mt.cos(), -(m as f64) * mt.sin()),
+            (_, true) => (mt.sin(), m as f64 * mt.cos()),
+        };
+        z += a * norm * r * ang;
+        if rho > 0.0 {
+            let (dz_drho, dz_dtheta) = (norm * dr * ang, norm * r * dang);
+            let (c, s) = (px / rho, py / rho);
+            gx += a * (c * dz_drho - s * dz_dtheta / rho);
+            gy += a * (s * dz_drho + c * dz_dtheta / rho);
+        } else if m == 1 {
+            if sine {
+                gy += a * norm * dr;
+            } else {
+                gx += a * norm * dr;
+            }
+        }
+    }
+    (z, gx, gy)
 }
 
 /// Intersects the local-frame ray `p + t dl` with the surface of `row` by Newton's method on the

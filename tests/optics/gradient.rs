@@ -2,8 +2,9 @@
 //! lens1, lens2, the Cooke triplet, an aspheric lens, a two-mirror telescope, a toroidal, an
 //! odd-asphere and an ideal-thin-lens system, a lens with a virtual image, one with its object in
 //! water, a ruled (grating) surface, toroids rolled about the axis, a singlet folded by two
-//! fold mirrors, one meeting a converging beam (a virtual object) and singlets of Q-type
-//! aspheres (Qbfs and Qcon), nominal and perturbed.
+//! fold mirrors, one meeting a converging beam (a virtual object), singlets of Q-type
+//! aspheres (Qbfs and Qcon) and one of Zernike sag surfaces (Fringe and Standard, decentred,
+//! every Zernike coefficient a variable), nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -27,6 +28,11 @@ fn all_vars(lens: &Lens) -> Vec<Param> {
             for j in 0..8 {
                 if s.asph[j] != 0.0 {
                     v.push(Param::Asphere(i, j));
+                }
+            }
+            for (j, a) in s.zernike.iter().enumerate() {
+                if *a != 0.0 {
+                    v.push(Param::Zernike(i, j));
                 }
             }
         }
@@ -145,6 +151,10 @@ fn step(lens: &Lens, p: Param) -> f64 {
             1e-5 * v
         }
         Param::Gap(_) => 1e-4 * v.max(1.0),
+        // A Zernike coefficient is a sag in mm (a term is of order 1 over the circle): a step
+        // that moves the sag by 1e-5 mm, above the re-launched rays' rounding (a piston moves
+        // the launch, through the paraxial model's vertex).
+        Param::Zernike(..) => 1e-5,
         Param::GlassNd(_) => 1e-7,
         Param::GlassVd(_) => 1e-4,
     }
@@ -202,6 +212,7 @@ fn gradients_match_finite_differences_nominal() {
     check("Q-type aspheres", &zmx("qbfs.zmx"), false);
     check("Qcon aspheres", &zmx("qcon.zmx"), false);
     check("curved image", &zmx("curved-image.zmx"), false);
+    check("Zernike sag surfaces", &zmx("zernike.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -246,6 +257,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("virtual object", &zmx("virtual-object.zmx"), true);
     check("Q-type aspheres", &zmx("qbfs.zmx"), true);
     check("Qcon aspheres", &zmx("qcon.zmx"), true);
+    check("Zernike sag surfaces", &zmx("zernike.zmx"), true);
 }
 
 #[test]

@@ -72,6 +72,11 @@ fn lenses() -> Vec<(String, Lens)> {
     v.push(("ideal thin lens".into(), zmx("thinlens.zmx")));
     v.push(("Q-type aspheres".into(), zmx("qbfs.zmx")));
     v.push(("Qcon aspheres".into(), zmx("qcon.zmx")));
+    v.push(("Zernike sag surfaces".into(), zmx("zernike.zmx")));
+    // (The primary's annular aperture, 85 to 180 mm, would stop every test ray: opened.)
+    let mut m = zmx("zernike-mirrors.zmx");
+    m.surfaces[0].aperture = None;
+    v.push(("Zernike sag mirrors".into(), m));
     // The toroid's front turned the other way about x (a negative radius of rotation).
     let mut t = zmx("toroid.zmx");
     t.surfaces[1].shape = tolray::lens::Shape::Toroidal { c_rot: -1.0 / 30.0 };

@@ -24,6 +24,7 @@ mod fuzz;
 mod geometry;
 mod surfaces;
 mod tilted;
+mod zernike;
 #[allow(unused_imports)]
 use catalogs::*;
 #[allow(unused_imports)]

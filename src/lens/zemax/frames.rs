@@ -313,6 +313,57 @@ impl Walker {
         })
     }
 
+    /// The Zernike terms of an `FZERNSAG` or `SZERNSAG` surface: XDAT 1 the number of terms,
+    /// XDAT 2 the normalization radius, XDAT 3.. the coefficients of Z1, Z2, ... (lens units).
+    /// Returns the coefficients (mm) and the normalization radius (mm).
+    pub(super) fn zernike_terms(
+        &self,
+        s: &RawSurf,
+        ordering: crate::math::zernike::Ordering,
+        warnings: &mut Vec<String>,
+    ) -> Result<(Vec<f64>, f64)> {
+        let get = |n: usize| s.xdat.iter().rev().find(|x| x.0 == n);
+        let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
+        let value = |n: usize| get(n).map_or(0.0, |x| x.1);
+        let max = crate::lens::zernike::max_terms(ordering);
+        let terms = value(1);
+        if !((0.0..=max as f64).contains(&terms) && terms.fract() == 0.0) {
+            return Err(invalid(
+                line_of(1),
+                format!(
+                    "XDAT 1 = {terms}: the number of Zernike terms must be a whole number from 0 to {max}"
+                ),
+            ));
+        }
+        let terms = terms as usize;
+        let a: Vec<f64> = (0..terms).map(|j| value(3 + j) * self.scale).collect();
+        let norm = value(2) * self.scale;
+        if !(norm > 0.0 && norm.is_finite()) && a.iter().any(|&v| v != 0.0) {
+            {
+                return Err(invalid(
+                    line_of(2),
+                    format!(
+                        "XDAT 2 = {}: the Zernike terms need a positive normalization radius",
+                        value(2)
+                    ),
+                ));
+            }
+        }
+        if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 3 + terms && x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} ignored: beyond the {terms} Zernike terms of XDAT 1"
+            ));
+        }
+        Ok((
+            a,
+            if norm > 0.0 && norm.is_finite() {
+                norm
+            } else {
+                1.0
+            },
+        ))
+    }
+
     /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
     ///
     /// `frame_after`: the file's frame after the coordinate breaks that follow the surface
@@ -345,9 +396,28 @@ impl Walker {
             lines_per_um: 0.0,
             order: 0.0,
         };
+        let zernike_sag = ty == "FZERNSAG" || ty == "SZERNSAG";
+        let mut zernike = Vec::new();
+        // PARM 0: extrapolate beyond the normalization radius (OpticStudio's default, 1);
+        // PARM 9 and 10: the Zernike decenter.
+        let (mut extrapolate, mut decenter_mm) = (true, [0.0; 2]);
         for &(p, v, line) in &s.parm {
             match ty.as_str() {
                 "TILTSURF" => {}
+                "FZERNSAG" | "SZERNSAG" if p == 0 => {
+                    if v != 0.0 && v != 1.0 {
+                        return Err(invalid(
+                            line,
+                            format!("PARM 0 = {v}: Extrapolate is 0 or 1"),
+                        ));
+                    }
+                    extrapolate = v != 0.0;
+                }
+                "FZERNSAG" | "SZERNSAG" if (1..=N_ASPH).contains(&p) => {
+                    // α_p ρ^{2p} on the raw radius, as EVENASPH.
+                    asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
+                }
+                "FZERNSAG" | "SZERNSAG" if p == 9 || p == 10 => decenter_mm[p - 9] = v * scale,
                 "EVENASPH" if (1..=N_ASPH).contains(&p) => {
                     // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
                     asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
@@ -397,6 +467,7 @@ impl Walker {
                         "PARAXIAL" => "a PARAXIAL surface has a focal length (PARM 1) and an OPD mode (PARM 2)",
                         "DGRATING" => "a DGRATING surface has lines per µm (PARM 1) and an order (PARM 2)",
                         "QED_TYPE" => "a Q-type surface keeps its data in XDAT",
+                        "FZERNSAG" | "SZERNSAG" => "tolray reads Extrapolate (PARM 0), r^2 to r^16 (PARM 1 to 8) and the Zernike decenter (PARM 9, 10)",
                         _ => "a STANDARD surface has no parameters",
                     };
                     warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
@@ -441,6 +512,20 @@ impl Walker {
             }
         } else if ty == "QED_TYPE" {
             shape = self.q_type(s, &mut asph, warnings)?;
+        } else if zernike_sag {
+            let ordering = if ty == "FZERNSAG" {
+                crate::math::zernike::Ordering::Fringe
+            } else {
+                crate::math::zernike::Ordering::Standard
+            };
+            let (terms, norm_radius_mm) = self.zernike_terms(s, ordering, warnings)?;
+            zernike = terms;
+            shape = Shape::Zernike {
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+            };
         } else if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.1 != 0.0) {
             warnings.push(format!(
                 "line {line}: XDAT {n} = {v} (extra surface data) ignored: a {ty} surface has none tolray reads"
@@ -589,6 +674,7 @@ impl Walker {
                 roll_deg: 0.0,
                 grating: (ty == "DGRATING").then_some(grating),
                 fold: None,
+                zernike: zernike.clone(),
             };
             // A coordinate break that rolls the frame about the surface's axis matters where
             // the surface is not symmetric about it (toroid, grating, a non-circular or

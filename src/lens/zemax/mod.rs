@@ -9,7 +9,11 @@
 //!   `DGRATING`, `QED_TYPE` (the Q-type asphere of type 0, Forbes' Qbfs on a conic:
 //!   [`super::Shape::Qbfs`], or type 1, Qcon: [`super::Shape::Qcon`]), `TILTSURF` (the plane
 //!   z = x tan θx + y tan θy, PARM 1 and 2 the tangents: a flat surface turned against its frame,
-//!   which the surfaces after it keep; on the image, a tilted image plane) and `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
+//!   which the surfaces after it keep; on the image, a tilted image plane), `FZERNSAG` and
+//!   `SZERNSAG` (Zernike Fringe and Standard sag: [`super::Shape::Zernike`]; PARM 0 Extrapolate,
+//!   PARM 1..8 the r² .. r¹⁶ terms, PARM 9 and 10 the Zernike decenter, XDAT 1 the number of
+//!   terms, XDAT 2 the normalization radius, XDAT 3.. the coefficients of Z1, Z2, ...) and
+//!   `COORDBRK`; `CURV` (1/lens unit), `CONI`, `PARM` (even-asphere terms r² ..
 //!   r¹⁶, odd-asphere terms r¹ .. r⁸, a toroid's radius of rotation and y² .. y¹⁴ terms, an ideal
 //!   lens' focal length, a grating's lines per µm and order ([`super::Grating`]), or the
 //!   coordinate break's decenters, tilts and order), a toroid's `XDAT` (Zernike
@@ -61,7 +65,7 @@
 //! # Writing
 //! [`to_string`] writes `UNIT MM`, the aperture (`ENPD` by default), fields, wavelengths, and a
 //! `SURF` per tolray surface (`STANDARD`, `EVENASPH`, `ODDASPHE`, `TOROIDAL`, `PARAXIAL`,
-//! `QED_TYPE` or `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
+//! `QED_TYPE`, `FZERNSAG`, `SZERNSAG` or `DGRATING`), with a `COORDBRK` pair around every surface that carries a decenter, a tilt or a
 //! roll (the whole frame as tilts about x, y and z), so perturbed lenses survive the round trip,
 //! and one more `COORDBRK` after a fold mirror (the axis' turn at its pivot).
 //! Model

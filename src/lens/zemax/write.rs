@@ -332,6 +332,11 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 Shape::Odd => "TYPE ODDASPHE",
                 Shape::Toroidal { .. } => "TYPE TOROIDAL",
                 Shape::Qbfs { .. } | Shape::Qcon { .. } => "TYPE QED_TYPE",
+                Shape::Zernike {
+                    ordering: crate::math::zernike::Ordering::Fringe,
+                    ..
+                } => "TYPE FZERNSAG",
+                Shape::Zernike { .. } => "TYPE SZERNSAG",
                 Shape::Even if asph => "TYPE EVENASPH",
                 Shape::Even => "TYPE STANDARD",
             }
@@ -369,6 +374,26 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 l.push(format!("XDAT 3 {}", fmt(norm_radius_mm)));
                 for (j, a) in s.asph.iter().take(n).enumerate() {
                     l.push(format!("XDAT {} {}", j + 4, fmt(*a)));
+                }
+            }
+            Shape::Zernike {
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+                ..
+            } => {
+                // PARM 0: Extrapolate, 1..8: r² .. r¹⁶, 9 and 10: the Zernike decenter; XDAT 1:
+                // the number of terms, 2: the normalization radius, 3..: Z1, Z2, ...
+                l.push(format!("PARM 0 {}", u8::from(extrapolate)));
+                for (j, a) in s.asph.iter().enumerate() {
+                    l.push(format!("PARM {} {}", j + 1, fmt(*a)));
+                }
+                l.push(format!("PARM 9 {}", fmt(decenter_mm[0])));
+                l.push(format!("PARM 10 {}", fmt(decenter_mm[1])));
+                l.push(format!("XDAT 1 {}", s.zernike.len()));
+                l.push(format!("XDAT 2 {}", fmt(norm_radius_mm)));
+                for (j, a) in s.zernike.iter().enumerate() {
+                    l.push(format!("XDAT {} {}", j + 3, fmt(*a)));
                 }
             }
             _ if asph => {
