@@ -373,6 +373,12 @@
 #define TOLRAY_PARAM_ZERNIKE 6
 
 /**
+ * Diffractive phase coefficient `term` (0 is A_1, on rho^2) of a surface's radial phase
+ * (OpticStudio's Binary 2), radians.
+ */
+#define TOLRAY_PARAM_PHASE 7
+
+/**
  * The reference sphere is centred on the chief ray's image point (OpticStudio's default).
  */
 #define TOLRAY_REFERENCE_CHIEF 0
@@ -554,9 +560,10 @@ typedef struct tolray_diffraction_options {
 
 /**
  * A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
- * lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 6; `surface` below the number of surfaces; `term`
+ * lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 7; `surface` below the number of surfaces; `term`
  * 0 to 7 for `TOLRAY_PARAM_ASPHERE`, below the surface's number of Zernike terms for
- * `TOLRAY_PARAM_ZERNIKE` (ignored by the other kinds); for the glass kinds, the medium after
+ * `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE` (ignored by the other
+ * kinds); for the glass kinds, the medium after
  * the surface must be a model glass ("n_d/V_d" in the lens JSON).
  */
 typedef struct tolray_param {
@@ -570,7 +577,8 @@ typedef struct tolray_param {
     uint32_t surface;
     /**
      * Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
-     * (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1.
+     * (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1; for
+     * `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2).
      */
     uint32_t term;
 } tolray_param;

@@ -105,6 +105,7 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 Shape::Zernike { .. } => "Zern. mirr.",
                 _ => "mirror",
             },
+            _ if sf.phase.is_some() => "binary 2",
             (_, _, true) => match sf.shape {
                 Shape::Odd => "odd asph.",
                 Shape::Toroidal { c_rot: 0.0 } => "cylinder",
@@ -200,6 +201,22 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 decenter_mm[1],
                 if extrapolate { "extrapolated beyond it" } else { "0 beyond it" },
                 1.0 / sf.paraxial_curvature()
+            ));
+        }
+        if let Some(p) = &sf.phase {
+            let terms: Vec<String> = p.coefficients.iter().map(|a| format!("{a:.6e}")).collect();
+            s.push_str(&format!(
+                "  {:>4} {:>10} diffractive phase (Binary 2) in order {}: normalization radius {:.4} mm, A_1.. = [{}] rad (paraxial focal length at {:.1} nm {})\n",
+                "",
+                "",
+                p.order,
+                p.norm_radius_mm,
+                terms.join(", "),
+                lens.primary_wavelength_nm,
+                match p.power_per_mm(lens.primary_wavelength_nm) {
+                    k if k != 0.0 => format!("{:.4} mm", 1.0 / k),
+                    _ => "none".to_string(),
+                }
             ));
         }
         if let Shape::Toroidal { c_rot } = sf.shape {

@@ -240,8 +240,9 @@ fn small_options() -> CheckOptions {
 /// Nominal and five perturbed patterns of each built-in lens, a two-mirror telescope
 /// (reflections, negative gaps), a singlet folded by two fold mirrors (tilted mirrors, turned
 /// legs of the axis), an odd asphere and Q-type aspheres (hand-made Qbfs and Qcon singlets and
-/// Thorlabs' ASL5040-UV, NA 0.65), an ideal thin lens before a meniscus, and optiland's curved
-/// transmission and reflection gratings (the ray turned as the reference tracer turns it):
+/// Thorlabs' ASL5040-UV, NA 0.65), an ideal thin lens before a meniscus, optiland's curved
+/// transmission and reflection gratings and a diffractive (Binary 2) singlet (the ray turned as
+/// the reference tracer turns it):
 /// every Embree hit within its bound, no leaks, RMS spots within 0.1 µm at a 1e-4 mm chord
 /// bound.
 #[test]
@@ -263,6 +264,7 @@ fn embree_hits_and_spots_agree_with_the_analytic_tracer() {
         "curved-image.zmx",
         "real/optiland/curved_transmission_grating.zmx",
         "real/optiland/curved_reflective_grating.zmx",
+        "binary2.zmx",
     ] {
         let lens = match name {
             "odd asphere" => odd_asphere(),

@@ -35,9 +35,10 @@ pub struct tolray_system {
 }
 
 /// A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
-/// lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 6; `surface` below the number of surfaces; `term`
+/// lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 7; `surface` below the number of surfaces; `term`
 /// 0 to 7 for `TOLRAY_PARAM_ASPHERE`, below the surface's number of Zernike terms for
-/// `TOLRAY_PARAM_ZERNIKE` (ignored by the other kinds); for the glass kinds, the medium after
+/// `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE` (ignored by the other
+/// kinds); for the glass kinds, the medium after
 /// the surface must be a model glass ("n_d/V_d" in the lens JSON).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -47,7 +48,8 @@ pub struct tolray_param {
     /// Surface index, from 0 (for glass variables: the surface the glass follows).
     pub surface: u32,
     /// Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
-    /// (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1.
+    /// (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1; for
+    /// `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2).
     pub term: u32,
 }
 
@@ -69,6 +71,9 @@ pub const TOLRAY_PARAM_GLASS_VD: u32 = 5;
 /// Zernike coefficient `term` (0 is Z1) of a Zernike sag surface (OpticStudio FZERNSAG,
 /// SZERNSAG), mm.
 pub const TOLRAY_PARAM_ZERNIKE: u32 = 6;
+/// Diffractive phase coefficient `term` (0 is A_1, on rho^2) of a surface's radial phase
+/// (OpticStudio's Binary 2), radians.
+pub const TOLRAY_PARAM_PHASE: u32 = 7;
 
 impl tolray_param {
     pub(crate) fn to_param(self) -> FfiResult<Param> {
@@ -81,9 +86,10 @@ impl tolray_param {
             TOLRAY_PARAM_GLASS_ND => Param::GlassNd(s),
             TOLRAY_PARAM_GLASS_VD => Param::GlassVd(s),
             TOLRAY_PARAM_ZERNIKE => Param::Zernike(s, self.term as usize),
+            TOLRAY_PARAM_PHASE => Param::Phase(s, self.term as usize),
             k => {
                 return Err(FfiError::argument(format!(
-                    "unknown parameter kind {k} (expected 0 to 6, TOLRAY_PARAM_*)"
+                    "unknown parameter kind {k} (expected 0 to 7, TOLRAY_PARAM_*)"
                 )))
             }
         })

@@ -29,7 +29,9 @@
 //! Two more surface keys of tolray's: `"roll_deg"`, the surface's rotation about its own axis
 //! (degrees; [`Surface::roll_deg`]), and `"grating": {"lines_per_um": 0.6, "order": 1}`, a
 //! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
-//! DGRATING; [`super::Grating`]). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
+//! DGRATING; [`super::Grating`]); `"phase": {"order": 1, "norm_radius": 10, "coefficients":
+//! [-1000, 30]}`, a radial diffractive phase M Σ A_i ρ^(2i) in radians (OpticStudio's Binary 2;
+//! [`RadialPhase`]). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
 //! turns the axis for everything after it (a fold mirror; [`super::Fold`]); the lens stays
 //! described unfolded.
 //!
@@ -48,6 +50,7 @@
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::field::{Field, FieldPoint, Vignetting};
+use super::phase::RadialPhase;
 use super::{
     Aperture, ApertureShape, Fold, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object,
     Sensor, Shape, Surface, SurfaceRole, N_ASPH,
@@ -794,6 +797,7 @@ fn surface_from(
         },
         grating: grating(s, at)?,
         fold: fold(s, at)?,
+        phase: phase(s, at)?,
     };
     Ok((surface, num(s, "d", at)?))
 }
@@ -854,6 +858,46 @@ fn grating(s: &Map<String, Value>, at: &str) -> Result<Option<Grating>> {
     Ok(Some(Grating {
         lines_per_um: get("lines_per_um")?,
         order: get("order")?,
+    }))
+}
+
+/// tolray's `"phase"` key: `{"order": 1, "norm_radius": 10, "coefficients": [-1000, 30]}` (a
+/// radial diffractive phase, OpticStudio's Binary 2: radians on ρ², ρ⁴, ...).
+fn phase(s: &Map<String, Value>, at: &str) -> Result<Option<RadialPhase>> {
+    let Some(v) = s.get("phase") else {
+        return Ok(None);
+    };
+    let Some(obj) = v.as_object() else {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("{at}\"phase\" must be an object like {{\"order\": 1, \"norm_radius\": 10, \"coefficients\": [-1000]}}, found {v}"),
+        ));
+    };
+    if let Some(e) = unknown_key(obj, &["order", "norm_radius", "coefficients"]) {
+        return Err(Error::invalid(format!("{at}\"phase\": {e}")));
+    }
+    let get = |key: &str| -> Result<f64> {
+        match num(obj, key, at)? {
+            Some(x) => finite(x, at, key),
+            None => Err(Error::invalid(format!("{at}\"phase\" needs \"{key}\""))),
+        }
+    };
+    let coefficients = match obj.get("coefficients") {
+        Some(Value::Array(v)) => v
+            .iter()
+            .map(|a| finite(a.as_f64().unwrap_or(f64::NAN), at, "coefficients"))
+            .collect::<Result<Vec<f64>>>()?,
+        other => {
+            return Err(Error::invalid(format!(
+                "{at}\"phase\" needs \"coefficients\", an array of numbers (radians), found {}",
+                other.map_or("nothing".to_string(), |o| o.to_string())
+            )))
+        }
+    };
+    Ok(Some(RadialPhase {
+        order: get("order")?,
+        norm_radius_mm: get("norm_radius")?,
+        coefficients,
     }))
 }
 
@@ -991,6 +1035,12 @@ pub fn to_value(lens: &Lens) -> Value {
                 m.insert(
                     "grating".into(),
                     json!({"lines_per_um": g.lines_per_um, "order": g.order}),
+                );
+            }
+            if let Some(p) = &s.phase {
+                m.insert(
+                    "phase".into(),
+                    json!({"order": p.order, "norm_radius": p.norm_radius_mm, "coefficients": p.coefficients}),
                 );
             }
             if let Some(f) = s.fold {

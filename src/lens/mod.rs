@@ -17,6 +17,7 @@ pub mod field;
 pub mod json;
 pub mod material;
 pub mod paraxial;
+pub mod phase;
 pub mod qbfs;
 pub mod qcon;
 mod surface;
@@ -503,6 +504,38 @@ impl Lens {
                 return Err(at(
                     "Zernike coefficients on a surface that is not a Zernike sag surface".into(),
                 ));
+            }
+            if let Some(ph) = &s.phase {
+                if !(ph.order.abs() <= 1e3) {
+                    return Err(at(format!(
+                        "diffraction order {} of the phase is not finite or beyond ±1e3",
+                        ph.order
+                    )));
+                }
+                if !(ph.norm_radius_mm > 1e-6 && ph.norm_radius_mm <= 1e6) {
+                    return Err(at(format!(
+                        "phase normalization radius {} mm: needs 1e-6 < radius <= 1e6",
+                        ph.norm_radius_mm
+                    )));
+                }
+                if ph.coefficients.len() > phase::MAX_PHASE_TERMS {
+                    return Err(at(format!(
+                        "{} phase terms: a surface has at most {}",
+                        ph.coefficients.len(),
+                        phase::MAX_PHASE_TERMS
+                    )));
+                }
+                if let Some(a) = ph.coefficients.iter().find(|a| !(a.abs() <= 1e12)) {
+                    return Err(at(format!(
+                        "phase coefficient {a} (radians) is not finite or beyond ±1e12"
+                    )));
+                }
+                if s.shape != Shape::Even || s.grating.is_some() || s.role == SurfaceRole::Aperture
+                {
+                    return Err(at(
+                        "a diffractive phase sits on an even asphere (OpticStudio's Binary 2), without a grating, on a refracting surface or a mirror".into(),
+                    ));
+                }
             }
             if s.shape != Shape::Even && s.role == SurfaceRole::Aperture {
                 return Err(at(

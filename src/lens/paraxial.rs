@@ -164,13 +164,24 @@ impl<S: Real> Prescription<S> {
             }
             p.curvature.push(c_par);
             // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
-            p.thin_power.push(match s.shape {
+            let mut thin = match s.shape {
                 Shape::Paraxial { focal_mm } => {
                     let n_before = p.n.last().copied().unwrap_or(p.n_object);
                     n_before / S::cst(focal_mm)
                 }
                 _ => S::cst(0.0),
-            });
+            };
+            // A diffractive phase M Σ A_i ρ^(2i) kicks n u by λ ∂Φ/∂y / 2π = y λ M A_1 / (π R²)
+            // near the axis: a thin power −M λ A_1 / (π R²), mirror or not.
+            if let Some(ph) = &s.phase {
+                if let Some(&a1) = ph.coefficients.first() {
+                    let a1 = lift(Param::Phase(i, 0), S::cst(a1));
+                    let k = -ph.order * wavelength_nm * 1e-6
+                        / (std::f64::consts::PI * ph.norm_radius_mm * ph.norm_radius_mm);
+                    thin += S::cst(k) * a1;
+                }
+            }
+            p.thin_power.push(thin);
             p.bends.push(lens.refracts(i));
             let n = match s.material {
                 Material::Model { nd, vd } => model_index(

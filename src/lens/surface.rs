@@ -295,6 +295,28 @@ impl Shape {
                 .map(|(w, a)| w * a)
                 .sum::<f64>()
     }
+    /// The Zernike terms `terms` (Z1 first, mm) merged for evaluation over this shape's circle
+    /// ([`super::zernike::ZernikeSag`]); `None` unless the shape is [`Shape::Zernike`].
+    pub fn zernike_sag<S: crate::real::Real>(
+        self,
+        terms: &[S],
+    ) -> Option<super::zernike::ZernikeSag<S>> {
+        match self {
+            Shape::Zernike {
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+            } => Some(super::zernike::ZernikeSag::new(
+                ordering,
+                norm_radius_mm,
+                decenter_mm,
+                extrapolate,
+                terms,
+            )),
+            _ => None,
+        }
+    }
     /// True for shapes with rotational symmetry about the surface's axis (a Zernike sag surface
     /// counts as without, whatever its terms).
     pub fn is_rotational(self) -> bool {
@@ -346,6 +368,9 @@ pub struct Surface {
     /// The Zernike coefficients A_1, A_2, ... (mm) of a [`Shape::Zernike`] surface, in its
     /// ordering (empty for other shapes).
     pub zernike: Vec<f64>,
+    /// A radial diffractive phase on the surface (OpticStudio's Binary 2, on an even asphere),
+    /// or `None`.
+    pub phase: Option<super::phase::RadialPhase>,
 }
 
 /// The turn of the optical axis at a fold mirror.
@@ -435,6 +460,7 @@ impl Surface {
             grating: None,
             fold: None,
             zernike: Vec::new(),
+            phase: None,
         }
     }
     /// A flat aperture stop in air.
@@ -497,21 +523,7 @@ impl Surface {
     /// What each of [`Surface::zernike`]'s terms adds at the vertex per mm, `[sag, y²
     /// coefficient]` ([`super::zernike::vertex_weights`]); empty for other shapes.
     pub fn zernike_vertex_weights(&self) -> Vec<[f64; 2]> {
-        match self.shape {
-            Shape::Zernike {
-                ordering,
-                norm_radius_mm,
-                decenter_mm,
-                extrapolate,
-            } => super::zernike::vertex_weights(
-                ordering,
-                norm_radius_mm,
-                decenter_mm,
-                extrapolate,
-                self.zernike.len(),
-            ),
-            _ => Vec::new(),
-        }
+        super::zernike::vertex_weights(self.shape, self.zernike.len())
     }
     /// True if the surface is not a plain conic: an asphere coefficient is non-zero or the
     /// shape is not the even asphere.
@@ -559,19 +571,8 @@ impl Surface {
             Shape::Qcon { norm_radius_mm } => {
                 qcon::sag(self.c, self.k, &self.asph, norm_radius_mm, x * x + y * y)
             }
-            Shape::Zernike {
-                ordering,
-                norm_radius_mm,
-                decenter_mm,
-                extrapolate,
-            } => {
-                let terms = super::zernike::ZernikeSag::new(
-                    ordering,
-                    norm_radius_mm,
-                    decenter_mm,
-                    extrapolate,
-                    &self.zernike,
-                );
+            Shape::Zernike { .. } => {
+                let terms = self.shape.zernike_sag(&self.zernike)?;
                 Some(even(x * x + y * y)? + terms.eval(x, y).0)
             }
             Shape::Toroidal { c_rot } => {

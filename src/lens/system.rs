@@ -1,5 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
+use super::phase::PhaseRow;
 use super::zernike::ZernikeSag;
 use super::{Aperture, ApertureShape, Grating, Lens, Material, Shape, N_ASPH};
 use crate::math::{Mat3, Rigid, Vec3};
@@ -33,6 +34,9 @@ pub enum Param {
     /// Zernike coefficient `j` of surface `i` (mm): [`crate::lens::Surface::zernike`]`[j]`, the
     /// coefficient of Z_(j+1) on a Zernike sag surface.
     Zernike(usize, usize),
+    /// Diffractive phase coefficient `j` of surface `i` (radians): the A_(j+1) on ρ^(2j+2) of
+    /// [`crate::lens::Surface::phase`].
+    Phase(usize, usize),
     /// V_d of the model glass after surface `i`.
     GlassVd(usize),
 }
@@ -187,6 +191,8 @@ pub struct SurfaceRow<S> {
     /// The Zernike terms of a [`Shape::Zernike`] surface, merged for evaluation (`None`
     /// otherwise).
     pub zernike: Option<Box<ZernikeSag<S>>>,
+    /// The surface's diffractive phase, compiled (`None` without one).
+    pub phase: Option<Box<PhaseRow<S>>>,
     /// Curvature of a toroid's rotation, 1/mm (0 otherwise).
     pub c_rot: S,
     /// 1 / a Q-type asphere's normalization radius², 1/mm² (0 otherwise).
@@ -357,26 +363,16 @@ impl<S: Real> System<S> {
                 .iter()
                 .rposition(|a| a.value() != 0.0 || !a.is_constant())
                 .map_or(0, |j| j + 1);
-            let zernike = match s.shape {
-                Shape::Zernike {
-                    ordering,
-                    norm_radius_mm,
-                    decenter_mm,
-                    extrapolate,
-                } => {
-                    let terms: Vec<S> = (s.zernike.iter().enumerate())
-                        .map(|(j, &a)| lift(Param::Zernike(i, j), S::cst(a)))
-                        .collect();
-                    Some(Box::new(ZernikeSag::new(
-                        ordering,
-                        norm_radius_mm,
-                        decenter_mm,
-                        extrapolate,
-                        &terms,
-                    )))
-                }
-                _ => None,
-            };
+            let zernike_terms: Vec<S> = (s.zernike.iter().enumerate())
+                .map(|(j, &a)| lift(Param::Zernike(i, j), S::cst(a)))
+                .collect();
+            let zernike = s.shape.zernike_sag(&zernike_terms).map(Box::new);
+            let phase = s.phase.as_ref().map(|ph| {
+                let a: Vec<S> = (ph.coefficients.iter().enumerate())
+                    .map(|(j, &a)| lift(Param::Phase(i, j), S::cst(a)))
+                    .collect();
+                Box::new(PhaseRow::new(ph, &a))
+            });
             // Flat refracting surfaces use the quadric routine, which is exact at c = 0 and keeps
             // curvature derivatives; only bare apertures take the plane shortcut.
             let kind = if matches!(s.shape, Shape::Paraxial { .. }) {
@@ -398,6 +394,7 @@ impl<S: Real> System<S> {
                 n_asph,
                 shape: s.shape,
                 zernike,
+                phase,
                 c_rot: S::cst(match s.shape {
                     Shape::Toroidal { c_rot } => c_rot,
                     _ => 0.0,
@@ -520,6 +517,7 @@ impl<S: Real> System<S> {
                     n_asph: r.n_asph,
                     shape: r.shape,
                     zernike: r.zernike.as_ref().map(|z| Box::new(z.convert())),
+                    phase: r.phase.as_ref().map(|p| Box::new(p.convert())),
                     c_rot: T::cst(r.c_rot.value()),
                     inv_norm2: T::cst(r.inv_norm2.value()),
                     power: T::cst(r.power.value()),

@@ -184,37 +184,41 @@ impl<S: Real> ZernikeSag<S> {
     }
 }
 
-/// What one unit (1 mm) of each of the first `n` terms adds at the surface's vertex, over the
-/// decentred circle: `[sag, y² coefficient]`, the sag in mm per mm and the coefficient (half the
-/// second derivative along y at `(0, 0)`) in 1/mm per mm. The paraxial model (in the y-z plane,
-/// as OpticStudio traces paraxial rays) takes the vertex at the sag and its curvature gains
-/// twice `Σ w_j A_j`, so that it is the limit of the real rays near the axis; the slope at the
-/// vertex (tilt terms, a decenter) has no place in a centred paraxial model and is left out.
+/// What one unit (1 mm) of each of the first `n` terms of a Zernike sag `shape` adds at the
+/// surface's vertex, over its decentred circle: `[sag, y² coefficient]`, the sag in mm per mm
+/// and the coefficient (half the second derivative along y at `(0, 0)`) in 1/mm per mm; empty
+/// for other shapes. The paraxial model (in the y-z plane, as OpticStudio traces paraxial rays)
+/// takes the vertex at the sag and its curvature gains twice `Σ w_j A_j`, so that it is the
+/// limit of the real rays near the axis; the slope at the vertex (tilt terms, a decenter) has
+/// no place in a centred paraxial model and is left out.
 ///
 /// ```
-/// use tolray::lens::zernike::vertex_weights;
+/// use tolray::lens::{zernike::vertex_weights, Shape};
 /// use tolray::math::zernike::Ordering;
 /// // Fringe Z4 = 2ρ² − 1: −1 at the vertex and 2 / R² on y²; Z5 = ρ² cos 2θ = (x² − y²) / R²:
 /// // −1 / R² on y².
-/// let w = vertex_weights(Ordering::Fringe, 10.0, [0.0; 2], true, 5);
+/// let shape = Shape::Zernike {
+///     ordering: Ordering::Fringe,
+///     norm_radius_mm: 10.0,
+///     decenter_mm: [0.0; 2],
+///     extrapolate: true,
+/// };
+/// let w = vertex_weights(shape, 5);
 /// assert_eq!(w[3][0], -1.0);
 /// assert!((w[3][1] - 0.02).abs() < 1e-17 && (w[4][1] + 0.01).abs() < 1e-17);
 /// ```
-pub fn vertex_weights(
-    ordering: Ordering,
-    norm_radius_mm: f64,
-    decenter_mm: [f64; 2],
-    extrapolate: bool,
-    n: usize,
-) -> Vec<[f64; 2]> {
+pub fn vertex_weights(shape: crate::lens::Shape, n: usize) -> Vec<[f64; 2]> {
+    let crate::lens::Shape::Zernike { ordering, .. } = shape else {
+        return Vec::new();
+    };
     // The gradient differentiated once more along y by a dual number seeded on y.
     (0..n.min(max_terms(ordering)))
-        .map(|j| {
+        .filter_map(|j| {
             let mut terms = vec![Dual::<f64, 1>::cst(0.0); j + 1];
             terms[j] = Dual::cst(1.0);
-            let sag = ZernikeSag::new(ordering, norm_radius_mm, decenter_mm, extrapolate, &terms);
+            let sag = shape.zernike_sag(&terms)?;
             let (z, _, gy) = sag.eval(Dual::cst(0.0), Dual::var(0.0, 0));
-            [z.re, 0.5 * gy.eps[0]]
+            Some([z.re, 0.5 * gy.eps[0]])
         })
         .collect()
 }

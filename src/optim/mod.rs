@@ -51,6 +51,16 @@ pub fn param_value(lens: &Lens, p: Param) -> Result<f64> {
                 j + 1
             ))
         })?,
+        Param::Phase(i, j) => *s(i)?
+            .phase
+            .as_ref()
+            .and_then(|p| p.coefficients.get(j))
+            .ok_or_else(|| {
+                Error::argument(format!(
+                    "{p:?}: surface {i} has no diffractive phase coefficient {j} (A_{})",
+                    j + 1
+                ))
+            })?,
         Param::Gap(i) => s(i)?.d_next_mm,
         Param::GlassNd(i) | Param::GlassVd(i) => match s(i)?.material {
             crate::lens::Material::Model { nd, vd } => {
@@ -80,6 +90,11 @@ pub fn set_param(lens: &mut Lens, p: Param, v: f64) -> Result<()> {
         Param::Conic(i) => lens.surfaces[i].k = v,
         Param::Asphere(i, j) => lens.surfaces[i].asph[j] = v,
         Param::Zernike(i, j) => lens.surfaces[i].zernike[j] = v,
+        Param::Phase(i, j) => {
+            if let Some(p) = &mut lens.surfaces[i].phase {
+                p.coefficients[j] = v;
+            }
+        }
         Param::Gap(i) => lens.surfaces[i].d_next_mm = v,
         Param::GlassNd(i) | Param::GlassVd(i) => {
             if let crate::lens::Material::Model { nd, vd } = &mut lens.surfaces[i].material {

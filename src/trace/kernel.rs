@@ -241,10 +241,13 @@ pub(crate) fn trace_blocks_generic<S: Real>(
         for (i, row) in sys.rows.iter().enumerate() {
             let n1 = n[i];
             let eta = n1 / n[i + 1];
-            // A grating's m λ T over the index in front of it (0 without one).
-            let ruling = row
-                .grating
-                .map_or(S::cst(0.0), |g| S::cst(g.deflection(wavelength_nm)) / n1);
+            // A grating's m λ T over the index in front of it; a diffractive phase's λ / 2π
+            // (mm) over it (0 without either).
+            let ruling = match (row.grating, &row.phase) {
+                (Some(g), _) => S::cst(g.deflection(wavelength_nm)) / n1,
+                (None, Some(_)) => S::cst(wavelength_nm * 1e-6 / std::f64::consts::TAU) / n1,
+                (None, None) => S::cst(0.0),
+            };
             let code = i as u32;
             if i % 2 == 0 {
                 surface(row, n1, eta, ruling, code, clip, group, scratch);
@@ -262,7 +265,7 @@ pub(crate) fn trace_blocks_generic<S: Real>(
 }
 
 /// One surface pass: the lane loop compiled for the surface's kind, rotation and clipping.
-/// `ruling` is a grating's m λ T / n1 (0 without one).
+/// `ruling` is a grating's m λ T / n1, a diffractive phase's λ / (2π n1) (0 without either).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn surface<S: Real>(
@@ -275,7 +278,7 @@ fn surface<S: Real>(
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
-    if row.shape != Shape::Even || row.grating.is_some() {
+    if row.shape != Shape::Even || row.grating.is_some() || row.phase.is_some() {
         return shaped(row, n1, eta, ruling, code, clip, src, dst);
     }
     macro_rules! go {
@@ -639,9 +642,10 @@ fn intersect<S: Real, const KIND: u8>(
 }
 
 /// How a ray leaves a surface, for one lane: the kernel's form of [`reference::bend`]
-/// (refraction, reflection, a grating's order, an ideal thin lens, or straight through a bare
-/// aperture). `d` is the unit direction in, `h` the crossing and `nrm` the unnormalized normal
-/// (either sign), all in the surface's frame; `eta` = n1 / n2 and `ruling` = m λ T / n1. Returns
+/// (refraction, reflection, a grating's order or a diffractive phase, an ideal thin lens, or
+/// straight through a bare aperture). `d` is the unit direction in, `h` the crossing and `nrm`
+/// the unnormalized normal (either sign), all in the surface's frame; `eta` = n1 / n2 and `kick`
+/// a grating's or phase's tangential kick over n1 ([`diffract_lane`]). Returns
 /// the direction out and whether the ray ends here (total internal reflection, or an order that
 /// does not propagate). Written without branches: every case is computed where it can apply and
 /// chosen by selects, so that the lane loop stays vectorizable.
@@ -654,7 +658,7 @@ fn turn<S: Real, const KIND: u8>(
     h: Vec3<S>,
     nrm: Vec3<S>,
     eta: S,
-    ruling: S,
+    kick: (S, S),
 ) -> (Vec3<S>, bool) {
     let one = S::cst(1.0);
     let zero = S::cst(0.0);
@@ -663,8 +667,8 @@ fn turn<S: Real, const KIND: u8>(
         // A bare aperture passes rays straight.
         return (d, false);
     }
-    if KIND == SHAPED && row.grating.is_some() {
-        return diffract_lane(d, nrm, eta, ruling, mirror);
+    if KIND == SHAPED && (row.grating.is_some() || row.phase.is_some()) {
+        return diffract_lane(d, nrm, eta, kick, mirror);
     }
     if KIND == SHAPED && !row.power.is_zero() {
         // An ideal thin lens: the slopes turn by -h P; the direction (d.x - h.x P d.z,
@@ -704,11 +708,12 @@ fn facing<S: Real>(nrm: Vec3<S>, d: Vec3<S>) -> (Vec3<S>, S, S, S) {
     (nrm, S::pick(flip, -a, a), nn, inv_nn)
 }
 
-/// A grating's order, for one lane (the kernel's form of [`reference::diffract`]): the grating
-/// equation on the tangential parts. With e = n1 / n_out (1 for a mirror) and q = m λ T / n_out,
-/// v = e d + q ŷ_t, where ŷ_t = ŷ - (N_y / N.N) N is the groove normal in the tangent plane;
-/// v.N = -e a, and d' = v + β N is the unit root behind the surface (refraction) or in front of
-/// it (reflection). Returns d' and whether the order does not propagate.
+/// A grating's order or a diffractive phase, for one lane (the kernel's form of
+/// [`reference::diffract`]): the tangential parts gain the kick `k` = (k_x, k_y, 0) / n1 (a
+/// grating: (0, m λ T); a phase: λ ∇Φ / 2π). With e = n1 / n_out (1 for a mirror) and q = e k,
+/// v = e d + q_t, where q_t = q - (q.N / N.N) N is the kick in the tangent plane; v.N = -e a,
+/// and d' = v + β N is the unit root behind the surface (refraction) or in front of it
+/// (reflection). Returns d' and whether the order does not propagate.
 ///
 /// [`reference::diffract`]: super::reference::diffract
 #[inline(always)]
@@ -716,18 +721,18 @@ fn diffract_lane<S: Real>(
     d: Vec3<S>,
     nrm: Vec3<S>,
     eta: S,
-    ruling: S,
+    kick: (S, S),
     mirror: bool,
 ) -> (Vec3<S>, bool) {
     let one = S::cst(1.0);
     let (nrm, a, nn, inv_nn) = facing(nrm, d);
     let e = S::pick(mirror, one, eta);
-    let q = ruling * e;
-    let qy = q * nrm.y * inv_nn;
+    let (qx, qy) = (kick.0 * e, kick.1 * e);
+    let qn = (qx * nrm.x + qy * nrm.y) * inv_nn;
     let v = Vec3::new(
-        e * d.x - qy * nrm.x,
-        e * d.y + q - qy * nrm.y,
-        e * d.z - qy * nrm.z,
+        e * d.x + qx - qn * nrm.x,
+        e * d.y + qy - qn * nrm.y,
+        e * d.z - qn * nrm.z,
     );
     let disc = e * e * a * a - nn * (v.dot(v) - one);
     let evanescent = disc.lt(S::cst(0.0));
@@ -742,8 +747,8 @@ fn diffract_lane<S: Real>(
 /// (rotated frame) and `CLIP` (apertures on) are compile-time so that the lane loop has no control
 /// flow left and vectorizes. A plane surface is a bare aperture: it clips but never refracts. A
 /// mirror is a runtime select (a compile-time flag doubled the kernel's instances and the build
-/// time of every dual-number width). A grating (`ruling` = m λ T / n1) is traced in the
-/// `SHAPED` loop only. How each ray leaves the surface is [`turn`].
+/// time of every dual-number width). A grating (`ruling` = m λ T / n1) or a diffractive phase
+/// (`ruling` = λ / (2π n1)) is traced in the `SHAPED` loop only. How each ray leaves the surface is [`turn`].
 #[inline(always)]
 fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     row: &SurfaceRow<S>,
@@ -755,8 +760,16 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
     dst: &mut [Block<S>],
 ) {
     // A stack copy, which LLVM can see is not aliased by `dst` (see the module documentation).
-    let row = &row.clone();
-    let ruled = KIND == SHAPED && row.grating.is_some();
+    // The scalar `SHAPED` loop needs none, and its rows may own heap data (Zernike terms, a
+    // phase) that a copy per group of blocks would allocate anew.
+    let copy;
+    let row = if KIND == SHAPED {
+        row
+    } else {
+        copy = row.clone();
+        &copy
+    };
+    let ruled = KIND == SHAPED && (row.grating.is_some() || row.phase.is_some());
     for (s, b) in src.iter().zip(dst.iter_mut()) {
         for l in 0..LANES {
             let (o, d0) = load(s, l);
@@ -770,7 +783,18 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             let backward = !row.virtual_ok & behind(t, p);
             let h = p + d * t;
             let vignetted = CLIP & row.clip.stops(h.x, h.y);
-            let (dr, dead) = turn::<S, KIND>(row, d, h, nrm, eta, ruling);
+            // The phase the surface adds (radians over 2π / λ: a grating's y, or Φ) and the
+            // tangential kick, both times `ruling`.
+            let (phase, kick) = if ruled {
+                let (ph, gx, gy) = match &row.phase {
+                    Some(p) => p.eval(h.x, h.y),
+                    None => (h.y, S::cst(0.0), S::cst(1.0)),
+                };
+                (ph, (ruling * gx, ruling * gy))
+            } else {
+                (S::cst(0.0), (S::cst(0.0), S::cst(0.0)))
+            };
+            let (dr, dead) = turn::<S, KIND>(row, d, h, nrm, eta, kick);
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))
             } else {
@@ -781,9 +805,10 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
             why = select_u32(backward, CODE_BACKWARD | code, why);
             why = select_u32(!hit, CODE_MISSED | code, why);
-            // A grating adds the phase m λ T y (in path length) where the ray crosses it.
+            // A grating adds the phase m λ T y (in path length) where the ray crosses it, a
+            // diffractive phase λ Φ / 2π.
             let dopl = if ruled {
-                n1 * (t + ruling * h.y)
+                n1 * (t + ruling * phase)
             } else {
                 n1 * t
             };

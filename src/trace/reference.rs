@@ -207,6 +207,25 @@ fn zernike_sum(
     (z, gx, gy)
 }
 
+/// A radial phase `Φ = Σ c_i ρ^(2i)` (`c` = M A_1, M A_2, ...; ρ = r / `rn`) and its gradient
+/// at `h`'s (x, y), from the powers of r term by term (dΦ/dr x / r, with the limit 0 at the
+/// vertex).
+fn radial_phase(c: &[f64], rn: f64, h: Vec3<f64>) -> (f64, f64, f64) {
+    let (x, y) = (h.x, h.y);
+    let r = x.hypot(y);
+    let (mut phi, mut dphi_dr) = (0.0, 0.0);
+    for (i, ci) in c.iter().enumerate() {
+        let k = 2 * (i as i32 + 1);
+        phi += ci * (r / rn).powi(k);
+        dphi_dr += ci * k as f64 * r.powi(k - 1) / rn.powi(k);
+    }
+    if r > 0.0 {
+        (phi, dphi_dr * x / r, dphi_dr * y / r)
+    } else {
+        (phi, 0.0, 0.0)
+    }
+}
+
 /// Intersects the local-frame ray `p + t dl` with the surface of `row` by Newton's method on the
 /// sag, started at the vertex plane, or, when that start fails (the ray crosses the vertex
 /// plane beyond a steep surface's rim, where the sag is undefined, though it meets the surface
@@ -275,12 +294,13 @@ fn conic_start(row: &SurfaceRow<f64>, p: Vec3<f64>, dl: Vec3<f64>, t0: f64) -> O
 /// Refracts the unit direction `dl` at a surface with unit normal `nrm` from index `n1` into
 /// `n2` (Snell's law on the tangential component). `None` on total internal reflection.
 pub fn refract(dl: Vec3<f64>, nrm: Vec3<f64>, n1: f64, n2: f64) -> Option<Vec3<f64>> {
-    diffract(dl, nrm, n1, n2, 0.0, false)
+    diffract(dl, nrm, n1, n2, Vec3::new(0.0, 0.0, 0.0), false)
 }
 
 /// Leaves a surface with unit normal `nrm` from index `n1` into `n2` with the tangential
-/// component `n2 t' = n1 t + m_lambda_t ŷ_t` (the grating equation; `m_lambda_t` = 0 for plain
-/// refraction), where `ŷ_t` is the local y axis projected on the tangent plane; the normal
+/// component `n2 t' = n1 t + k_t` (the grating equation, `kick` = m λ T ŷ, or a diffractive
+/// phase's, `kick` = λ ∇Φ / 2π; 0 for plain refraction), where `k_t` is `kick` projected on the
+/// tangent plane; the normal
 /// component follows from `|d'| = 1`, on the far side (`reflect` false, `n2` the index behind) or
 /// back on the near side (`reflect` true, `n2 = n1`). `None` when no such direction exists
 /// (total internal reflection, an order that does not propagate).
@@ -289,13 +309,12 @@ pub fn diffract(
     nrm: Vec3<f64>,
     n1: f64,
     n2: f64,
-    m_lambda_t: f64,
+    kick: Vec3<f64>,
     reflect: bool,
 ) -> Option<Vec3<f64>> {
     let cos1 = dl.dot(nrm);
-    let y = Vec3::new(0.0, 1.0, 0.0);
-    let groove_normal = y - nrm * y.dot(nrm);
-    let tang = ((dl - nrm * cos1) * n1 + groove_normal * m_lambda_t) * (1.0 / n2);
+    let kick_t = kick - nrm * kick.dot(nrm);
+    let tang = ((dl - nrm * cos1) * n1 + kick_t) * (1.0 / n2);
     let s2 = tang.dot(tang);
     if s2 > 1.0 {
         return None;
@@ -311,7 +330,7 @@ pub fn diffract(
 /// The direction in which a ray of direction `dl` (surface frame) leaves surface `row` where it
 /// meets it at `h` with unit normal `nrm`, from index `n1` into `n2` (the index after the
 /// surface; a mirror keeps `n1`), and the path length the surface adds (a grating's phase
-/// m λ T y, else 0): a grating diffracts, an ideal thin lens turns the slopes by minus the
+/// m λ T y, a diffractive phase's λ Φ / 2π, else 0): a grating or a phase diffracts, an ideal thin lens turns the slopes by minus the
 /// height over its focal length, a mirror reflects, a refracting surface obeys Snell's law, a
 /// bare aperture passes the ray. `None` for total internal reflection or an order that does not
 /// propagate. The one rule of the reference tracer and of the Embree check.
@@ -328,7 +347,16 @@ pub fn bend(
         let n2 = if row.reflect { n1 } else { n2 };
         let m_lambda_t = g.deflection(wavelength_nm);
         // The grating's phase, as path length: m λ T y at the crossing.
-        return diffract(dl, nrm, n1, n2, m_lambda_t, row.reflect).map(|v| (v, m_lambda_t * h.y));
+        let kick = Vec3::new(0.0, m_lambda_t, 0.0);
+        return diffract(dl, nrm, n1, n2, kick, row.reflect).map(|v| (v, m_lambda_t * h.y));
+    }
+    if let Some(p) = &row.phase {
+        let n2 = if row.reflect { n1 } else { n2 };
+        let (phi, gx, gy) = radial_phase(p.order_times_coefficients(), p.norm_radius_mm(), h);
+        // The phase as path length, λ Φ / 2π, and the kick λ ∇Φ / 2π (λ in mm).
+        let l = wavelength_nm * 1e-6 / std::f64::consts::TAU;
+        let kick = Vec3::new(l * gx, l * gy, 0.0);
+        return diffract(dl, nrm, n1, n2, kick, row.reflect).map(|v| (v, l * phi));
     }
     let dn = if let Shape::Paraxial { focal_mm } = row.shape {
         // The ideal thin lens: slopes change by minus the height over the focal length.

@@ -3,8 +3,9 @@
 //! odd-asphere and an ideal-thin-lens system, a lens with a virtual image, one with its object in
 //! water, a ruled (grating) surface, toroids rolled about the axis, a singlet folded by two
 //! fold mirrors, one meeting a converging beam (a virtual object), singlets of Q-type
-//! aspheres (Qbfs and Qcon) and one of Zernike sag surfaces (Fringe and Standard, decentred,
-//! every Zernike coefficient a variable), nominal and perturbed.
+//! aspheres (Qbfs and Qcon), one of Zernike sag surfaces (Fringe and Standard, decentred,
+//! every Zernike coefficient a variable) and one with a diffractive phase (Binary 2, every phase
+//! coefficient a variable), nominal and perturbed.
 
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
@@ -33,6 +34,11 @@ fn all_vars(lens: &Lens) -> Vec<Param> {
             for (j, a) in s.zernike.iter().enumerate() {
                 if *a != 0.0 {
                     v.push(Param::Zernike(i, j));
+                }
+            }
+            if let Some(ph) = &s.phase {
+                for j in 0..ph.coefficients.len() {
+                    v.push(Param::Phase(i, j));
                 }
             }
         }
@@ -155,6 +161,8 @@ fn step(lens: &Lens, p: Param) -> f64 {
         // that moves the sag by 1e-5 mm, above the re-launched rays' rounding (a piston moves
         // the launch, through the paraxial model's vertex).
         Param::Zernike(..) => 1e-5,
+        // A phase coefficient in radians: 1e-2 rad moves the path by ~1e-6 mm.
+        Param::Phase(..) => 1e-2,
         Param::GlassNd(_) => 1e-7,
         Param::GlassVd(_) => 1e-4,
     }
@@ -213,6 +221,7 @@ fn gradients_match_finite_differences_nominal() {
     check("Qcon aspheres", &zmx("qcon.zmx"), false);
     check("curved image", &zmx("curved-image.zmx"), false);
     check("Zernike sag surfaces", &zmx("zernike.zmx"), false);
+    check("diffractive phase", &zmx("binary2.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -258,6 +267,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("Q-type aspheres", &zmx("qbfs.zmx"), true);
     check("Qcon aspheres", &zmx("qcon.zmx"), true);
     check("Zernike sag surfaces", &zmx("zernike.zmx"), true);
+    check("diffractive phase", &zmx("binary2.zmx"), true);
 }
 
 #[test]

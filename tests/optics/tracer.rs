@@ -73,6 +73,7 @@ fn lenses() -> Vec<(String, Lens)> {
     v.push(("Q-type aspheres".into(), zmx("qbfs.zmx")));
     v.push(("Qcon aspheres".into(), zmx("qcon.zmx")));
     v.push(("Zernike sag surfaces".into(), zmx("zernike.zmx")));
+    v.push(("diffractive phase".into(), zmx("binary2.zmx")));
     // (The primary's annular aperture, 85 to 180 mm, would stop every test ray: opened.)
     let mut m = zmx("zernike-mirrors.zmx");
     m.surfaces[0].aperture = None;

@@ -16,6 +16,7 @@ use tolray::tolerance::Perturbation;
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
 use tolray::{ErrorKind, Lens, Object};
 
+mod binary2;
 mod catalogs;
 mod corpus;
 mod errors;

@@ -364,6 +364,64 @@ impl Walker {
         ))
     }
 
+    /// The phase of a `BINARY_2` surface (OpticStudio's Binary 2): the diffraction order `order`
+    /// (PARM 0; missing, 0, with a warning: the phase is off), XDAT 1 the number of terms,
+    /// XDAT 2 the normalization radius (lens units), XDAT 3.. the coefficients A_1, A_2, ...
+    /// (radians, whatever the lens unit).
+    pub(super) fn binary_phase(
+        &self,
+        s: &RawSurf,
+        order: Option<f64>,
+        warnings: &mut Vec<String>,
+    ) -> Result<crate::lens::phase::RadialPhase> {
+        use crate::lens::phase::{RadialPhase, MAX_PHASE_TERMS};
+        let get = |n: usize| s.xdat.iter().rev().find(|x| x.0 == n);
+        let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
+        let value = |n: usize| get(n).map_or(0.0, |x| x.1);
+        let terms = value(1);
+        if !((0.0..=MAX_PHASE_TERMS as f64).contains(&terms) && terms.fract() == 0.0) {
+            return Err(invalid(
+                line_of(1),
+                format!(
+                    "XDAT 1 = {terms}: the number of phase terms must be a whole number from 0 to {MAX_PHASE_TERMS}"
+                ),
+            ));
+        }
+        let terms = terms as usize;
+        let coefficients: Vec<f64> = (0..terms).map(|j| value(3 + j)).collect();
+        let norm = value(2) * self.scale;
+        let any = coefficients.iter().any(|&a| a != 0.0);
+        if !(norm > 0.0 && norm.is_finite()) && any {
+            return Err(invalid(
+                line_of(2),
+                format!(
+                    "XDAT 2 = {}: the phase terms need a positive normalization radius",
+                    value(2)
+                ),
+            ));
+        }
+        if let Some(&(n, v, line)) = s.xdat.iter().find(|x| x.0 >= 3 + terms && x.1 != 0.0) {
+            warnings.push(format!(
+                "line {line}: XDAT {n} = {v} ignored: beyond the {terms} phase terms of XDAT 1"
+            ));
+        }
+        if order.is_none() && any {
+            warnings.push(format!(
+                "line {}: the BINARY_2 surface has no diffraction order (PARM 0): order 0, its phase off, as in OpticStudio",
+                s.type_line()
+            ));
+        }
+        Ok(RadialPhase {
+            order: order.unwrap_or(0.0),
+            norm_radius_mm: if norm > 0.0 && norm.is_finite() {
+                norm
+            } else {
+                1.0
+            },
+            coefficients,
+        })
+    }
+
     /// A STANDARD or EVENASPH surface: a lens surface, or a dummy that only moves the frame.
     ///
     /// `frame_after`: the file's frame after the coordinate breaks that follow the surface
@@ -398,6 +456,9 @@ impl Walker {
         };
         let zernike_sag = ty == "FZERNSAG" || ty == "SZERNSAG";
         let mut zernike = Vec::new();
+        // BINARY_2: PARM 0, the diffraction order.
+        let mut order = None;
+        let mut phase = None;
         // PARM 0: extrapolate beyond the normalization radius (OpticStudio's default, 1);
         // PARM 9 and 10: the Zernike decenter.
         let (mut extrapolate, mut decenter_mm) = (true, [0.0; 2]);
@@ -418,6 +479,11 @@ impl Walker {
                     asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
                 }
                 "FZERNSAG" | "SZERNSAG" if p == 9 || p == 10 => decenter_mm[p - 9] = v * scale,
+                "BINARY_2" if p == 0 => order = Some(v),
+                "BINARY_2" if (1..=N_ASPH).contains(&p) => {
+                    // α_p ρ^{2p}, as EVENASPH.
+                    asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
+                }
                 "EVENASPH" if (1..=N_ASPH).contains(&p) => {
                     // a_{2p} ρ^{2p}: lens units^{1-2p} to mm^{1-2p}.
                     asph[p - 1] = v * scale.powi(1 - 2 * p as i32);
@@ -468,6 +534,7 @@ impl Walker {
                         "DGRATING" => "a DGRATING surface has lines per µm (PARM 1) and an order (PARM 2)",
                         "QED_TYPE" => "a Q-type surface keeps its data in XDAT",
                         "FZERNSAG" | "SZERNSAG" => "tolray reads Extrapolate (PARM 0), r^2 to r^16 (PARM 1 to 8) and the Zernike decenter (PARM 9, 10)",
+                        "BINARY_2" => "tolray reads the diffraction order (PARM 0) and r^2 to r^16 (PARM 1 to 8)",
                         _ => "a STANDARD surface has no parameters",
                     };
                     warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
@@ -512,6 +579,8 @@ impl Walker {
             }
         } else if ty == "QED_TYPE" {
             shape = self.q_type(s, &mut asph, warnings)?;
+        } else if ty == "BINARY_2" {
+            phase = Some(self.binary_phase(s, order, warnings)?);
         } else if zernike_sag {
             let ordering = if ty == "FZERNSAG" {
                 crate::math::zernike::Ordering::Fringe
@@ -675,6 +744,7 @@ impl Walker {
                 grating: (ty == "DGRATING").then_some(grating),
                 fold: None,
                 zernike: zernike.clone(),
+                phase: phase.clone(),
             };
             // A coordinate break that rolls the frame about the surface's axis matters where
             // the surface is not symmetric about it (toroid, grating, a non-circular or

@@ -328,6 +328,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         l.push(
             match s.shape {
                 _ if s.grating.is_some() => "TYPE DGRATING",
+                _ if s.phase.is_some() => "TYPE BINARY_2",
                 Shape::Paraxial { .. } => "TYPE PARAXIAL",
                 Shape::Odd => "TYPE ODDASPHE",
                 Shape::Toroidal { .. } => "TYPE TOROIDAL",
@@ -347,6 +348,21 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             l.push(format!("CONI {}", fmt(s.k)));
         }
         match s.shape {
+            _ if s.phase.is_some() => {
+                // PARM 0: the diffraction order, 1..8: r² .. r¹⁶; XDAT 1: the number of
+                // terms, 2: the normalization radius, 3..: A_1, A_2, ... (radians).
+                if let Some(p) = &s.phase {
+                    l.push(format!("PARM 0 {}", fmt(p.order)));
+                    for (j, a) in s.asph.iter().enumerate() {
+                        l.push(format!("PARM {} {}", j + 1, fmt(*a)));
+                    }
+                    l.push(format!("XDAT 1 {}", p.coefficients.len()));
+                    l.push(format!("XDAT 2 {}", fmt(p.norm_radius_mm)));
+                    for (j, a) in p.coefficients.iter().enumerate() {
+                        l.push(format!("XDAT {} {}", j + 3, fmt(*a)));
+                    }
+                }
+            }
             Shape::Paraxial { focal_mm } => {
                 // PARM 1: the focal length; PARM 2: OpticStudio's OPD mode 1 (the default).
                 l.push(format!("PARM 1 {}", fmt(focal_mm)));
