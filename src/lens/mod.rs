@@ -772,7 +772,9 @@ impl Lens {
                 return Err(Error::invalid(format!(
                     "surface {i}: the medium after it ({}) has index {n} at {wavelength_nm} nm; \
                      a usable index is finite and between 0.9 and 5",
-                    s.material.json_name()
+                    s.material
+                        .catalog_name()
+                        .map_or_else(|| s.material.json_name(), str::to_string)
                 )));
             }
         }

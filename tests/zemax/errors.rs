@@ -83,6 +83,14 @@ fn malformed_lines_are_errors_that_name_the_line() {
     check(&t, "PWAV 7", &["the file has 3 wavelengths"]);
     let t = replace_line(&base, "WAVM 2", "WAVM 2 587.56 1");
     check(&t, "WAVM 2", &["micrometres"]);
+    // Below 20 µm a glass is taken beyond its range, but not where its formula has no index
+    // (N-BK7's Sellmeier at 8.5 µm: n² < 0; a fuzzed file loaded with NaN indices).
+    let t = replace_line(&base, "WAVM 2", "WAVM 2 8.4861327 1");
+    check(
+        &t,
+        "WAVM 2",
+        &["wavelength 8.4861327 µm", "N-BK7", "has index NaN"],
+    );
     let t = replace_line(&base, "DIAM 3 0", "  DIAM -2");
     check(&t, "DIAM -2", &["the image semi-diameter (DIAM) -2 mm"]);
     // Hard apertures that are not apertures, or two on one surface.

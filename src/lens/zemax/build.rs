@@ -261,10 +261,13 @@ pub(super) fn build(
     }
 
     // Beyond 20 µm every medium must be defined at each of the file's wavelengths (millimetre-wave
-    // refractors in constant indices; `WAVM 587.56`, nanometres for micrometres, is refused).
+    // refractors in constant indices; `WAVM 587.56`, nanometres for micrometres, is refused);
+    // below, a glass is taken beyond its formula's range as OpticStudio takes it, but not where
+    // the formula gives no usable index (N-SK16's Sellmeier at 8.5 µm: n² < 0).
     for w in &spec.wavelengths {
         let nm = w.um * 1e3;
-        if nm > crate::lens::material::DEFINED_MEDIA_BEYOND_NM {
+        let unusable = lens.check_indices(nm).is_err();
+        if nm > crate::lens::material::DEFINED_MEDIA_BEYOND_NM || unusable {
             let line = h
                 .wavm
                 .iter()
