@@ -68,8 +68,7 @@ pub fn broken_in_range(g: &AgfGlass) -> Option<(f64, f64)> {
     (0..=64).find_map(|k| {
         let um = lo + (hi - lo) * k as f64 / 64.0;
         let n = g.dispersion.index(um);
-        (!(n.is_finite() && (super::material::MIN_INDEX..=super::material::MAX_INDEX).contains(&n)))
-            .then_some((um, n))
+        (!super::material::is_usable_index(n)).then_some((um, n))
     })
 }
 

@@ -671,8 +671,21 @@ pub const MIN_INDEX: f64 = 0.9;
 /// material, has about 4).
 pub const MAX_INDEX: f64 = 5.0;
 
+/// True for a refractive index tolray traces: a finite number from [`MIN_INDEX`] to
+/// [`MAX_INDEX`] (NaN is not).
+///
+/// ```
+/// use tolray::lens::material::is_usable_index;
+/// assert!(is_usable_index(1.5) && is_usable_index(0.95));
+/// assert!(!is_usable_index(0.5) && !is_usable_index(f64::NAN) && !is_usable_index(f64::INFINITY));
+/// ```
+#[must_use]
+pub fn is_usable_index(n: f64) -> bool {
+    (MIN_INDEX..=MAX_INDEX).contains(&n)
+}
+
 fn check_index(n: f64, s: &str) -> Result<()> {
-    if !(MIN_INDEX..=MAX_INDEX).contains(&n) {
+    if !is_usable_index(n) {
         return Err(Error::invalid(format!(
             "material \"{s}\": refractive index {n} is not a number from {MIN_INDEX} to {MAX_INDEX}"
         )));

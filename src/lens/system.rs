@@ -479,9 +479,8 @@ impl<S: Real> System<S> {
             .collect()
     }
 
-    /// The first medium without a usable index at `wavelength_nm` (not a finite number from
-    /// [`crate::lens::material::MIN_INDEX`] to [`crate::lens::material::MAX_INDEX`], the range
-    /// [`crate::Lens::check_indices`] asks for): its place in [`System::indices`] (0 the object
+    /// The first medium without a usable index at `wavelength_nm`
+    /// ([`crate::lens::material::is_usable_index`], as [`crate::Lens::check_indices`] asks): its place in [`System::indices`] (0 the object
     /// medium, `i + 1` the medium after surface `i`) and its index; `None` when all are usable.
     ///
     /// ```
@@ -490,12 +489,11 @@ impl<S: Real> System<S> {
     /// assert!(sys.unusable_index(1e-300).is_some());
     /// ```
     pub fn unusable_index(&self, wavelength_nm: f64) -> Option<(usize, f64)> {
-        use crate::lens::material::{MAX_INDEX, MIN_INDEX};
         self.indices(wavelength_nm)
             .iter()
             .map(|n| n.value())
             .enumerate()
-            .find(|(_, n)| !(MIN_INDEX..=MAX_INDEX).contains(n))
+            .find(|&(_, n)| !crate::lens::material::is_usable_index(n))
     }
 
     /// The same system in another number type (derivatives dropped).

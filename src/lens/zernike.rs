@@ -26,25 +26,11 @@
 //! assert!((gx - 0.01 * 4.0 * 3.0 / 100.0).abs() < 1e-17 && (gy - 0.0016).abs() < 1e-17);
 //! ```
 
-use crate::math::zernike::{term_poly, Ordering, FRINGE_TERMS, STANDARD_TERMS};
-use crate::real::{Dual, Real};
+use crate::math::zernike::{term_poly, Ordering};
+use crate::real::Real;
 
 /// Highest azimuthal order of any term (radial order 20, Standard term 231).
 const MAX_M: usize = 20;
-
-/// The most Zernike terms a sag surface of `ordering` takes: 37 Fringe, 231 Standard (radial
-/// order 20), as OpticStudio's `FZERNSAG` and `SZERNSAG`.
-///
-/// ```
-/// use tolray::math::zernike::Ordering;
-/// assert_eq!(tolray::lens::zernike::max_terms(Ordering::Fringe), 37);
-/// ```
-pub fn max_terms(ordering: Ordering) -> usize {
-    match ordering {
-        Ordering::Fringe => FRINGE_TERMS,
-        Ordering::Standard => STANDARD_TERMS,
-    }
-}
 
 /// A compiled Zernike sum: the terms merged by azimuthal form, in number type `S`.
 #[derive(Clone, Debug)]
@@ -63,7 +49,7 @@ pub struct ZernikeSag<S> {
 impl<S: Real> ZernikeSag<S> {
     /// Merges the coefficients `terms` (mm; `terms[0]` is Z1) of `ordering` over a circle of
     /// `norm_radius_mm` centred at `decenter_mm`. A coefficient that is zero and constant is
-    /// left out; one being differentiated counts even at zero. Terms beyond [`max_terms`] are
+    /// left out; one being differentiated counts even at zero. Terms beyond [`Ordering::max_terms`] are
     /// not read ([`crate::Lens::validate`] refuses a surface that has them).
     pub fn new(
         ordering: Ordering,
@@ -73,7 +59,7 @@ impl<S: Real> ZernikeSag<S> {
         terms: &[S],
     ) -> Self {
         let mut groups: Vec<(usize, bool, Vec<S>)> = Vec::new();
-        for (j, &a) in terms.iter().take(max_terms(ordering)).enumerate() {
+        for (j, &a) in terms.iter().take(ordering.max_terms()).enumerate() {
             if a.value() == 0.0 && a.is_constant() {
                 continue;
             }
@@ -101,18 +87,13 @@ impl<S: Real> ZernikeSag<S> {
             extrapolate,
             max_m: groups.iter().map(|g| g.0).max().unwrap_or(0),
             groups,
-            terms: terms.iter().take(max_terms(ordering)).copied().collect(),
+            terms: terms.iter().take(ordering.max_terms()).copied().collect(),
         }
     }
 
     /// The coefficients A_1, A_2, ... (mm) it was built from.
     pub fn terms(&self) -> &[S] {
         &self.terms
-    }
-
-    /// True when no term is left (the sum is 0 everywhere).
-    pub fn is_empty(&self) -> bool {
-        self.groups.is_empty()
     }
 
     /// The sum `Σ A_j Z_j` (mm) and its gradient (`∂/∂x`, `∂/∂y`) at surface point `(x, y)` (mm).
@@ -208,17 +189,55 @@ impl<S: Real> ZernikeSag<S> {
 /// assert!((w[3][1] - 0.02).abs() < 1e-17 && (w[4][1] + 0.01).abs() < 1e-17);
 /// ```
 pub fn vertex_weights(shape: crate::lens::Shape, n: usize) -> Vec<[f64; 2]> {
-    let crate::lens::Shape::Zernike { ordering, .. } = shape else {
+    let crate::lens::Shape::Zernike {
+        ordering,
+        norm_radius_mm: r,
+        decenter_mm: [dx, dy],
+        extrapolate,
+    } = shape
+    else {
         return Vec::new();
     };
-    // The gradient differentiated once more along y by a dual number seeded on y.
-    (0..n.min(max_terms(ordering)))
-        .filter_map(|j| {
-            let mut terms = vec![Dual::<f64, 1>::cst(0.0); j + 1];
-            terms[j] = Dual::cst(1.0);
-            let sag = shape.zernike_sag(&terms)?;
-            let (z, _, gy) = sag.eval(Dual::cst(0.0), Dual::var(0.0, 0));
-            Some([z.re, 0.5 * gy.eps[0]])
+    // The vertex in the circle's coordinates, p = (X, Y) = −decenter / R, u = X² + Y².
+    let (x, y) = (-dx / r, -dy / r);
+    let u = x * x + y * y;
+    if !extrapolate && u > 1.0 {
+        return vec![[0.0; 2]; n.min(ordering.max_terms())];
+    }
+    // (X + iY)^k for k = 0 ..= 20 (the highest azimuthal order), as (re, im).
+    let mut pw = vec![(1.0, 0.0)];
+    for k in 1..=20 {
+        let (a, b): (f64, f64) = pw[k - 1];
+        pw.push((a * x - b * y, a * y + b * x));
+    }
+    (1..=n.min(ordering.max_terms()))
+        .map(|j| {
+            // A term is norm · P(u) · T(X, Y) with T = Re or Im (X + iY)^m. Along y (Y = (y −
+            // dy) / R): ∂²/∂Y² (P T) = 2 P′ T + 4 Y² P″ T + 4 Y P′ T_Y + P T_YY, with T_Y and
+            // T_YY the parts of i m (X + iY)^(m−1) and −m (m − 1) (X + iY)^(m−2).
+            let (m, sine, norm, coef) = term_poly(ordering, j);
+            let (mut p, mut dp, mut ddp) = (0.0, 0.0, 0.0);
+            for &c in &coef {
+                ddp = ddp * u + 2.0 * dp;
+                dp = dp * u + p;
+                p = p * u + c;
+            }
+            let part = |k: usize, scale: f64, times_i: bool| {
+                let (re, im) = pw[k];
+                // The part of scale · i^times_i · (re + i im) that T takes.
+                let (re, im) = if times_i { (-im, re) } else { (re, im) };
+                scale * if sine { im } else { re }
+            };
+            let mf = m as f64;
+            let t = part(m, 1.0, false);
+            let t_y = if m >= 1 { part(m - 1, mf, true) } else { 0.0 };
+            let t_yy = if m >= 2 {
+                part(m - 2, -mf * (mf - 1.0), false)
+            } else {
+                0.0
+            };
+            let d2 = 2.0 * dp * t + 4.0 * y * y * ddp * t + 4.0 * y * dp * t_y + p * t_yy;
+            [norm * p * t, 0.5 * norm * d2 / (r * r)]
         })
         .collect()
 }
@@ -241,7 +260,7 @@ mod tests {
             (0.0, 0.0),
         ];
         for ordering in [Ordering::Fringe, Ordering::Standard] {
-            for j in 1..=max_terms(ordering) {
+            for j in 1..=ordering.max_terms() {
                 let mut terms = vec![0.0; j];
                 terms[j - 1] = 1.0;
                 let r = 2.0;
@@ -275,5 +294,51 @@ mod tests {
         let sag = ZernikeSag::<f64>::new(Ordering::Standard, 1.0, [0.5, 0.0], false, &[1.0, 0.3]);
         assert_eq!(sag.eval(1.6, 0.0), (0.0, 0.0, 0.0));
         assert!(sag.eval(1.4, 0.0).0 > 1.0);
+    }
+
+    /// The vertex weights, computed in closed form, equal the sag of each term alone at the
+    /// vertex and half its second derivative along y there (a dual-number gradient of the
+    /// compiled sum, differentiated by central differences), decentred and centred, extrapolated
+    /// or not.
+    #[test]
+    fn vertex_weights_are_the_vertex_sag_and_curvature() {
+        for ordering in [Ordering::Fringe, Ordering::Standard] {
+            for (decenter, extrapolate) in [
+                ([0.0, 0.0], true),
+                ([0.7, -1.3], true),
+                ([0.7, -1.3], false),
+                ([3.0, 1.0], false),
+            ] {
+                let r = 2.5;
+                let shape = crate::lens::Shape::Zernike {
+                    ordering,
+                    norm_radius_mm: r,
+                    decenter_mm: decenter,
+                    extrapolate,
+                };
+                let n = ordering.max_terms();
+                let w = vertex_weights(shape, n + 5);
+                assert_eq!(w.len(), n);
+                for j in 1..=n {
+                    let mut terms = vec![0.0; j];
+                    terms[j - 1] = 1.0;
+                    let sag = ZernikeSag::<f64>::new(ordering, r, decenter, extrapolate, &terms);
+                    let h = 1e-4;
+                    let gy = |y: f64| sag.eval(0.0, y).2;
+                    let y2 = 0.25 * (gy(h) - gy(-h)) / h;
+                    let z0 = sag.eval(0.0, 0.0).0;
+                    let scale = z0.abs().max(1.0);
+                    assert!(
+                        (w[j - 1][0] - z0).abs() < 1e-9 * scale,
+                        "{ordering:?} Z{j} sag"
+                    );
+                    assert!(
+                        (w[j - 1][1] - y2).abs() < 1e-5 * y2.abs().max(1.0),
+                        "{ordering:?} Z{j} {decenter:?}: {} vs {y2}",
+                        w[j - 1][1]
+                    );
+                }
+            }
+        }
     }
 }

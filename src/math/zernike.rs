@@ -39,6 +39,24 @@ pub const FRINGE_TERMS: usize = 37;
 /// Most Standard terms tolray fits (radial order up to 20).
 pub const STANDARD_TERMS: usize = 231;
 
+impl Ordering {
+    /// The most terms of this ordering tolray fits or puts on a sag surface:
+    /// [`FRINGE_TERMS`] or [`STANDARD_TERMS`] (OpticStudio's `FZERNSAG` and `SZERNSAG` likewise).
+    ///
+    /// ```
+    /// use tolray::math::zernike::Ordering;
+    /// assert_eq!(Ordering::Fringe.max_terms(), 37);
+    /// assert_eq!(Ordering::Standard.max_terms(), 231);
+    /// ```
+    #[must_use]
+    pub const fn max_terms(self) -> usize {
+        match self {
+            Ordering::Standard => STANDARD_TERMS,
+            Ordering::Fringe => FRINGE_TERMS,
+        }
+    }
+}
+
 /// The radial order n, azimuthal order m (>= 0) and whether the term is a sine term, of Noll's
 /// index `j` (from 1).
 #[must_use]

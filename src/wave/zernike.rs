@@ -33,10 +33,7 @@ pub struct ZernikeFit {
 /// [`crate::ErrorKind::Argument`] for 0 terms, more than 37 Fringe terms or more than
 /// [`STANDARD_TERMS`] Standard terms.
 pub fn check_terms(ordering: Ordering, terms: usize) -> Result<()> {
-    let max = match ordering {
-        Ordering::Standard => STANDARD_TERMS,
-        Ordering::Fringe => FRINGE_TERMS,
-    };
+    let max = ordering.max_terms();
     if terms == 0 || terms > max {
         return Err(Error::argument(format!(
             "{terms} Zernike {} terms: give 1 to {max}",
