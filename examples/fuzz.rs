@@ -1019,7 +1019,7 @@ fn pattern_work(p: &Perturbation) -> Verdict {
             if let Ok(baked) = perturbed.with_adjustments(&adj) {
                 let sys = tolray::lens::System::compile(&perturbed, &adj, &|_, v| v);
                 // (Not its first-order data: the perturbed lens' is the nominal geometry's.)
-                same_lens(&perturbed, &sys, &baked, "baked pattern", false)?;
+                same_lens(&perturbed, &sys, &baked, "baked pattern", false, true)?;
                 round_trip(&baked, &baked.compile())?;
             }
             Ok(v)

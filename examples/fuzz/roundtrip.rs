@@ -1,7 +1,7 @@
 //! Round trips of the fuzzer (examples/fuzz.rs): what tolray writes reads back as the same lens.
 
 use tolray::lens::material::GlassCatalogs;
-use tolray::lens::{json, zemax};
+use tolray::lens::{json, zemax, SurfaceRole};
 use tolray::math::Vec3;
 use tolray::trace::{raw, TraceOptions};
 use tolray::Lens;
@@ -12,19 +12,24 @@ use tolray::Lens;
 pub(crate) fn round_trip(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<(), String> {
     let back = json::from_str(&json::to_string(l))
         .map_err(|e| format!("JSON round trip: tolray refuses the JSON it wrote: {e}"))?;
-    same_lens(l, sys, &back, "JSON round trip", true)?;
+    same_lens(l, sys, &back, "JSON round trip", true, true)?;
     let text = zemax::to_string(l, None);
+    // A fold whose frame is not its mirror's reflection of the axis, or that turns off the
+    // mirror's vertex (a mutated or toleranced fold), and a mirror tilted 20 degrees or more
+    // without a fold, read back as the same surfaces in space on the reflected axis turned at
+    // the vertex (the .zmx reader's folds): the same lens for the light, but the unfolded
+    // model's gaps, and so its first-order numbers, follow that axis.
+    let dirs = l.travel_directions();
+    let refolded = l.surfaces.iter().zip(&dirs).any(|(s, &dir)| match s.fold {
+        Some(f) => !canonical_fold(s, f, dir),
+        None => s.role == SurfaceRole::Mirror && tilt_deg(s.vec_local) >= 20.0,
+    });
+    // Near grazing (a surface or the image plane turned beyond 80 degrees), the last digit of
+    // a written angle moves landing points by more than the rays' tolerance.
+    let grazing = l.surfaces.iter().any(|s| tilt_deg(s.vec_local) > 80.0)
+        || tilt_deg(l.image_plane.normal) > 80.0;
     match zemax::from_str(&text, &GlassCatalogs::builtin()) {
-        // (A lens with fold mirrors is checked for its surface count only: mutated folds are
-        // still written as coordinate breaks that read back as another lens; docs/fuzzing.md.)
-        Ok(z) if l.surfaces.iter().any(|s| s.fold.is_some()) => {
-            if z.lens.surfaces.len() == l.surfaces.len() {
-                Ok(())
-            } else {
-                Err("zmx round trip changed the surface count of a folded lens".into())
-            }
-        }
-        Ok(z) => same_lens(l, sys, &z.lens, "zmx round trip", true),
+        Ok(z) => same_lens(l, sys, &z.lens, "zmx round trip", !refolded, !grazing),
         // The writer leaves what the format cannot say for the reader to refuse by name;
         // an error that does not say which line would be a finding of its own.
         Err(e) if e.message().contains("line") || e.message().contains("SURF") => Ok(()),
@@ -35,16 +40,17 @@ pub(crate) fn round_trip(l: &Lens, sys: &tolray::lens::System<f64>) -> Result<()
 }
 
 /// `b` is `a` (compiled as `sys_a`) as far as the light can tell: the same media at the
-/// lens' wavelengths, the same first-order data (when `first_order`), and the same path for a fan of rays entering
-/// the first surface at two angles and three wavelengths (to 1e-7 mm and 1e-9 in direction,
-/// what writing angles and positions as decimal text may cost; one ray may change its fate at
-/// an aperture's edge).
+/// lens' wavelengths, the same first-order data (when `first_order`), and (when `rays`) the
+/// same path for a fan of rays entering the first surface at two angles and three wavelengths
+/// (to 1e-7 mm and 1e-9 in direction, what writing angles and positions as decimal text may
+/// cost; one ray in 20 may change its fate at an aperture's edge).
 pub(crate) fn same_lens(
     a: &Lens,
     sys_a: &tolray::lens::System<f64>,
     b: &Lens,
     what: &str,
     first_order: bool,
+    rays: bool,
 ) -> Result<(), String> {
     if a.surfaces.len() != b.surfaces.len() {
         return Err(format!(
@@ -114,6 +120,16 @@ pub(crate) fn same_lens(
                 if rb.is_ok() { "computed" } else { "refused" }
             ))
         }
+    }
+    // A refolded lens (`first_order` false) may read back with its image on the other side of
+    // the last surface along the unfolded axis: a real image becomes a virtual one, to which
+    // the rays are extended backwards, and the rays' fates are not comparable.
+    let image_is_virtual = |l: &Lens| {
+        let last = l.surfaces.last().map_or(0.0, |s| s.d_next_mm);
+        last * l.travel_directions().last().copied().unwrap_or(1.0) < 0.0
+    };
+    if !rays || (!first_order && image_is_virtual(a) != image_is_virtual(b)) {
+        return Ok(());
     }
     let sys_b = b.compile();
     let r = 0.5 * a.surfaces[0].semi_aperture_mm;
@@ -203,4 +219,20 @@ pub(crate) fn same_lens(
         }
     }
     Ok(())
+}
+
+/// The angle (degrees) between a surface normal and the axis.
+fn tilt_deg(n: [f64; 3]) -> f64 {
+    let v = Vec3::new(n[0], n[1], n[2]);
+    (v.z / v.norm()).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// True when the fold turns the axis at the mirror's vertex by the mirror's reflection of it
+/// (`dir`: the direction of travel along z before the mirror, as the .zmx reader's folds).
+fn canonical_fold(s: &tolray::lens::Surface, f: tolray::lens::Fold, dir: f64) -> bool {
+    let n = Vec3::new(s.vec_local[0], s.vec_local[1], s.vec_local[2]).normalized();
+    let d = Vec3::new(0.0, 0.0, dir);
+    let v = d - n * (2.0 * d.dot(n));
+    let turned = f.rotation().apply(Vec3::new(0.0, 0.0, -dir));
+    f.pivot_mm == 0.0 && (turned - v).norm() < 1e-12
 }

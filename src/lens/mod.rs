@@ -608,6 +608,14 @@ impl Lens {
                     s.vec_local
                 )));
             }
+            // Lengths beyond 1 km, as above (a decentre of 9e18 mm keeps no digit below a
+            // kilometre).
+            if !s.pos_xy_mm.iter().all(|v| v.abs() <= 1e6) {
+                return Err(at(format!(
+                    "decenter {:?} mm is not finite or beyond ±1e6",
+                    s.pos_xy_mm
+                )));
+            }
             if s.role == SurfaceRole::Aperture && (s.c != 0.0 || s.is_aspheric()) {
                 return Err(at("an aperture surface must be flat".into()));
             }

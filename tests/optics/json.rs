@@ -506,6 +506,20 @@ fn directions_and_names_that_cannot_round_trip_are_refused() {
     let mut v = lens1_value();
     v["surfaces"][2]["vec_local"] = json!([0.0, 0.01, 1.0]);
     assert!(from_value(&v).is_ok());
+    // A decentre of 9e18 mm (fuzz --seed 13 --target lens-json: written to .zmx, read back
+    // with its paraxial image distance 18.9 mm as -532 mm) is refused; 1 km is the bound.
+    for (d, ok) in [(9e18, false), (1e6, true), (-1.000001e6, false)] {
+        let mut v = lens1_value();
+        v["surfaces"][2]["pos_xy"] = json!([0.5, d]);
+        match from_value(&v) {
+            Ok(_) => assert!(ok, "{d}"),
+            Err(e) => assert!(
+                !ok && e.message().contains("surface 2") && e.message().contains("decenter"),
+                "{d}: {}",
+                e.message()
+            ),
+        }
+    }
     for bad in ["1e308/4", "7/40", "0.95/40", "1e308", "6"] {
         let e = Material::parse(bad).unwrap_err();
         assert!(

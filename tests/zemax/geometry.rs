@@ -437,3 +437,56 @@ fn an_afocal_lens_has_optiland_s_angular_spots() {
     }
     assert!(rows[0].stats.rms_um > 200.0 && rows[0].stats.rms_um < 210.0);
 }
+
+/// A fold mirror with the next surface at its vertex (a gap of 0 after the fold) keeps its fold
+/// through .zmx. The reader tells a fold from a tilted mirror by the frame the coordinate breaks
+/// after the mirror leave, up to the first that moves along the axis; with none moving, the
+/// next surface's own tilt joined the fold's (fuzz --seed 5 --target zmx: a 12-degree fold read
+/// back as a tilted mirror, EFL 111.397 -> 113.744 mm). Here: a mirror tilted 10 degrees (a
+/// 20-degree fold, below the angle that makes any mirror a fold) followed at its vertex by a bare
+/// aperture tilted 3 degrees. The writer closes the fold's breaks with a flat dummy surface; the
+/// lens reads back with its fold, the same first-order data and the same rays.
+#[test]
+fn a_fold_followed_at_its_vertex_by_a_tilted_surface_keeps_its_fold() {
+    let mut lens =
+        json::read_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fold.json"))
+            .unwrap();
+    let (s, c) = 10f64.to_radians().sin_cos();
+    lens.surfaces[3].vec_local = [0.0, -s, c];
+    lens.surfaces[3].fold = Some(tolray::lens::Fold {
+        tilt_deg: [20.0, 0.0, 0.0],
+        pivot_mm: 0.0,
+    });
+    let mut stop = tolray::lens::Surface::stop(30.0, lens.surfaces[3].d_next_mm);
+    let (s3, c3) = 3f64.to_radians().sin_cos();
+    stop.vec_local = [0.0, s3, c3];
+    stop.is_stop = false;
+    lens.surfaces[3].d_next_mm = 0.0;
+    lens.surfaces.insert(4, stop);
+    // (A stop and mirrors large enough for the fan of the check below.)
+    lens.surfaces[0].semi_aperture_mm = 6.0;
+    for s in &mut lens.surfaces[3..] {
+        s.semi_aperture_mm = 30.0;
+    }
+    lens.validate().unwrap();
+    let text = zemax::to_string(&lens, None);
+    let back = parse(&text).unwrap().lens;
+    assert_eq!(back.surfaces.len(), lens.surfaces.len(), "{text}");
+    let fold = back.surfaces[3].fold.expect("the fold is kept");
+    assert!(
+        (fold.tilt_deg[0] - 20.0).abs() < 1e-12 && fold.pivot_mm == 0.0,
+        "{fold:?}"
+    );
+    assert_paraxial_equal(&lens, &back, "fold, then a tilted surface at its vertex");
+    assert_same_trace(&lens.compile(), &back.compile(), 1e-9, "read back");
+    // The dummy is what keeps it: without it the reader joins the aperture's tilt to the fold.
+    let dummy = "TYPE STANDARD\r\n  CURV 0\r\n  DISZ 0\r\nSURF";
+    let k = text.find(dummy).expect("the dummy surface");
+    let without = format!(
+        "{}TYPE COORDBRK\r\n  DISZ 0\r\nSURF{}",
+        &text[..k],
+        &text[k + dummy.len()..]
+    );
+    let joined = parse(&without).unwrap().lens;
+    assert_eq!(joined.surfaces[3].fold, None);
+}

@@ -142,6 +142,17 @@ impl Walker {
         self.rot.apply(Vec3::cst(0.0, 0.0, 1.0))
     }
 
+    /// The travel since the last surface along the leg's axis, with residues of the frames'
+    /// rotations (under 1e-12 mm) dropped: a surface written at the previous one's vertex
+    /// reads back at a gap of exactly 0 (not ±4e-16, whose sign would send rays either way).
+    pub(super) fn gap(&self) -> f64 {
+        if self.pending.abs() <= 1e-12 {
+            0.0
+        } else {
+            self.pending
+        }
+    }
+
     /// Moves the origin by `d` (global) and counts its axial part (along the leg's axis).
     pub(super) fn shift(&mut self, d: Vec3<f64>) {
         self.origin = self.origin + d;
@@ -325,7 +336,7 @@ impl Walker {
         let get = |n: usize| s.xdat.iter().rev().find(|x| x.0 == n);
         let line_of = |n: usize| get(n).map_or(s.type_line(), |x| x.2);
         let value = |n: usize| get(n).map_or(0.0, |x| x.1);
-        let max = crate::lens::zernike::max_terms(ordering);
+        let max = ordering.max_terms();
         let terms = value(1);
         if !((0.0..=max as f64).contains(&terms) && terms.fract() == 0.0) {
             return Err(invalid(
@@ -664,7 +675,7 @@ impl Walker {
                 ));
             }
             // (Before the first surface, a negative travel is a virtual object's distance.)
-            if self.pending * self.dir < 0.0 && !self.built.is_empty() {
+            if self.gap() * self.dir < 0.0 && !self.built.is_empty() {
                 return Err(invalid(
                     s.line,
                     format!(
@@ -673,10 +684,11 @@ impl Walker {
                     ),
                 ));
             }
+            let gap = self.gap();
             match self.built.last_mut() {
-                Some(prev) => prev.surface.d_next_mm = self.pending,
+                Some(prev) => prev.surface.d_next_mm = gap,
                 None => {
-                    self.object_gap = Some(self.pending);
+                    self.object_gap = Some(gap);
                     self.first_vertex = self.origin;
                     self.leg_t = Vec3::cst(0.0, 0.0, self.origin.z);
                 }
@@ -850,12 +862,13 @@ impl Walker {
         };
         // An image surface before the last lens surface along the light's path is a virtual
         // image (OpticStudio's negative image thickness): the rays are extended backwards to it.
+        let gap = self.gap();
         let Some(last) = self.built.last_mut() else {
             return Err(Error::invalid(
                 "the file has no lens surface between the object and the image",
             ));
         };
-        last.surface.d_next_mm = self.pending;
+        last.surface.d_next_mm = gap;
         let r_sensor = img.diam.as_ref().map_or(0.0, |d| d.v.0 * self.scale);
         if r_sensor < 0.0 || !r_sensor.is_finite() {
             return Err(invalid(

@@ -449,6 +449,20 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 coordinate_break(s.d_next_mm - f.pivot_mm, [0.0, 0.0, a, b, g], 0),
             );
         }
+        // The reader tells a fold mirror from a tilted one by the frame the coordinate breaks
+        // after it leave, up to the first break that moves along the axis. When none does (the
+        // next surface at the mirror's vertex), a flat dummy surface closes the mirror's breaks
+        // before the next surface's (or the image plane's) own begin.
+        let last_gap = match s.fold {
+            Some(f) => s.d_next_mm - f.pivot_mm,
+            None => to_next,
+        };
+        if s.role == SurfaceRole::Mirror && last_gap == 0.0 {
+            // (In the mirror's medium, which the light goes back through: a dummy.)
+            let mut dummy = vec!["TYPE STANDARD".into(), "CURV 0".into(), "DISZ 0".into()];
+            dummy.extend(glas_line(&s.material));
+            surf(&mut w, dummy);
+        }
     }
     // A decentred, tilted or rolled image plane: one coordinate break before it.
     let ip = &lens.image_plane;
