@@ -49,8 +49,9 @@ pub struct ZernikeSag<S> {
 impl<S: Real> ZernikeSag<S> {
     /// Merges the coefficients `terms` (mm; `terms[0]` is Z1) of `ordering` over a circle of
     /// `norm_radius_mm` centred at `decenter_mm`. A coefficient that is zero and constant is
-    /// left out; one being differentiated counts even at zero. Terms beyond [`Ordering::max_terms`] are
-    /// not read ([`crate::Lens::validate`] refuses a surface that has them).
+    /// left out; one being differentiated counts even at zero. Terms beyond
+    /// [`Ordering::max_terms`] are not read ([`crate::Lens::validate`] refuses a surface that
+    /// has them).
     pub fn new(
         ordering: Ordering,
         norm_radius_mm: f64,
@@ -204,9 +205,9 @@ pub fn vertex_weights(shape: crate::lens::Shape, n: usize) -> Vec<[f64; 2]> {
     if !extrapolate && u > 1.0 {
         return vec![[0.0; 2]; n.min(ordering.max_terms())];
     }
-    // (X + iY)^k for k = 0 ..= 20 (the highest azimuthal order), as (re, im).
+    // (X + iY)^k for k = 0 ..= MAX_M, as (re, im).
     let mut pw = vec![(1.0, 0.0)];
-    for k in 1..=20 {
+    for k in 1..=MAX_M {
         let (a, b): (f64, f64) = pw[k - 1];
         pw.push((a * x - b * y, a * y + b * x));
     }

@@ -442,21 +442,17 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
         if moved {
             surf(&mut w, cb(-1.0, 1, to_next));
         }
+        // The travel written last for this surface: past the fold's pivot, or to the next.
+        let mut last_gap = to_next;
         if let Some(f) = s.fold {
             let [a, b, g] = f.tilt_deg;
-            surf(
-                &mut w,
-                coordinate_break(s.d_next_mm - f.pivot_mm, [0.0, 0.0, a, b, g], 0),
-            );
+            last_gap = s.d_next_mm - f.pivot_mm;
+            surf(&mut w, coordinate_break(last_gap, [0.0, 0.0, a, b, g], 0));
         }
         // The reader tells a fold mirror from a tilted one by the frame the coordinate breaks
         // after it leave, up to the first break that moves along the axis. When none does (the
         // next surface at the mirror's vertex), a flat dummy surface closes the mirror's breaks
         // before the next surface's (or the image plane's) own begin.
-        let last_gap = match s.fold {
-            Some(f) => s.d_next_mm - f.pivot_mm,
-            None => to_next,
-        };
         if s.role == SurfaceRole::Mirror && last_gap == 0.0 {
             // (In the mirror's medium, which the light goes back through: a dummy.)
             let mut dummy = vec!["TYPE STANDARD".into(), "CURV 0".into(), "DISZ 0".into()];
