@@ -7,6 +7,8 @@
 mod aberrations;
 mod constraints;
 mod criterion;
+#[path = "../common/double_double.rs"]
+mod double_double;
 mod gradient;
 mod grating;
 mod json;
