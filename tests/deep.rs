@@ -5,8 +5,7 @@
 
 #[path = "common/double_double.rs"]
 mod double_double;
-use double_double::Dd;
-use tolray::real::Real;
+use double_double::dd_central_diff;
 
 use tolray::decoder::DecoderKind;
 use tolray::deep::eval::{evaluate, merge, report, EvalConfig, EvalImages};
@@ -679,7 +678,7 @@ fn the_vjp_seam_is_exact_in_f64() {
             Param::Curvature(_) => 1e-8,
             _ => 1e-6,
         };
-        let fd = dd_difference(&lens, &adj, v, h, &make);
+        let fd = dd_central_diff(&make, &lens, &adj, v, h, false);
         let rel = (grad[k] - fd).abs() / fd.abs();
         assert!(
             rel < 1e-6,
@@ -687,28 +686,6 @@ fn the_vjp_seam_is_exact_in_f64() {
             grad[k]
         );
     }
-}
-
-/// The central difference `(L(x + h) − L(x − h)) / 2h` in design variable `v` of the objective
-/// `make` builds at each stepped design (its rays launched from it), evaluated in double-double
-/// numbers ([`Dd`]: the same generic code, about 1e-32 relative), over the step between the
-/// stored parameter values.
-fn dd_difference<O: tolray::optim::Objective>(
-    lens: &Lens,
-    adj: &Adjustments,
-    v: Param,
-    h: f64,
-    make: &dyn Fn(&Lens) -> O,
-) -> f64 {
-    let x0 = param_value(lens, v).unwrap();
-    let f = |dx: f64| -> (Dd, f64) {
-        let mut l = lens.clone();
-        set_param(&mut l, v, x0 + dx).unwrap();
-        let sys: tolray::lens::System<Dd> = tolray::lens::System::compile(&l, adj, &|_, v| v);
-        (make(&l).eval(&sys, &|_, v| v), param_value(&l, v).unwrap())
-    };
-    let ((a, xa), (b, xb)) = (f(h), f(-h));
-    ((a - b) / (Dd::cst(xa) - Dd::cst(xb))).hi
 }
 
 /// The study on reduced sizes (CI runs it once, `.ci/run`; `cargo test -- --ignored` here), on
@@ -965,7 +942,7 @@ fn the_diffraction_vjp_seam_is_exact_in_f64() {
                 Param::Curvature(_) => 1e-9,
                 _ => 1e-6,
             };
-            let fd = dd_difference(&lens, &adj, v, h, &make);
+            let fd = dd_central_diff(&make, &lens, &adj, v, h, false);
             let rel = (grad[k] - fd).abs() / fd.abs();
             assert!(
                 rel < 1e-6,

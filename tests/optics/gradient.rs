@@ -9,11 +9,10 @@
 //! difference, it is taken of the loss evaluated in double-double numbers (`Dd`, the same
 //! generic code at ~1e-32 relative).
 
-use crate::double_double::Dd;
+use crate::double_double::{dd_central_diff, value_dd};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Material, Param, Surface};
 use tolray::optim::{gradient, param_value, set_param, value, Objective, SpotLoss, SpotMeasure};
-use tolray::real::Real;
 use tolray::tolerance::ToleranceSpec;
 use tolray::trace::{Bundles, Field, Pupil, TraceOptions};
 use tolray::{Lens, Object};
@@ -641,7 +640,7 @@ fn wavefront_loss_gradient_matches_finite_differences() {
 /// variable equals the central difference of the loss rebuilt at each step to 1e-6 relative,
 /// nominal and perturbed, on five lenses at two fields and two wavelengths (176 derivatives).
 ///
-/// The differences are taken of the loss evaluated in double-double numbers ([`Dd`], the same
+/// The differences are taken of the loss evaluated in double-double numbers (`Dd`, the same
 /// objective traced in the same generic code at about 1e-32 relative): in f64 an OPD in waves is
 /// a difference of ~1e5-wave path lengths and the loss scatters by up to 2e-9 about a smooth
 /// curve, which no step could get below 1e-6 of the smallest derivatives (steps large enough
@@ -741,45 +740,4 @@ fn unit_adjustments(lens: &Lens, perturbed: bool) -> Adjustments {
     } else {
         Adjustments::none(lens.surfaces.len())
     }
-}
-
-/// The loss evaluated in double-double numbers ([`Dd`]: the same generic code, about 1e-32
-/// relative).
-fn value_dd<O: Objective>(obj: &O, lens: &Lens, adj: &Adjustments) -> Dd {
-    let sys: tolray::lens::System<Dd> = tolray::lens::System::compile(lens, adj, &|_, v| v);
-    obj.eval(&sys, &|_, v| v)
-}
-
-/// The central difference `(L(x + h) − L(x − h)) / 2h` in `p` of the objective `make` builds at
-/// each stepped design (its rays launched from it), evaluated in double-double numbers, over the
-/// step between the stored parameter values; with `extrapolate`, the fourth-order difference
-/// extrapolated by Richardson's rule from steps h and h/2 (as [`central_diff`]).
-fn dd_central_diff<O: Objective>(
-    make: &dyn Fn(&Lens) -> O,
-    lens: &Lens,
-    adj: &Adjustments,
-    p: Param,
-    h: f64,
-    extrapolate: bool,
-) -> f64 {
-    let x0 = param_value(lens, p).unwrap();
-    let f = |dx: f64| -> Dd {
-        let mut l = lens.clone();
-        set_param(&mut l, p, x0 + dx).unwrap();
-        value_dd(&make(&l), &l, adj)
-    };
-    // The step between the stored values x0 ± h (their rounding would otherwise show).
-    let at = |dx: f64| {
-        let mut l = lens.clone();
-        set_param(&mut l, p, x0 + dx).unwrap();
-        Dd::cst(param_value(&l, p).unwrap())
-    };
-    if !extrapolate {
-        return ((f(h) - f(-h)) / (at(h) - at(-h))).hi;
-    }
-    let d4 = |h: f64| {
-        let num = f(-2.0 * h) - f(2.0 * h) + Dd::cst(8.0) * (f(h) - f(-h));
-        (num / (Dd::cst(6.0) * (at(h) - at(-h)))).hi
-    };
-    (16.0 * d4(0.5 * h) - d4(h)) / 15.0
 }
