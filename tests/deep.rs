@@ -873,8 +873,8 @@ fn the_refocused_crop_objective_is_exact_in_f64() {
 /// term with each wavelength's PSF the FFT of the pupil function on the sensor's pixels
 /// ([`tolray::optim::DiffractionPsfs`]: OPD, FFT pixel pitch and bilinear deposit all in dual
 /// numbers), in f64, against central differences of the objective rebuilt at each step (rays
-/// launched from the stepped design) in double-double numbers, to 1e-6 relative. The PSFs' values are those of
-/// `wave::psf::diffraction_psf_map`, and differ from the rays'.
+/// launched from the stepped design) in double-double numbers, to 1e-6 relative. The PSFs'
+/// values are those of `wave::psf::diffraction_psf_map`, and differ from the rays'.
 #[test]
 fn the_diffraction_vjp_seam_is_exact_in_f64() {
     use tolray::deep::crop_psfs;

@@ -3,10 +3,11 @@
 //! relative and take central differences far below f64's rounding floor.
 //!
 //! It is a test oracle, not a number type for users: the library never instantiates it. Written
-//! here (about a hundred lines: Dekker's and Knuth's error-free sums and products, one Newton
-//! step for the square root, Taylor series after a reduction by π/2 for the sine and cosine)
-//! because the test must know exactly what precision it gets, and each operation is checked
-//! below against identities that hold to that precision.
+//! here (Dekker's and Knuth's error-free sums and products, one Newton step for the square
+//! root, Taylor series after a reduction by π/2 for the sine and cosine) because the test must
+//! know exactly what precision it gets, and each operation is checked below against identities
+//! that hold to that precision. `dd_central_diff` is the central difference the gradient tests
+//! take with it.
 
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
 use tolray::lens::{Adjustments, Param, System};
