@@ -234,7 +234,8 @@ fn transform_of<S: Real>(pupil: &[[f64; 2]], opd: Option<&[S]>, s: usize, n: usi
             for (&i, v) in at.iter().zip(&values) {
                 a[i] = Complex::new(v[0].part(k), v[1].part(k));
             }
-            crate::fft::fft2(&mut a, n, n, false);
+            // Only the pupil's rows are not zero.
+            crate::fft::fft2_rows(&mut a, n, n, off..off + s, false);
             a
         })
         .collect();
