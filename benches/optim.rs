@@ -10,6 +10,7 @@ use tolray::lens::{Adjustments, System};
 use tolray::optim::train::{step, TrainConfig, TrainState};
 use tolray::psf::{psf_map, PsfOptions};
 use tolray::real::Dual;
+use tolray::trace::simd::{self, Isa};
 use tolray::trace::{trace, Field, Pupil, RayBatch, RaySet, TraceOptions, Traceable};
 use tolray::Lens;
 
@@ -44,6 +45,14 @@ fn bench(c: &mut Criterion) {
     trace_cost::<f64>(c, &lens, &set, "f64");
     trace_cost::<Dual<f64, 8>>(c, &lens, &set, "dual8");
     trace_cost::<Dual<f64, 16>>(c, &lens, &set, "dual16");
+    // The builds of the widths the library differentiates with, per instruction set.
+    let detected = Isa::detected();
+    for isa in Isa::available().into_iter().filter(|&i| i != detected) {
+        simd::set_active(isa).unwrap();
+        trace_cost::<f64>(c, &lens, &set, &format!("f64/{}", isa.name()));
+        trace_cost::<Dual<f64, 8>>(c, &lens, &set, &format!("dual8/{}", isa.name()));
+    }
+    simd::set_active(detected).unwrap();
 
     let mut cfg = TrainConfig::for_lens(&lens);
     cfg.pretrain_iters = 0;

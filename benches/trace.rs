@@ -1,5 +1,6 @@
 //! `trace`: ray-surfaces per second for lens2 at the d line, 1,000,000 rays, value-only f32 and
-//! f64, one thread and all threads; and, per surface kind that needs Newton's method on its sag
+//! f64, one thread and all threads, with the instruction-set build chosen at run time and with
+//! each other build the CPU runs; and, per surface kind that needs Newton's method on its sag
 //! (`trace/kinds/...`, all threads), Thorlabs' ASL5040-UV (a Qbfs asphere), the hand-made Qcon
 //! singlet of the tests, Thorlabs' LJ1598L1 cylinder lens (a toroid) and the tests' Zernike sag
 //! singlet (a 17-term Fringe front, a 12-term Standard back), each at its primary
@@ -12,6 +13,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use tolray::analysis::{spot_diagram_rows, SpotOptions};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{zemax, GlassCatalogs, System};
+use tolray::trace::simd::{self, Isa};
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, RaySet, TraceOptions, Traceable};
 use tolray::Lens;
 
@@ -39,23 +41,34 @@ fn pools() -> Vec<(usize, rayon::ThreadPool)> {
         .collect()
 }
 
+/// The kernel with the build chosen at run time (`trace/lens2/f32/threads/N`) and with each other
+/// instruction-set build this CPU runs (`trace/lens2/f32/avx2/threads/N`, ...).
 fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
     let sys: System<S> = lens.compile().convert();
     let fresh: RayBatch<S> = set.batch();
     let surfaces = (lens.surfaces.len() + 1) as u64;
-    let mut g = c.benchmark_group(format!("trace/lens2/{}", S::NAME));
-    g.throughput(Throughput::Elements(RAYS as u64 * surfaces));
-    g.sample_size(10);
-    for (threads, pool) in pools() {
-        g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
-            let mut batch = fresh.clone();
-            b.iter(|| {
-                batch.clone_from(&fresh);
-                pool.install(|| trace(&sys, LAMBDA_D_NM, &mut batch, TraceOptions::default()));
+    let detected = Isa::detected();
+    for isa in Isa::available() {
+        simd::set_active(isa).unwrap();
+        let name = match isa == detected {
+            true => format!("trace/lens2/{}", S::NAME),
+            false => format!("trace/lens2/{}/{}", S::NAME, isa.name()),
+        };
+        let mut g = c.benchmark_group(name);
+        g.throughput(Throughput::Elements(RAYS as u64 * surfaces));
+        g.sample_size(10);
+        for (threads, pool) in pools() {
+            g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
+                let mut batch = fresh.clone();
+                b.iter(|| {
+                    batch.clone_from(&fresh);
+                    pool.install(|| trace(&sys, LAMBDA_D_NM, &mut batch, TraceOptions::default()));
+                });
             });
-        });
+        }
+        g.finish();
     }
-    g.finish();
+    simd::set_active(detected).unwrap();
 }
 
 /// The kernel on surface kinds traced by Newton's method (Q-type aspheres, toroids, Zernike sag

@@ -12,6 +12,7 @@ use std::process::ExitCode;
 mod aberrations;
 mod app;
 mod args;
+mod bench;
 mod convert;
 mod deep;
 mod demo;
@@ -99,9 +100,15 @@ enum Command {
     PoolEval(deep::PoolEvalArgs),
     /// Simulates a capture: an image blurred by the lens' spatially variant RGB PSF map, plus noise.
     Render(deep::RenderArgs),
+    /// The kernel's and the commands' speed on this machine (ray-surfaces/s per core and on all
+    /// cores in f32, f64 and dual numbers, the spot analysis, a PSF map, a deep-optics
+    /// iteration), with the instruction set in use.
+    Bench(bench::BenchArgs),
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
+    // A forced instruction set this CPU cannot run is refused, not silently replaced.
+    tolray::trace::simd::from_env()?;
     match cli.command {
         Command::Info(a) => info::run(a),
         Command::Spot(a) => spot::run(a),
@@ -125,6 +132,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::MergeEval(a) => deep::merge_eval(&a),
         Command::PoolEval(a) => deep::pool_eval(&a),
         Command::Render(a) => deep::render_cmd(&a),
+        Command::Bench(a) => bench::run(a),
     }
 }
 

@@ -8,7 +8,8 @@
 //! Conditions are evaluated on values and applied as
 //! selects; a dead ray keeps its last state and its status.
 //!
-//! The lane loops are written for LLVM's loop vectorizer (8 `f32` or 4 `f64` lanes with AVX2).
+//! The lane loops are written for LLVM's loop vectorizer (8 `f32` or 4 `f64` lanes with AVX2, 16
+//! or 8 with AVX-512), and compiled once per instruction set ([`super::simd`]).
 //! What it takes, found from the vectorizer's remarks and the generated code:
 //! - No branches in the loop body: conditions are combined with `&`/`|` (not `&&`/`||`),
 //!   statuses are chosen with `select_u32`, and `commit` writes field by field. A branch
@@ -67,58 +68,62 @@ mod builds {
 
     mod build_f32 {
         use super::super::{trace_blocks_generic, Block, System};
-        #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-        pub(in super::super) fn trace_blocks_f32(
-            sys: &System<f32>,
-            n: &[f32],
-            wavelength_nm: f64,
-            clip: bool,
-            blocks: &mut [Block<f32>],
-        ) {
-            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        crate::trace::simd::isa_dispatch! {
+            pub(in super::super) fn trace_blocks_f32(
+                sys: &System<f32>,
+                n: &[f32],
+                wavelength_nm: f64,
+                clip: bool,
+                blocks: &mut [Block<f32>],
+            ) {
+                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+            }
         }
     }
 
     mod build_f64 {
         use super::super::{trace_blocks_generic, Block, System};
-        #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-        pub(in super::super) fn trace_blocks_f64(
-            sys: &System<f64>,
-            n: &[f64],
-            wavelength_nm: f64,
-            clip: bool,
-            blocks: &mut [Block<f64>],
-        ) {
-            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        crate::trace::simd::isa_dispatch! {
+            pub(in super::super) fn trace_blocks_f64(
+                sys: &System<f64>,
+                n: &[f64],
+                wavelength_nm: f64,
+                clip: bool,
+                blocks: &mut [Block<f64>],
+            ) {
+                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+            }
         }
     }
 
     mod build_dual_grad {
         use super::super::{trace_blocks_generic, Block, Dual, System};
         use crate::real::GRAD_WIDTH;
-        #[inline(never)]
-        pub(in super::super) fn trace_blocks_dual_grad(
-            sys: &System<Dual<f64, GRAD_WIDTH>>,
-            n: &[Dual<f64, GRAD_WIDTH>],
-            wavelength_nm: f64,
-            clip: bool,
-            blocks: &mut [Block<Dual<f64, GRAD_WIDTH>>],
-        ) {
-            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        crate::trace::simd::isa_dispatch! {
+            pub(in super::super) fn trace_blocks_dual_grad(
+                sys: &System<Dual<f64, GRAD_WIDTH>>,
+                n: &[Dual<f64, GRAD_WIDTH>],
+                wavelength_nm: f64,
+                clip: bool,
+                blocks: &mut [Block<Dual<f64, GRAD_WIDTH>>],
+            ) {
+                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+            }
         }
     }
 
     mod build_dual1 {
         use super::super::{trace_blocks_generic, Block, Dual, System};
-        #[inline(never)]
-        pub(in super::super) fn trace_blocks_dual1(
-            sys: &System<Dual<f64, 1>>,
-            n: &[Dual<f64, 1>],
-            wavelength_nm: f64,
-            clip: bool,
-            blocks: &mut [Block<Dual<f64, 1>>],
-        ) {
-            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        crate::trace::simd::isa_dispatch! {
+            pub(in super::super) fn trace_blocks_dual1(
+                sys: &System<Dual<f64, 1>>,
+                n: &[Dual<f64, 1>],
+                wavelength_nm: f64,
+                clip: bool,
+                blocks: &mut [Block<Dual<f64, 1>>],
+            ) {
+                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+            }
         }
     }
 }

@@ -11,6 +11,7 @@ mod kernel;
 pub mod raw;
 pub mod rays;
 pub mod reference;
+pub mod simd;
 mod stream;
 
 pub use bundles::{Bundle, Bundles};

@@ -861,62 +861,64 @@ impl<S: Real> Beam<S> {
     }
 }
 
-/// The rays of `beam` through the normalized pupil points `pts`, then the chief ray, into `out`
-/// (the numbers of [`Beam::ray`], rounded to `f32`); the lanes past the chief ray are dead, as in
-/// [`super::Block::dead`]. Compiled for several instruction sets, chosen at run time, like the
-/// kernel.
-#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.2"))]
-fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
-    let n = pts.len() + 1;
-    for (b, blk) in out.iter_mut().enumerate() {
-        // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray (0, 0).
-        let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
-        for (l, q) in pts.iter().skip(b * LANES).take(LANES).enumerate() {
-            px[l] = q[0] * beam.r_ep;
-            py[l] = q[1] * beam.r_ep;
-        }
-        let mut r = [[0.0f64; LANES]; 6];
-        match beam.source {
-            // As `ray`: (p - q) * (1 / |p - q|), origin q.
-            Source::Point(q) => {
-                for l in 0..LANES {
-                    let v = Vec3::new(px[l], py[l], beam.z_ep) - q;
-                    let u = v * (1.0 / v.dot(v).sqrt());
-                    (r[0][l], r[1][l], r[2][l]) = (q.x, q.y, q.z);
-                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+// Compiled for each instruction set, chosen at run time, like the kernel.
+super::simd::isa_dispatch! {
+    /// The rays of `beam` through the normalized pupil points `pts`, then the chief ray, into
+    /// `out` (the numbers of [`Beam::ray`], rounded to `f32`); the lanes past the chief ray are
+    /// dead, as in [`super::Block::dead`].
+    fn beam_rays(beam: &Beam, pts: &[[f64; 2]], out: &mut [super::Block<f32>]) {
+        let n = pts.len() + 1;
+        for (b, blk) in out.iter_mut().enumerate() {
+            // Entrance-pupil coordinates, mm; lanes past the pupil points hold the chief ray
+            // (0, 0).
+            let (mut px, mut py) = ([0.0f64; LANES], [0.0f64; LANES]);
+            for (l, q) in pts.iter().skip(b * LANES).take(LANES).enumerate() {
+                px[l] = q[0] * beam.r_ep;
+                py[l] = q[1] * beam.r_ep;
+            }
+            let mut r = [[0.0f64; LANES]; 6];
+            match beam.source {
+                // As `ray`: (p - q) * (1 / |p - q|), origin q.
+                Source::Point(q) => {
+                    for l in 0..LANES {
+                        let v = Vec3::new(px[l], py[l], beam.z_ep) - q;
+                        let u = v * (1.0 / v.dot(v).sqrt());
+                        (r[0][l], r[1][l], r[2][l]) = (q.x, q.y, q.z);
+                        (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                    }
+                }
+                // As `ray`: direction (q - p) / |q - p|, origin p - d (p.z - z0) / d.z.
+                Source::Toward { q, z0 } => {
+                    for l in 0..LANES {
+                        let p = Vec3::new(px[l], py[l], beam.z_ep);
+                        let v = q - p;
+                        let u = v * (1.0 / v.dot(v).sqrt());
+                        let o = p - u * ((beam.z_ep - z0) / u.z);
+                        (r[0][l], r[1][l], r[2][l]) = (o.x, o.y, o.z);
+                        (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                    }
+                }
+                // As `ray`: origin p - d back, direction d.
+                Source::Direction { d: u, back } => {
+                    for l in 0..LANES {
+                        let p = Vec3::new(px[l], py[l], beam.z_ep) - u * back;
+                        (r[0][l], r[1][l], r[2][l]) = (p.x, p.y, p.z);
+                        (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+                    }
                 }
             }
-            // As `ray`: direction (q - p) / |q - p|, origin p - d (p.z - z0) / d.z.
-            Source::Toward { q, z0 } => {
-                for l in 0..LANES {
-                    let p = Vec3::new(px[l], py[l], beam.z_ep);
-                    let v = q - p;
-                    let u = v * (1.0 / v.dot(v).sqrt());
-                    let o = p - u * ((beam.z_ep - z0) / u.z);
-                    (r[0][l], r[1][l], r[2][l]) = (o.x, o.y, o.z);
-                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
+            // Branch-free, so that the conversion vectorizes too. Lanes past the chief ray (l >= m)
+            // and rays with non-finite numbers get zeros and the invalid status.
+            let m = n.saturating_sub(b * LANES);
+            for l in 0..LANES {
+                let ok = r.iter().fold(l < m, |a, c| a & c[l].is_finite());
+                for k in 0..3 {
+                    blk.o[k][l] = if ok { r[k][l] as f32 } else { 0.0 };
+                    blk.d[k][l] = if ok { r[3 + k][l] as f32 } else { 0.0 };
                 }
+                blk.status[l] = if ok { 0 } else { super::CODE_INVALID };
+                blk.opl[l] = 0.0;
             }
-            // As `ray`: origin p - d back, direction d.
-            Source::Direction { d: u, back } => {
-                for l in 0..LANES {
-                    let p = Vec3::new(px[l], py[l], beam.z_ep) - u * back;
-                    (r[0][l], r[1][l], r[2][l]) = (p.x, p.y, p.z);
-                    (r[3][l], r[4][l], r[5][l]) = (u.x, u.y, u.z);
-                }
-            }
-        }
-        // Branch-free, so that the conversion vectorizes too. Lanes past the chief ray (l >= m)
-        // and rays with non-finite numbers get zeros and the invalid status.
-        let m = n.saturating_sub(b * LANES);
-        for l in 0..LANES {
-            let ok = r.iter().fold(l < m, |a, c| a & c[l].is_finite());
-            for k in 0..3 {
-                blk.o[k][l] = if ok { r[k][l] as f32 } else { 0.0 };
-                blk.d[k][l] = if ok { r[3 + k][l] as f32 } else { 0.0 };
-            }
-            blk.status[l] = if ok { 0 } else { super::CODE_INVALID };
-            blk.opl[l] = 0.0;
         }
     }
 }

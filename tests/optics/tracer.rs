@@ -917,3 +917,90 @@ fn check_spot(pts: &[[f64; 2]], launched: usize, stats: &tolray::analysis::SpotS
         );
     }
 }
+
+/// Every instruction set the CPU has traces the same bits: f32, f64 and both dual-number widths
+/// the library differentiates with, on every test lens, nominal and perturbed, and the launch of
+/// a field's rays. (The other tests check the kernel of the build in use against the reference
+/// tracer; with this, every build is checked.)
+#[test]
+fn every_instruction_set_traces_the_same_bits() {
+    use tolray::lens::Param;
+    use tolray::psf::{psf_map, PsfOptions};
+    use tolray::real::{Dual, GRAD_WIDTH};
+    use tolray::trace::simd::{self, Isa};
+    use tolray::trace::Traceable;
+
+    /// The debug text of a traced batch: equal text, equal bits (f32 and f64 print the shortest
+    /// text that reads back as the same number, signed zeros included).
+    fn traced<S: Traceable>(
+        lens: &Lens,
+        adj: &Adjustments,
+        lift: &dyn Fn(Param, S) -> S,
+    ) -> String {
+        let sys: System<S> = System::compile(lens, adj, lift);
+        let mut b = RayBatch::<S>::new();
+        for (o, d) in random_rays(lens, 300, 5) {
+            b.push(o, d);
+        }
+        trace(&sys, LAMBDA_D_NM, &mut b, TraceOptions::default());
+        format!("{:?}", b.blocks())
+    }
+    fn seed<const N: usize>(p: Param, v: Dual<f64, N>) -> Dual<f64, N> {
+        match p {
+            Param::Curvature(i) => Dual::var(v.re, i % N),
+            Param::Gap(i) => Dual::var(v.re, (i + 3) % N),
+            _ => v,
+        }
+    }
+    let available = Isa::available();
+    assert!(available.contains(&Isa::Baseline) && available[0] == Isa::detected());
+    let before = simd::active();
+    let run = |isa: Isa| {
+        simd::set_active(isa).unwrap();
+        let mut out = Vec::new();
+        for (name, lens) in lenses() {
+            for adj in [Adjustments::none(lens.surfaces.len()), perturbed(&lens)] {
+                out.push((name.clone(), "f32", traced::<f32>(&lens, &adj, &|_, v| v)));
+                out.push((name.clone(), "f64", traced::<f64>(&lens, &adj, &|_, v| v)));
+                out.push((
+                    name.clone(),
+                    "dual",
+                    traced(&lens, &adj, &seed::<GRAD_WIDTH>),
+                ));
+                out.push((name.clone(), "dual1", traced(&lens, &adj, &seed::<1>)));
+            }
+        }
+        // A PSF map launches each field's rays in the build too.
+        let lens = Lens::load("lens2").unwrap();
+        let map = psf_map(
+            &lens,
+            &lens.compile(),
+            2,
+            LAMBDA_D_NM,
+            &PsfOptions::for_lens(&lens),
+        );
+        out.push(("lens2".into(), "psf map", format!("{:?}", map.unwrap())));
+        out
+    };
+    let reference = run(Isa::Baseline);
+    for &isa in &available {
+        for (a, b) in run(isa).iter().zip(&reference) {
+            assert!(
+                a == b,
+                "{} {}: the {} build differs from the baseline",
+                a.0,
+                a.1,
+                isa.name()
+            );
+        }
+    }
+    simd::set_active(before).unwrap();
+    eprintln!(
+        "instruction sets compared: {}",
+        available
+            .iter()
+            .map(|i| i.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+}

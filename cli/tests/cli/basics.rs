@@ -485,3 +485,80 @@ fn training_resumes_exactly_and_reports() {
         "{err}"
     );
 }
+
+/// `tolray bench` measures every figure it lists (finite, positive, the instruction sets this CPU
+/// runs), and `TOLRAY_SIMD` forces a build: every build prints the same spot and PSF numbers, and
+/// a build the CPU cannot run or a name that is none is refused with exit 2.
+#[test]
+fn bench_measures_and_instruction_sets_are_forced() {
+    let run_env = |isa: &str, args: &[&str]| common::tolray_env(&[("TOLRAY_SIMD", isa)], args);
+    let (code, out, err) = tolray(&[
+        "bench",
+        "--seconds",
+        "0.001",
+        "--deep",
+        "none",
+        "--all-isas",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let isas: Vec<&str> = v["isas_available"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|i| i.as_str().unwrap())
+        .collect();
+    assert!(isas.contains(&"baseline") && isas[0] == v["isa"], "{out}");
+    let figs = v["figures"].as_array().unwrap();
+    for f in figs {
+        let x = f["value"].as_f64().unwrap();
+        assert!(x.is_finite() && x > 0.0, "{f}");
+    }
+    let named = |what: &'static str| {
+        figs.iter()
+            .filter(move |f| f["what"].as_str().unwrap().starts_with(what))
+    };
+    // Each build's kernel in f32 and f64 on one thread and on all.
+    let threads = v["threads"].as_u64().unwrap();
+    let per_build = if threads > 1 { 4 } else { 2 };
+    for isa in &isas {
+        assert_eq!(
+            named("kernel f").filter(|f| f["isa"] == *isa).count(),
+            per_build,
+            "{isa}"
+        );
+    }
+    assert!(named("kernel dual").all(|f| f["note"].as_str().unwrap().contains("f64 value")));
+    assert!(named("spot").all(|f| f["note"].as_str().unwrap().contains("% of the f64 kernel")));
+    assert_eq!(named("PSF map").count(), 1);
+
+    let spot = [
+        "spot", "lens2", "--fields", "0,0.7", "--pupil", "grid:64", "--json",
+    ];
+    let (code, reference, err) = tolray(&spot);
+    assert_eq!(code, 0, "{err}");
+    let psf = ["psf", "lens2", "--field", "0.7", "--json"];
+    let (code, psf_reference, err) = tolray(&psf);
+    assert_eq!(code, 0, "{err}");
+    for isa in &isas {
+        let (code, out, err) = run_env(isa, &spot);
+        assert_eq!((code, &out), (0, &reference), "spot with {isa}: {err}");
+        let (code, out, err) = run_env(isa, &psf);
+        assert_eq!((code, &out), (0, &psf_reference), "psf with {isa}: {err}");
+    }
+    let (code, _, err) = run_env("avx9000", &["info", "lens1"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("TOLRAY_SIMD") && err.contains("avx9000"),
+        "{err}"
+    );
+    if !isas.contains(&"avx512") {
+        let (code, _, err) = run_env("avx512", &["info", "lens1"]);
+        assert_eq!(code, 2);
+        assert!(err.contains("does not run"), "{err}");
+    }
+    let (code, _, err) = tolray(&["bench", "--seconds", "0"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--seconds"), "{err}");
+}

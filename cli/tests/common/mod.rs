@@ -6,7 +6,13 @@ use std::process::Command;
 /// Runs `tolray ARGS` to completion: (exit code, stdout, stderr). A process killed by a signal
 /// gives -1.
 pub fn tolray(args: &[&str]) -> (i32, String, String) {
+    tolray_env(&[], args)
+}
+
+/// [`tolray`] with the environment variables `vars` set.
+pub fn tolray_env(vars: &[(&str, &str)], args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_tolray"))
+        .envs(vars.iter().copied())
         .args(args)
         .output()
         .unwrap();
