@@ -39,8 +39,9 @@ const ASPHERE: u8 = 2;
 /// [`shaped`]).
 const SHAPED: u8 = 3;
 
-/// A number type the tracer can run on. `f32` and `f64` override [`Traceable::trace_blocks`] with
-/// builds for several instruction sets chosen at run time; other types use the generic build.
+/// A number type the tracer can run on. `f32`, `f64` and the dual numbers of widths 1 and
+/// [`crate::real::GRAD_WIDTH`] override [`Traceable::trace_blocks`] with builds for several
+/// instruction sets chosen at run time ([`super::simd`]); other types use the generic build.
 pub trait Traceable: Real {
     /// Traces `blocks` through `sys` with refractive indices `n` (as [`System::indices`] gives
     /// them) at `wavelength_nm` (which gratings need).
@@ -152,10 +153,10 @@ impl Traceable for f64 {
     }
 }
 
-/// Dual numbers trace with the generic build. The widths the library differentiates with (1 and
-/// [`crate::real::GRAD_WIDTH`]) call builds compiled once, in this crate: a crate that takes
-/// gradients (the tests, a user's program) links them instead of compiling the kernel again for
-/// its width (minutes of optimization each).
+/// Dual numbers trace with the generic build, except the widths the library differentiates with
+/// (1 and [`crate::real::GRAD_WIDTH`]): they call builds compiled once per instruction set, in
+/// this crate, so a crate that takes gradients (the tests, a user's program) links them instead
+/// of compiling the kernel again for its width (minutes of optimization each).
 impl<const N: usize> Traceable for Dual<f64, N> {
     fn trace_blocks(
         sys: &System<Self>,
