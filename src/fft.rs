@@ -104,7 +104,10 @@ pub fn fft2_rows<T: Cached>(
     inverse: bool,
 ) {
     assert_eq!(a.len(), nx * ny, "fft2: {} values for {nx} x {ny}", a.len());
-    assert!(rows.end <= ny, "fft2: rows {rows:?} of {ny}");
+    assert!(
+        rows.start <= rows.end && rows.end <= ny,
+        "fft2: rows {rows:?} of {ny}"
+    );
     if nx == 0 || ny == 0 {
         return;
     }

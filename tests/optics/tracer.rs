@@ -983,7 +983,7 @@ fn every_instruction_set_traces_the_same_bits() {
         out
     };
     let reference = run(Isa::Baseline);
-    for &isa in &available {
+    for &isa in available.iter().filter(|&&i| i != Isa::Baseline) {
         for (a, b) in run(isa).iter().zip(&reference) {
             assert!(
                 a == b,
