@@ -404,7 +404,7 @@ pub fn psf_similarity_of<S: Real>(ideal: &[S], psf: &[S], ks: usize) -> S {
 /// outside 1e-5 to 10 mm, or an empty or oversized pupil pattern.
 pub fn check_options(opts: &PsfOptions) -> Result<()> {
     // A bilinear splat needs a 2x2 footprint inside the window: with 1 pixel nothing lands.
-    if opts.ks < 3 || opts.ks % 2 == 0 || opts.ks > 1025 {
+    if opts.ks < 3 || opts.ks.is_multiple_of(2) || opts.ks > 1025 {
         return Err(Error::argument(format!(
             "PSF kernel size {} must be odd, 3 to 1025",
             opts.ks

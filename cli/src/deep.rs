@@ -77,7 +77,7 @@ impl EvalArgs {
         if self.trials == 0 || self.trials > 100_000 {
             usage!("--trials {}: give 1 to 100000", self.trials);
         }
-        if self.patch == 0 || self.patch % 8 != 0 || self.patch > 256 {
+        if self.patch == 0 || !self.patch.is_multiple_of(8) || self.patch > 256 {
             usage!("--patch {}: give a multiple of 8 up to 256", self.patch);
         }
         if self.photos > 4 {

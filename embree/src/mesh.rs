@@ -239,7 +239,7 @@ fn layout(a: f64, s: f64) -> (Vec<usize>, f64) {
 /// Point `k` of `n` on a ring of radius `r`, with exact zeros on the axes.
 fn ring_point(r: f64, k: usize, n: usize) -> [f64; 2] {
     let k = k % n;
-    let (sn, cs) = if (4 * k) % n == 0 {
+    let (sn, cs) = if (4 * k).is_multiple_of(n) {
         let q = 4 * k / n;
         ([0.0, 1.0, 0.0, -1.0][q], [1.0, 0.0, -1.0, 0.0][q])
     } else {

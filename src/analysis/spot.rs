@@ -153,7 +153,7 @@ fn shown(q: [f64; 2], stride: usize) -> bool {
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^= z >> 31;
-    z % stride as u64 == 0
+    z.is_multiple_of(stride as u64)
 }
 
 /// The vertices of the convex hull of `points` (Andrew's monotone chain; points on an edge are

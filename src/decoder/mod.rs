@@ -188,7 +188,7 @@ impl Decoder {
     ) -> Option<usize> {
         let mut n = 0usize;
         if kind.has_wiener() {
-            if grid == 0 || ks % 2 == 0 {
+            if grid == 0 || ks.is_multiple_of(2) {
                 return None;
             }
             n = grid
@@ -284,8 +284,8 @@ impl Decoder {
         v.extend_from_slice(&c.y);
         let g = self.grid as f32;
         let (row, col) = ((c.tile / self.grid) as f32, (c.tile % self.grid) as f32);
-        v.extend(std::iter::repeat((2.0 * col + 1.0) / g - 1.0).take(n));
-        v.extend(std::iter::repeat(1.0 - (2.0 * row + 1.0) / g).take(n));
+        v.extend(std::iter::repeat_n((2.0 * col + 1.0) / g - 1.0, n));
+        v.extend(std::iter::repeat_n(1.0 - (2.0 * row + 1.0) / g, n));
         v
     }
 

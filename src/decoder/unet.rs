@@ -401,7 +401,12 @@ impl Unet {
 
     fn check(&self, len: usize, n: usize, h: usize, w: usize) -> Result<()> {
         let m = 1 << self.cfg.levels;
-        if h == 0 || w == 0 || h % m != 0 || w % m != 0 || len != n * self.cfg.in_channels * h * w {
+        if h == 0
+            || w == 0
+            || !h.is_multiple_of(m)
+            || !w.is_multiple_of(m)
+            || len != n * self.cfg.in_channels * h * w
+        {
             return Err(Error::argument(format!(
                 "U-Net: {len} values for {n} x {} x {h}x{w}; sizes must be multiples of {m}",
                 self.cfg.in_channels

@@ -67,7 +67,7 @@ impl Wiener {
         log_mu: f64,
     ) -> Result<Wiener> {
         let n = grid * grid * 3;
-        if grid == 0 || ks % 2 == 0 || init_psfs.len() != n * ks * ks {
+        if grid == 0 || ks.is_multiple_of(2) || init_psfs.len() != n * ks * ks {
             return Err(Error::argument(format!(
                 "Wiener filters: {} PSF values for a {grid}x{grid} grid of RGB {ks}x{ks} kernels",
                 init_psfs.len()
@@ -77,8 +77,8 @@ impl Wiener {
             return Err(Error::argument("Wiener filters: non-finite regularization"));
         }
         let mut params: Vec<f64> = init_psfs.iter().map(|&v| v as f64).collect();
-        params.extend(std::iter::repeat(log_lambda).take(n));
-        params.extend(std::iter::repeat(log_mu).take(n));
+        params.extend(std::iter::repeat_n(log_lambda, n));
+        params.extend(std::iter::repeat_n(log_mu, n));
         Ok(Wiener { grid, ks, params })
     }
 

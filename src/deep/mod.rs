@@ -169,7 +169,7 @@ impl DeepConfig {
                 self.optics.loss.name()
             )));
         }
-        if !(8..=1024).contains(&self.crop_px) || self.crop_px % 8 != 0 {
+        if !(8..=1024).contains(&self.crop_px) || !self.crop_px.is_multiple_of(8) {
             return Err(Error::argument(format!(
                 "crop {} px: give a multiple of 8 from 8 to 1024",
                 self.crop_px

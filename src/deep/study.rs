@@ -441,7 +441,7 @@ pub fn run_resumable(
     }
     let validate = |s: &DeepState, l: &mut DeepLog| -> Result<()> {
         let k = s.phase_iter;
-        if cfg.validate_every > 0 && (k % cfg.validate_every == 0 || s.done()) {
+        if cfg.validate_every > 0 && (k.is_multiple_of(cfg.validate_every) || s.done()) {
             l.val_psnr_db = Some(super::validation_psnr(s)?);
         }
         Ok(())

@@ -34,7 +34,7 @@ impl PsfMap {
     /// # Errors
     /// [`crate::ErrorKind::Argument`] for an even kernel, an empty grid or a wrong length.
     pub fn new(grid: usize, ks: usize, psfs: Vec<f32>) -> Result<PsfMap> {
-        if grid == 0 || ks % 2 == 0 || psfs.len() != grid * grid * 3 * ks * ks {
+        if grid == 0 || ks.is_multiple_of(2) || psfs.len() != grid * grid * 3 * ks * ks {
             return Err(Error::argument(format!(
                 "PSF map: {} values for a {grid}x{grid} grid of {ks}x{ks} RGB kernels (odd size)",
                 psfs.len()
@@ -63,7 +63,7 @@ fn embed(src: &[f32], w: usize, h: usize, nx: usize, ny: usize) -> Vec<Complex<f
 
 fn check_patch(xpad: &[f32], w: usize, h: usize, ks: usize) -> Result<(usize, usize)> {
     let (pw, ph) = (w + ks - 1, h + ks - 1);
-    if ks % 2 == 0 || w == 0 || h == 0 || xpad.len() != 3 * pw * ph {
+    if ks.is_multiple_of(2) || w == 0 || h == 0 || xpad.len() != 3 * pw * ph {
         return Err(Error::argument(format!(
             "patch: {} values for a {pw}x{ph} RGB image with halo (output {w}x{h}, odd kernel {ks})",
             xpad.len()

@@ -40,7 +40,7 @@ impl Checkpoints {
     /// Whether a checkpoint is due after iteration `k` (counted from 1).
     pub fn due(self, k: usize) -> bool {
         match self {
-            Checkpoints::Every(n) => k % n.get() == 0,
+            Checkpoints::Every(n) => k.is_multiple_of(n.get()),
             Checkpoints::WhenStopped => false,
         }
     }

@@ -325,7 +325,7 @@ impl TrainConfig {
                 return bad(what, v as f64, &format!("give {lo} to {hi}"));
             }
         }
-        if self.psf_ks < 3 || self.psf_ks % 2 == 0 || self.psf_ks > 255 {
+        if self.psf_ks < 3 || self.psf_ks.is_multiple_of(2) || self.psf_ks > 255 {
             return bad("psf_ks", self.psf_ks as f64, "must be odd, 3 to 255");
         }
         if let OpticalLoss::RmsWavefront { mm_per_wave } = self.loss {

@@ -261,7 +261,7 @@ pub(crate) fn trace_blocks_generic<S: Real>(
                 surface(row, n1, eta, ruling, code, clip, scratch, group);
             }
         }
-        if n_rows % 2 == 0 {
+        if n_rows.is_multiple_of(2) {
             image(sys, n_last, n_rows as u32, group, scratch);
             group.copy_from_slice(scratch);
         } else {

@@ -761,7 +761,7 @@ pub fn pixel_psf(w: &Wavefront, opts: &FftOptions, ks: usize, pitch_mm: f64) -> 
 /// Checks a sensor window: `ks` odd, 3 to 255 pixels (as a geometric PSF's), of a positive,
 /// finite pitch up to 10 mm.
 pub(crate) fn check_window(ks: usize, pitch_mm: f64) -> Result<()> {
-    if ks < 3 || ks % 2 == 0 || ks > 255 {
+    if ks < 3 || ks.is_multiple_of(2) || ks > 255 {
         return Err(Error::argument(format!(
             "PSF window of {ks} pixels: give an odd number from 3 to 255"
         )));

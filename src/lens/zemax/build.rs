@@ -578,7 +578,7 @@ pub(super) fn wavelengths(
         w.sort_by_key(|x| x.0);
         w.dedup_by_key(|x| x.0);
         w.into_iter()
-            .filter(|x| x.0 >= 1 && n_max.map_or(true, |n| x.0 <= n))
+            .filter(|x| x.0 >= 1 && n_max.is_none_or(|n| x.0 <= n))
             .map(|(_, um, weight, line)| (ZmxWavelength { um, weight }, line))
             .collect()
     } else if let Some(w) = &h.wavl {
