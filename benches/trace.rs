@@ -6,13 +6,17 @@
 //! singlet (a 17-term Fringe front, a 12-term Standard back), each at its primary
 //! wavelength; and the spot analysis end to end (`spot/lens2`: ray generation, the f64 trace and
 //! the statistics of a 1024 x 1024 pupil grid at 0.7 field, one thread and all threads), the
-//! work `tolray spot` does. Throughput is reported in elements = ray-surfaces (rays x (surfaces +
+//! work `tolray spot` does; a PSF of 1,000,000 random pupil rays end to end (`psf/lens2`, the
+//! work of `tolray psf`); and a raw trace of the kernel benchmark's rays from CSV text to CSV text
+//! (`raw/lens2`, the work of `tolray trace`). Throughput is reported in elements = ray-surfaces (rays x (surfaces +
 //! image plane)).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use tolray::analysis::{spot_diagram_rows, SpotOptions};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{zemax, GlassCatalogs, System};
+use tolray::psf::{psf_streamed, PsfOptions};
+use tolray::trace::raw::{trace_csv_to, HitFormat};
 use tolray::trace::simd::{self, Isa};
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, RaySet, TraceOptions, Traceable};
 use tolray::Lens;
@@ -136,6 +140,59 @@ fn bench_spot(c: &mut Criterion, lens: &Lens) {
     g.finish();
 }
 
+/// A PSF end to end (`tolray psf`): 1,000,000 random pupil rays at 0.7 field generated, traced
+/// in f64 and splatted a chunk at a time.
+fn bench_psf(c: &mut Criterion, lens: &Lens) {
+    let mut opts = PsfOptions::for_lens(lens);
+    opts.pupil.pattern = PupilPattern::Random { n: RAYS, seed: 1 };
+    let sys = lens.compile();
+    let field = Field::fraction(0.7);
+    let mut g = c.benchmark_group("psf/lens2/random1M");
+    g.throughput(Throughput::Elements(
+        RAYS as u64 * (lens.surfaces.len() as u64 + 1),
+    ));
+    g.sample_size(10);
+    for (threads, pool) in pools() {
+        g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
+            b.iter(|| {
+                pool.install(|| psf_streamed(lens, &sys, field, LAMBDA_D_NM, &opts).unwrap())
+            });
+        });
+    }
+    g.finish();
+}
+
+/// A raw trace end to end (`tolray trace`): the CSV text of the kernel benchmark's 1,000,000
+/// rays parsed, traced in f64 and written as CSV (to a sink) a chunk at a time.
+fn bench_raw(c: &mut Criterion, lens: &Lens, set: &RaySet) {
+    use std::fmt::Write;
+    let mut csv = String::from("ox,oy,oz,dx,dy,dz,wavelength_nm\n");
+    for (o, d) in set.origins.iter().zip(&set.directions) {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{LAMBDA_D_NM}",
+            o.x, o.y, o.z, d.x, d.y, d.z
+        );
+    }
+    let sys = lens.compile();
+    let mut g = c.benchmark_group("raw/lens2/csv1M");
+    g.throughput(Throughput::Elements(
+        set.origins.len() as u64 * (lens.surfaces.len() as u64 + 1),
+    ));
+    g.sample_size(10);
+    for (threads, pool) in pools() {
+        g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
+            b.iter(|| {
+                pool.install(|| {
+                    let (input, out) = (csv.as_bytes(), std::io::sink());
+                    trace_csv_to(&sys, input, out, HitFormat::Csv, TraceOptions::default()).unwrap()
+                })
+            });
+        });
+    }
+    g.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let lens = Lens::load("lens2").unwrap();
     let set = rays(&lens, LAMBDA_D_NM);
@@ -143,6 +200,8 @@ fn bench(c: &mut Criterion) {
     bench_type::<f64>(c, &lens, &set);
     bench_kinds(c);
     bench_spot(c, &lens);
+    bench_psf(c, &lens);
+    bench_raw(c, &lens, &set);
 }
 
 criterion_group!(benches, bench);

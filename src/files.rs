@@ -112,6 +112,45 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     })
 }
 
+/// Writes `path` atomically as [`write_atomic`] does, `fill` writing the contents as it goes
+/// through a buffered writer: on an error of `fill` (returned as is) or of the file, nothing is
+/// left at `path` and no temporary file beside it.
+///
+/// # Errors
+/// `fill`'s error; [`ErrorKind::Io`] naming the path when the file cannot be written or renamed.
+///
+/// ```
+/// use std::io::Write;
+/// let path = std::env::temp_dir().join(format!("tolray-doc-{}.txt", std::process::id()));
+/// tolray::files::write_atomic_with(&path, |w| {
+///     writeln!(w, "hello").map_err(|e| tolray::Error::io(&path, e))
+/// })?;
+/// assert_eq!(std::fs::read_to_string(&path).unwrap(), "hello\n");
+/// let e = tolray::files::write_atomic_with(&path, |_| Err(tolray::Error::argument("no")));
+/// assert_eq!(e.unwrap_err().message(), "no");
+/// assert_eq!(std::fs::read_to_string(&path).unwrap(), "hello\n"); // untouched
+/// # std::fs::remove_file(&path).unwrap();
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn write_atomic_with(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn std::io::Write) -> Result<()>,
+) -> Result<()> {
+    let mut failed = None;
+    let written = write_via_temp(path, |tmp| {
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(tmp)?);
+        if let Err(e) = fill(&mut w) {
+            failed = Some(e);
+            return Err(std::io::Error::other("the contents failed"));
+        }
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()
+    });
+    match failed {
+        Some(e) => Err(e),
+        None => written,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,7 +13,7 @@ use crate::math::Vec3;
 use crate::real::Real;
 use crate::trace::rays::Beam;
 use crate::trace::{
-    trace_serial, Block, Bundles, Field, Pupil, RayBatch, TraceOptions, Traceable, LANES,
+    trace_serial, Block, Bundles, Field, Pupil, RayBatch, RayStream, TraceOptions, Traceable, LANES,
 };
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
@@ -233,16 +233,7 @@ fn psf_of_batch<S: Traceable>(
     trace_serial(sys, wavelength_nm, b, trace);
     let b = &*b;
     let n = b.len() - 1;
-    let image = &sys.image;
-    let rotated = sys.image_rotated;
-    let to_sensor = |o: Vec3<S>| {
-        let p = if rotated {
-            image.point_to_local(o)
-        } else {
-            o - image.translation
-        };
-        [p.x, p.y]
-    };
+    let to_sensor = sensor_map(sys);
     let chief = b.get(n);
     let chief = chief.status.is_alive().then(|| to_sensor(chief.o));
     let c = match (opts.centre, chief) {
@@ -265,9 +256,122 @@ fn psf_of_batch<S: Traceable>(
     };
     let mut acc = Splat::new(c, opts.ks, opts.pitch_mm);
     for (k, blk) in b.blocks().iter().enumerate() {
-        acc.add_block(blk, n.saturating_sub(k * LANES), to_sensor);
+        acc.add_block(blk, n.saturating_sub(k * LANES), &to_sensor);
     }
     (acc.finish(), chief)
+}
+
+/// The map from a global position to sensor coordinates (mm) of `sys`'s image plane.
+fn sensor_map<S: Traceable>(sys: &System<S>) -> impl Fn(Vec3<S>) -> [S; 2] + Sync + '_ {
+    let image = &sys.image;
+    let rotated = sys.image_rotated;
+    move |o: Vec3<S>| {
+        let p = if rotated {
+            image.point_to_local(o)
+        } else {
+            o - image.translation
+        };
+        [p.x, p.y]
+    }
+}
+
+/// Pixel bytes the partial sums of a [`psf_streamed`] PSF may hold at once.
+const STREAMED_PSF_BYTES: usize = 64 << 20;
+
+/// The geometric PSF of `field` at `wavelength_nm` through `sys`, centred as `opts` says, with
+/// the rays of `opts.pupil` (launched from `lens`'s paraxial entrance pupil at its primary
+/// wavelength, as [`Bundles::pairs`] launches them) generated, traced and splatted a chunk at a
+/// time on the rayon pool ([`RayStream`]): memory independent of the number of rays, every core
+/// busy. Returns the PSF and the chief ray's sensor point (`None` when that ray is lost).
+///
+/// The numbers are [`psf_of`]'s on the same rays up to rounding: the pixels are summed in runs of
+/// chunks (a number of runs fixed by `opts.ks`, so that the result does not depend on the thread
+/// count) and then added in order. A centroid-centred PSF traces the rays twice (the centroid,
+/// then the splat); so does a chief-centred one whose chief ray is lost.
+///
+/// # Errors
+/// Ray-generation errors (the paraxial entrance pupil, a chief ray that cannot be aimed).
+///
+/// # Examples
+/// ```
+/// use tolray::psf::{psf_of, psf_streamed, PsfOptions};
+/// use tolray::trace::{Bundles, Field, TraceOptions};
+/// let lens = tolray::Lens::load("lens2")?;
+/// let sys = lens.compile();
+/// let opts = PsfOptions::for_lens(&lens);
+/// let (psf, chief) = psf_streamed(&lens, &sys, Field::fraction(0.7), 587.5618, &opts)?;
+/// assert!(chief.is_some() && (psf.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+/// // The rays all at once give the same PSF to rounding.
+/// let rays = Bundles::pairs(&lens, &[(Field::fraction(0.7), 587.5618)], &opts.pupil)?;
+/// let whole = psf_of(&sys, &rays, 0, &opts, TraceOptions::default()).0;
+/// assert!(psf.iter().zip(&whole).all(|(a, b)| (a - b).abs() < 1e-15));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn psf_streamed(
+    lens: &Lens,
+    sys: &System<f64>,
+    field: Field,
+    wavelength_nm: f64,
+    opts: &PsfOptions,
+) -> Result<(Vec<f64>, Option<[f64; 2]>)> {
+    let para = lens.paraxial(lens.primary_wavelength_nm)?;
+    let stream = RayStream::new(lens, &para, field, &opts.pupil, wavelength_nm)?;
+    let trace = TraceOptions::default();
+    let to_sensor = sensor_map(sys);
+    let mut chief_batch = RayBatch::<f64>::new();
+    let (o, d) = stream.chief();
+    chief_batch.push(o, d);
+    trace_serial(sys, wavelength_nm, &mut chief_batch, trace);
+    let chief = chief_batch.get(0);
+    let chief = chief.status.is_alive().then(|| to_sensor(chief.o));
+    let centre = match (opts.centre, chief) {
+        (PsfCentre::Chief, Some(c)) => c,
+        _ => {
+            let (mut x, mut y, mut count) = (0.0, 0.0, 0usize);
+            stream.fold_chunks(
+                sys,
+                wavelength_nm,
+                trace,
+                |_, b| {
+                    let (mut x, mut y, mut count) = (0.0, 0.0, 0usize);
+                    for r in b.iter().filter(|r| r.status.is_alive()) {
+                        let p = to_sensor(r.o);
+                        x += p[0];
+                        y += p[1];
+                        count += 1;
+                    }
+                    (x, y, count)
+                },
+                |(cx, cy, c)| {
+                    x += cx;
+                    y += cy;
+                    count += c;
+                },
+            );
+            let inv = 1.0 / count.max(1) as f64;
+            [x * inv, y * inv]
+        }
+    };
+    let parts = (STREAMED_PSF_BYTES / (8 * opts.ks * opts.ks)).clamp(1, 16);
+    let runs = stream.fold_parts(
+        sys,
+        wavelength_nm,
+        trace,
+        parts,
+        || Splat::new(centre, opts.ks, opts.pitch_mm),
+        |acc, _, b| {
+            for (k, blk) in b.blocks().iter().enumerate() {
+                acc.add_block(blk, b.len().saturating_sub(k * LANES), &to_sensor);
+            }
+        },
+    );
+    let mut runs = runs.into_iter();
+    let mut psf = runs.next().expect("at least one run");
+    for r in runs {
+        psf.count += r.count;
+        psf.img.iter_mut().zip(&r.img).for_each(|(a, b)| *a += b);
+    }
+    Ok((psf.finish(), chief))
 }
 
 /// A PSF map: `grid x grid` fields spread over the sensor (cell centres of a square grid over

@@ -6,8 +6,7 @@ use crate::usage;
 use clap::Args;
 use std::path::PathBuf;
 use tolray::figures;
-use tolray::trace::Bundles;
-use tolray::trace::{Field, TraceOptions};
+use tolray::trace::Field;
 
 /// Arguments of `tolray psf`.
 #[derive(Args)]
@@ -100,11 +99,11 @@ pub fn run(a: PsfCmdArgs) -> anyhow::Result<()> {
     let field = Field::parse(&field)?;
     let wls = parse_wavelengths(&wavelengths, &l)?;
     let sys = perturbed_system(&l, perturb.as_deref())?;
-    let pairs: Vec<(Field, f64)> = wls.iter().map(|&w| (field, w)).collect();
-    let rays = Bundles::pairs(&l, &pairs, &opts.pupil)?;
-    let psfs: Vec<Vec<f64>> = (0..pairs.len())
-        .map(|k| tolray::psf::psf_of(&sys, &rays, k, &opts, TraceOptions::default()).0)
-        .collect();
+    // Each PSF's rays are generated, traced and splatted a chunk at a time on every core.
+    let psfs: Vec<Vec<f64>> = wls
+        .iter()
+        .map(|&w| Ok(tolray::psf::psf_streamed(&l, &sys, field, w, &opts)?.0))
+        .collect::<tolray::Result<_>>()?;
     for (w, p) in wls.iter().zip(&psfs) {
         tolray::psf::check_landed(p, &format!("PSF at field {}, {w} nm", field.label()))?;
     }

@@ -1,11 +1,9 @@
 //! `tolray trace`: raw rays from a file to the image plane.
 
 use crate::args::LensArgs;
-use crate::report::write_text;
-use anyhow::Context;
 use clap::Args;
 use std::path::{Path, PathBuf};
-use tolray::trace::raw::{parse_csv, parse_json, to_csv, trace_raw};
+use tolray::trace::raw::{parse_json, trace_csv_to, trace_rays_to, HitFormat};
 use tolray::trace::TraceOptions;
 
 /// Arguments of `tolray trace`.
@@ -33,36 +31,39 @@ pub fn run(a: TraceArgs) -> anyhow::Result<()> {
         no_apertures,
     } = a;
     let l = lens.load()?;
-    let text = std::fs::read_to_string(&rays)
-        .with_context(|| format!("{}: cannot read", rays.display()))?;
     let is_json = |p: &Path| {
         p.extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"))
     };
-    let input = if is_json(&rays) {
-        parse_json(&text)
-    } else {
-        parse_csv(&text)
-    }
-    .map_err(|e| e.context(rays.display()))?;
-    let hits = trace_raw(
-        &l.compile(),
-        &input,
-        TraceOptions {
-            apertures: !no_apertures,
-        },
-    )
-    .map_err(|e| e.context(rays.display()))?;
-    let body = if is_json(&out) {
-        serde_json::to_string_pretty(&hits)? + "\n"
-    } else {
-        to_csv(&hits)
+    let sys = l.compile();
+    let opts = TraceOptions {
+        apertures: !no_apertures,
     };
-    write_text(&out, &body)?;
-    let alive = hits.iter().filter(|h| h.status == "alive").count();
+    let format = match is_json(&out) {
+        true => HitFormat::Json,
+        false => HitFormat::Csv,
+    };
+    // The hits are written as they are traced, to a temporary file renamed over --out at the end
+    // (nothing is left there on an error). CSV input streams too; a JSON array is read whole.
+    let mut counts = None;
+    tolray::files::write_atomic_with(&out, |w| {
+        let n = if is_json(&rays) {
+            let text = std::fs::read_to_string(&rays).map_err(|e| tolray::Error::io(&rays, e))?;
+            let input = parse_json(&text).map_err(|e| e.context(rays.display()))?;
+            trace_rays_to(&sys, &input, w, format, opts)
+        } else {
+            let file = std::fs::File::open(&rays).map_err(|e| tolray::Error::io(&rays, e))?;
+            let input = std::io::BufReader::with_capacity(1 << 20, file);
+            trace_csv_to(&sys, input, w, format, opts)
+        };
+        counts = Some(n.map_err(|e| e.context(rays.display()))?);
+        Ok(())
+    })?;
+    let n = counts.unwrap_or_default();
     eprintln!(
-        "traced {} rays ({alive} reached the image) -> {}",
-        hits.len(),
+        "traced {} rays ({} reached the image) -> {}",
+        n.rays,
+        n.alive,
         out.display()
     );
     Ok(())

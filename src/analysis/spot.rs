@@ -168,6 +168,12 @@ fn convex_hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
     if p.len() < 3 {
         return p;
     }
+    drop_interior(&mut p);
+    monotone_chain(p)
+}
+
+/// The convex hull of finite points (at least 3) by Andrew's monotone chain.
+fn monotone_chain(mut p: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
     // A stable sort merges the runs already in order: a pupil row's rays land along a curve.
     p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
     let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
@@ -196,6 +202,40 @@ fn convex_hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
         hull.push(p[0]);
     }
     hull
+}
+
+/// Removes points that lie well inside the quadrilateral of the extreme points in x and y (Akl
+/// and Toussaint's filter): they are no vertex of the hull, and a dense spot keeps only its rim
+/// for the sort. "Well inside": beyond 1e-9 of the points' extent from every edge, far above the
+/// rounding of the side test, so no hull vertex is ever removed and the hull is unchanged.
+fn drop_interior(p: &mut Vec<[f64; 2]>) {
+    let pick = |better: fn(&[f64; 2], &[f64; 2]) -> bool| {
+        p.iter()
+            .fold(p[0], |a, q| if better(q, &a) { *q } else { a })
+    };
+    let quad = [
+        pick(|q, a| q[0] < a[0]),
+        pick(|q, a| q[1] < a[1]),
+        pick(|q, a| q[0] > a[0]),
+        pick(|q, a| q[1] > a[1]),
+    ];
+    let extent = (quad[2][0] - quad[0][0]).max(quad[3][1] - quad[1][1]);
+    // Edges counter-clockwise (left, bottom, right, top extremes): inside is to the left of each.
+    let margin = 1e-9 * extent;
+    let edges = [0, 1, 2, 3].map(|k| {
+        let (a, b) = (quad[k], quad[(k + 1) % 4]);
+        let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+        let len = (ex * ex + ey * ey).sqrt();
+        (a, ex, ey, margin * len)
+    });
+    if !(extent > 0.0) || edges.iter().any(|e| !(e.3 > 0.0)) {
+        return;
+    }
+    p.retain(|q| {
+        !edges
+            .iter()
+            .all(|&(a, ex, ey, m)| ex * (q[1] - a[1]) - ey * (q[0] - a[0]) > m)
+    });
 }
 
 /// The second moments of a spot, in any number type: with the rays' sensor positions `p` and
@@ -584,6 +624,50 @@ fn rows(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The hull without the interior filter: the filter removes no vertex, on dense discs,
+    /// rings, segments, grids with collinear rims, repeated points and points near the edges of
+    /// the extremes' quadrilateral.
+    #[test]
+    fn dropping_interior_points_keeps_the_hull() {
+        let plain = |pts: &[[f64; 2]]| {
+            let mut p = pts.to_vec();
+            drop_interior(&mut p);
+            (convex_hull(pts), pts.len() - p.len())
+        };
+        let mut seed = 7u64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut dropped_any = false;
+        for case in 0..40 {
+            let n = 3 + case * 50;
+            let pts: Vec<[f64; 2]> = (0..n)
+                .map(|k| {
+                    let (r, t) = (rnd().sqrt(), std::f64::consts::TAU * rnd());
+                    match case % 5 {
+                        0 => [1e-3 * r * t.cos(), 1e-3 * r * t.sin() + 2.0],
+                        1 => [t.cos(), t.sin()],
+                        2 => [(k % 7) as f64, (k / 7 % 5) as f64],
+                        3 => [k as f64 * 0.1, 0.5],
+                        _ => [
+                            (r * 4.0).round() * 0.25,
+                            (t * 2.0).round() * 0.5 - 1e-12 * r,
+                        ],
+                    }
+                })
+                .collect();
+            let (with, dropped) = plain(&pts);
+            dropped_any |= dropped > 0;
+            // Without the filter.
+            let hull = monotone_chain(pts.clone());
+            assert_eq!(with, hull, "case {case}");
+        }
+        assert!(dropped_any, "the filter removed points somewhere");
+    }
 
     #[test]
     fn stats_of_a_known_point_set() {

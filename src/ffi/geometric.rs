@@ -575,8 +575,7 @@ pub unsafe extern "C" fn tolray_psf(
                 k = opts.ks
             )));
         }
-        let rays = Bundles::pairs(&s.nominal, &[(field, wavelength_nm)], &opts.pupil)?;
-        let (img, _) = psf::psf_of(&s.sys, &rays, 0, &opts, TraceOptions::default());
+        let (img, _) = psf::psf_streamed(&s.nominal, &s.sys, field, wavelength_nm, &opts)?;
         psf::check_landed(&img, "tolray_psf")?;
         // SAFETY: `out` holds `out_len` == img.len() writable doubles.
         unsafe { std::ptr::copy_nonoverlapping(img.as_ptr(), out, img.len()) };

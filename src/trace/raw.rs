@@ -66,6 +66,13 @@ pub struct RawHit {
 /// assert!(e.message().starts_with("ray 2 (wavelength 1e-300 nm)"), "{}", e.message());
 /// ```
 pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Result<Vec<RawHit>> {
+    check_wavelengths(sys, rays, 0)?;
+    Ok(trace_checked(sys, rays, opts))
+}
+
+/// Refuses the first ray of `rays` (numbered from `first + 1` in messages) whose wavelength gives
+/// some medium of `sys` no usable index.
+fn check_wavelengths(sys: &System<f64>, rays: &[RawRay], first: usize) -> Result<()> {
     if let Some((i, (k, n))) = rays
         .iter()
         .enumerate()
@@ -87,23 +94,26 @@ pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Resu
         return Err(Error::invalid(format!(
             "ray {} (wavelength {} nm): {medium} has index {} there; a traced wavelength needs \
              every medium's index finite and from 0.9 to 5 (wavelengths are in nanometres)",
-            i + 1,
+            first + i + 1,
             short(rays[i].wavelength_nm),
             short(n)
         )));
     }
+    Ok(())
+}
+
+/// [`trace_raw`] after [`check_wavelengths`].
+fn trace_checked(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Vec<RawHit> {
     let mut out: Vec<Option<RawHit>> = vec![None; rays.len()];
-    let mut wavelengths: Vec<f64> = rays.iter().map(|r| r.wavelength_nm).collect();
-    wavelengths.sort_by(f64::total_cmp);
-    // Grouped by the same relation that selects each group's rays below (0.0 and -0.0 differ
-    // under total_cmp), so every input ray is traced and reported exactly once.
-    wavelengths.dedup_by(|a, b| a.total_cmp(b).is_eq());
-    for wl in wavelengths {
-        let idx: Vec<usize> = (0..rays.len())
-            .filter(|&i| rays[i].wavelength_nm.total_cmp(&wl).is_eq())
-            .collect();
+    // The rays grouped by wavelength (a stable sort: input order within a group; total_cmp, so
+    // 0.0 and -0.0 are groups of their own and every input ray is traced exactly once).
+    let wl = |i: usize| rays[i].wavelength_nm;
+    let mut order: Vec<usize> = (0..rays.len()).collect();
+    order.sort_by(|&a, &b| wl(a).total_cmp(&wl(b)));
+    for idx in order.chunk_by(|&a, &b| wl(a).total_cmp(&wl(b)).is_eq()) {
+        let wl = wl(idx[0]);
         let mut batch = RayBatch::<f64>::with_capacity(idx.len());
-        for &i in &idx {
+        for &i in idx {
             let r = &rays[i];
             batch.push(Vec3::new(r.ox, r.oy, r.oz), Vec3::new(r.dx, r.dy, r.dz));
         }
@@ -126,7 +136,7 @@ pub fn trace_raw(sys: &System<f64>, rays: &[RawRay], opts: TraceOptions) -> Resu
             });
         }
     }
-    Ok(out.into_iter().flatten().collect())
+    out.into_iter().flatten().collect()
 }
 
 /// Column names of the CSV input.
@@ -139,70 +149,69 @@ pub const INPUT_COLUMNS: [&str; 7] = ["ox", "oy", "oz", "dx", "dy", "dz", "wavel
 pub fn parse_csv(text: &str) -> Result<Vec<RawRay>> {
     let mut rays = Vec::new();
     for (ln, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        if fields.first().is_some_and(|f| f.eq_ignore_ascii_case("ox")) {
-            if fields != INPUT_COLUMNS {
-                return Err(Error::new(
-                    ErrorKind::Parse,
-                    format!(
-                        "line {}: header must be {}",
-                        ln + 1,
-                        INPUT_COLUMNS.join(",")
-                    ),
-                ));
-            }
-            continue;
-        }
-        if fields.len() != 7 {
-            return Err(Error::new(
-                ErrorKind::Parse,
-                format!(
-                    "line {}: expected 7 columns ({}), found {}",
-                    ln + 1,
-                    INPUT_COLUMNS.join(","),
-                    fields.len()
-                ),
-            ));
-        }
-        let mut v = [0.0; 7];
-        for (k, f) in fields.iter().enumerate() {
-            v[k] = f
-                .parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| {
-                    Error::new(
-                        ErrorKind::Parse,
-                        format!(
-                            "line {}, column {} ({}): \"{f}\" is not a finite number",
-                            ln + 1,
-                            k + 1,
-                            INPUT_COLUMNS[k]
-                        ),
-                    )
-                })?;
-        }
-        if !(v[6] > 0.0) {
-            return Err(Error::new(
-                ErrorKind::Parse,
-                format!("line {}: wavelength_nm must be positive", ln + 1),
-            ));
-        }
-        rays.push(RawRay {
-            ox: v[0],
-            oy: v[1],
-            oz: v[2],
-            dx: v[3],
-            dy: v[4],
-            dz: v[5],
-            wavelength_nm: v[6],
-        });
+        rays.extend(parse_csv_line(ln + 1, line)?);
     }
     Ok(rays)
+}
+
+/// Line `ln` (1-based) of CSV input: a ray, or `None` for a header, a comment or a blank line.
+fn parse_csv_line(ln: usize, line: &str) -> Result<Option<RawRay>> {
+    let line = line.trim();
+    if line.is_empty() || line.starts_with('#') {
+        return Ok(None);
+    }
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    if fields.first().is_some_and(|f| f.eq_ignore_ascii_case("ox")) {
+        if fields != INPUT_COLUMNS {
+            return Err(Error::new(
+                ErrorKind::Parse,
+                format!("line {ln}: header must be {}", INPUT_COLUMNS.join(",")),
+            ));
+        }
+        return Ok(None);
+    }
+    if fields.len() != 7 {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!(
+                "line {ln}: expected 7 columns ({}), found {}",
+                INPUT_COLUMNS.join(","),
+                fields.len()
+            ),
+        ));
+    }
+    let mut v = [0.0; 7];
+    for (k, f) in fields.iter().enumerate() {
+        v[k] = f
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| {
+                Error::new(
+                    ErrorKind::Parse,
+                    format!(
+                        "line {ln}, column {} ({}): \"{f}\" is not a finite number",
+                        k + 1,
+                        INPUT_COLUMNS[k]
+                    ),
+                )
+            })?;
+    }
+    if !(v[6] > 0.0) {
+        return Err(Error::new(
+            ErrorKind::Parse,
+            format!("line {ln}: wavelength_nm must be positive"),
+        ));
+    }
+    Ok(Some(RawRay {
+        ox: v[0],
+        oy: v[1],
+        oz: v[2],
+        dx: v[3],
+        dy: v[4],
+        dz: v[5],
+        wavelength_nm: v[6],
+    }))
 }
 
 /// Parses JSON input: an array of objects with the CSV column names.
@@ -220,14 +229,233 @@ pub fn parse_json(text: &str) -> Result<Vec<RawRay>> {
 
 /// CSV output with header `x,y,z,dx,dy,dz,opl_mm,status`; numbers in shortest round-trip form.
 pub fn to_csv(hits: &[RawHit]) -> String {
-    let mut s = String::from("x,y,z,dx,dy,dz,opl_mm,status\n");
+    let mut s = String::from(CSV_HEADER);
     for h in hits {
-        s.push_str(&format!(
-            "{},{},{},{},{},{},{},{}\n",
-            h.x, h.y, h.z, h.dx, h.dy, h.dz, h.opl_mm, h.status
-        ));
+        csv_row(&mut s, h);
     }
     s
+}
+
+/// The header line of the CSV output.
+const CSV_HEADER: &str = "x,y,z,dx,dy,dz,opl_mm,status\n";
+
+/// Appends the CSV row of `h`.
+fn csv_row(s: &mut String, h: &RawHit) {
+    use std::fmt::Write;
+    let _ = writeln!(
+        s,
+        "{},{},{},{},{},{},{},{}",
+        h.x, h.y, h.z, h.dx, h.dy, h.dz, h.opl_mm, h.status
+    );
+}
+
+/// Rays read, traced and written at a time by [`trace_csv_to`] and [`trace_rays_to`].
+pub const STREAM_RAYS: usize = 1 << 16;
+
+/// The format of the hits that [`trace_csv_to`] and [`trace_rays_to`] write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HitFormat {
+    /// [`to_csv`]'s text.
+    Csv,
+    /// `serde_json::to_string_pretty` of the hits, and a newline.
+    Json,
+}
+
+/// What [`trace_csv_to`] or [`trace_rays_to`] traced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HitCounts {
+    /// Rays traced (one hit written each).
+    pub rays: usize,
+    /// Rays that reached the image.
+    pub alive: usize,
+}
+
+/// Writes hits in order, a chunk at a time, formatted on the rayon pool.
+struct HitWriter<W: std::io::Write> {
+    out: W,
+    format: HitFormat,
+    counts: HitCounts,
+}
+
+/// An output error of a streamed trace.
+fn write_error(e: std::io::Error) -> Error {
+    Error::new(ErrorKind::Io, format!("cannot write the hits: {e}"))
+}
+
+impl<W: std::io::Write> HitWriter<W> {
+    fn new(mut out: W, format: HitFormat) -> Result<Self> {
+        if format == HitFormat::Csv {
+            out.write_all(CSV_HEADER.as_bytes()).map_err(write_error)?;
+        }
+        Ok(HitWriter {
+            out,
+            format,
+            counts: HitCounts::default(),
+        })
+    }
+
+    fn write(&mut self, hits: &[RawHit]) -> Result<()> {
+        use rayon::prelude::*;
+        let (format, first) = (self.format, self.counts.rays == 0);
+        let texts: Vec<String> = hits
+            .par_chunks(1024)
+            .enumerate()
+            .map(|(k, chunk)| {
+                let mut s = String::with_capacity(chunk.len() * 160);
+                for (i, h) in chunk.iter().enumerate() {
+                    match format {
+                        HitFormat::Csv => csv_row(&mut s, h),
+                        HitFormat::Json => {
+                            // The pretty array's element: the element's own pretty text,
+                            // indented one level.
+                            s.push_str(if first && k == 0 && i == 0 {
+                                "[\n"
+                            } else {
+                                ",\n"
+                            });
+                            let one = serde_json::to_string_pretty(h).unwrap_or_default();
+                            for (j, line) in one.lines().enumerate() {
+                                if j > 0 {
+                                    s.push('\n');
+                                }
+                                s.push_str("  ");
+                                s.push_str(line);
+                            }
+                        }
+                    }
+                }
+                s
+            })
+            .collect();
+        for t in texts {
+            self.out.write_all(t.as_bytes()).map_err(write_error)?;
+        }
+        self.counts.rays += hits.len();
+        self.counts.alive += hits.iter().filter(|h| h.status == "alive").count();
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<HitCounts> {
+        if self.format == HitFormat::Json {
+            let end = if self.counts.rays == 0 {
+                "[]\n"
+            } else {
+                "\n]\n"
+            };
+            self.out.write_all(end.as_bytes()).map_err(write_error)?;
+        }
+        self.out.flush().map_err(write_error)?;
+        Ok(self.counts)
+    }
+}
+
+/// Traces `rays` as [`trace_raw`] does and writes their hits to `out` in `format`, a chunk of
+/// [`STREAM_RAYS`] at a time (traced and formatted on the rayon pool): the bytes of [`to_csv`] or
+/// of the pretty JSON of [`trace_raw`]'s hits, without holding them all.
+///
+/// # Errors
+/// As [`trace_raw`]; [`ErrorKind::Io`] when `out` fails. Rays before the refused one may have been
+/// written: write to a temporary file and keep it only on success (`tolray trace` does).
+///
+/// # Examples
+/// ```
+/// use tolray::trace::raw::{trace_raw, trace_rays_to, to_csv, HitFormat, RawRay};
+/// use tolray::trace::TraceOptions;
+/// let sys = tolray::lens::builtin("lens1").unwrap().compile();
+/// let rays: Vec<RawRay> = (0..5)
+///     .map(|k| RawRay { ox: 0.0, oy: k as f64, oz: -10.0, dx: 0.0, dy: 0.0, dz: 1.0,
+///                       wavelength_nm: 587.6 })
+///     .collect();
+/// let mut out = Vec::new();
+/// let n = trace_rays_to(&sys, &rays, &mut out, HitFormat::Csv, TraceOptions::default())?;
+/// assert_eq!(n.rays, 5);
+/// let hits = trace_raw(&sys, &rays, TraceOptions::default())?;
+/// assert_eq!(String::from_utf8(out).unwrap(), to_csv(&hits));
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn trace_rays_to(
+    sys: &System<f64>,
+    rays: &[RawRay],
+    out: impl std::io::Write,
+    format: HitFormat,
+    opts: TraceOptions,
+) -> Result<HitCounts> {
+    let mut w = HitWriter::new(out, format)?;
+    for (k, chunk) in rays.chunks(STREAM_RAYS).enumerate() {
+        check_wavelengths(sys, chunk, k * STREAM_RAYS)?;
+        w.write(&trace_checked(sys, chunk, opts))?;
+    }
+    w.finish()
+}
+
+/// Reads CSV rays from `input` (as [`parse_csv`] reads them), traces them as [`trace_raw`] does
+/// and writes their hits to `out` as [`trace_rays_to`] does, a chunk of [`STREAM_RAYS`] rays at a
+/// time (parsed, traced and formatted on the rayon pool): memory independent of the number of
+/// rays.
+///
+/// # Errors
+/// As [`parse_csv`] and [`trace_raw`] (lines and rays numbered from the start of the input; the
+/// first error of a chunk in input order, parse errors of a chunk before its wavelength errors);
+/// [`ErrorKind::Io`] when `input` cannot be read or `out` written. Hits before the error may have
+/// been written.
+///
+/// # Examples
+/// ```
+/// use tolray::trace::raw::{parse_csv, trace_csv_to, trace_rays_to, HitFormat};
+/// use tolray::trace::TraceOptions;
+/// let sys = tolray::lens::builtin("lens1").unwrap().compile();
+/// let csv = "ox,oy,oz,dx,dy,dz,wavelength_nm\n0,1,-10,0,0,1,587.6\n# a comment\n0,2,-10,0,0.1,1,486.1\n";
+/// let mut out = Vec::new();
+/// let n = trace_csv_to(&sys, csv.as_bytes(), &mut out, HitFormat::Json, TraceOptions::default())?;
+/// assert_eq!((n.rays, n.alive), (2, 2));
+/// let mut whole = Vec::new();
+/// let rays = parse_csv(csv)?;
+/// trace_rays_to(&sys, &rays, &mut whole, HitFormat::Json, TraceOptions::default())?;
+/// assert_eq!(out, whole);
+/// let e = trace_csv_to(&sys, "0,1,-10,0,0,1,587.6\n0,1,x,0,0,1,587.6\n".as_bytes(),
+///                      std::io::sink(), HitFormat::Csv, TraceOptions::default()).unwrap_err();
+/// assert!(e.message().starts_with("line 2, column 3 (oz)"), "{}", e.message());
+/// # Ok::<(), tolray::Error>(())
+/// ```
+pub fn trace_csv_to(
+    sys: &System<f64>,
+    input: impl std::io::BufRead,
+    out: impl std::io::Write,
+    format: HitFormat,
+    opts: TraceOptions,
+) -> Result<HitCounts> {
+    use rayon::prelude::*;
+    let mut w = HitWriter::new(out, format)?;
+    let mut lines = input.lines();
+    let (mut line_no, mut traced) = (0, 0);
+    loop {
+        let mut chunk = Vec::with_capacity(STREAM_RAYS);
+        for line in lines.by_ref().take(STREAM_RAYS) {
+            chunk.push(line.map_err(|e| {
+                Error::new(
+                    ErrorKind::Io,
+                    format!("cannot read line {}: {e}", line_no + chunk.len() + 1),
+                )
+            })?);
+        }
+        if chunk.is_empty() {
+            break;
+        }
+        let parsed: Vec<Result<Option<RawRay>>> = chunk
+            .par_iter()
+            .enumerate()
+            .map(|(k, l)| parse_csv_line(line_no + k + 1, l))
+            .collect();
+        line_no += chunk.len();
+        let rays = parsed
+            .into_iter()
+            .filter_map(Result::transpose)
+            .collect::<Result<Vec<RawRay>>>()?;
+        check_wavelengths(sys, &rays, traced)?;
+        traced += rays.len();
+        w.write(&trace_checked(sys, &rays, opts))?;
+    }
+    w.finish()
 }
 
 #[cfg(test)]

@@ -123,6 +123,55 @@ impl RayStream {
         all
     }
 
+    /// Splits the chunks into `parts` contiguous runs (a number the caller fixes, so that the
+    /// result does not depend on the thread count), generates and traces each run's chunks in
+    /// order on the rayon pool and adds them with `add` to an accumulator of the run's own
+    /// (made by `init`); returns the accumulators in run order. For reductions too large to hold
+    /// one per chunk (a PSF's pixels): at most `parts` accumulators exist at once.
+    ///
+    /// # Examples
+    /// ```
+    /// use tolray::trace::{Field, Pupil, RayStream, TraceOptions};
+    /// let lens = tolray::Lens::load("lens2")?;
+    /// let para = lens.paraxial(587.5618)?;
+    /// let stream = RayStream::new(&lens, &para, Field::fraction(0.7), &Pupil::grid(128), 587.5618)?;
+    /// let sys = lens.compile();
+    /// let count = |parts| {
+    ///     let runs = stream.fold_parts::<f64, usize>(
+    ///         &sys, 587.5618, TraceOptions::default(), parts, || 0,
+    ///         |n, _, rays| *n += rays.iter().filter(|r| r.status.is_alive()).count(),
+    ///     );
+    ///     assert_eq!(runs.len(), parts);
+    ///     runs.iter().sum::<usize>()
+    /// };
+    /// assert_eq!(count(1), count(5));
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    pub fn fold_parts<S: Traceable, A: Send>(
+        &self,
+        sys: &System<S>,
+        wavelength_nm: f64,
+        opts: TraceOptions,
+        parts: usize,
+        init: impl Fn() -> A + Sync,
+        add: impl Fn(&mut A, &[[f64; 2]], &RayBatch<S>) + Sync,
+    ) -> Vec<A> {
+        let n = sys.indices(wavelength_nm);
+        let chunks = self.chunks();
+        (0..parts)
+            .into_par_iter()
+            .map(|p| {
+                let (mut pts, mut batch, mut acc) = (Vec::new(), RayBatch::new(), init());
+                for k in p * chunks / parts..(p + 1) * chunks / parts {
+                    self.fill(k, &mut pts, &mut batch);
+                    S::trace_blocks(sys, &n, wavelength_nm, opts.apertures, batch.blocks_mut());
+                    add(&mut acc, &pts, &batch);
+                }
+                acc
+            })
+            .collect()
+    }
+
     /// As [`RayStream::map_chunks`], handing each chunk's reduction to `merge` in chunk order
     /// as soon as its group of chunks is done, so that at most [`FOLD_GROUP`] reductions are
     /// held at once.

@@ -514,6 +514,83 @@ fn raw_trace_keeps_every_row() {
     assert_eq!(st, ["invalid", "invalid", "invalid", "alive", "invalid"]);
 }
 
+/// The streamed raw trace (`trace_csv_to`, `trace_rays_to`: read, traced and written a chunk at a
+/// time) writes the bytes of the whole-set trace in CSV and in JSON, over more rays than a chunk
+/// holds and many wavelengths; an error past the first chunk names its line and ray counted from
+/// the start.
+#[test]
+fn streamed_raw_trace_writes_the_whole_trace() {
+    use tolray::trace::raw::{
+        parse_csv, to_csv, trace_csv_to, trace_raw, trace_rays_to, HitFormat, STREAM_RAYS,
+    };
+    let sys = Lens::load("lens1").unwrap().compile();
+    let n = STREAM_RAYS + 3000;
+    let mut csv = String::from("ox,oy,oz,dx,dy,dz,wavelength_nm\n# rays\n");
+    for k in 0..n {
+        let t = k as f64 / n as f64;
+        let wl = [486.1327, 587.5618, 656.2725, 500.0 + (k % 97) as f64][k % 4];
+        csv.push_str(&format!(
+            "0.1,{},-10,0,{},1,{wl}\n",
+            16.0 * t - 8.0,
+            0.05 * t
+        ));
+        if k == 40_000 {
+            csv.push('\n');
+        }
+    }
+    let rays = parse_csv(&csv).unwrap();
+    assert_eq!(rays.len(), n);
+    let hits = trace_raw(&sys, &rays, TraceOptions::default()).unwrap();
+    let alive = hits.iter().filter(|h| h.status == "alive").count();
+    assert!(
+        alive > n / 2 && alive < n,
+        "{alive} of {n}: some rays vignetted"
+    );
+    let opts = TraceOptions::default();
+    let mut out = Vec::new();
+    let counts = trace_csv_to(&sys, csv.as_bytes(), &mut out, HitFormat::Csv, opts).unwrap();
+    assert_eq!((counts.rays, counts.alive), (n, alive));
+    assert!(out == to_csv(&hits).as_bytes(), "CSV differs");
+    let mut out = Vec::new();
+    trace_csv_to(&sys, csv.as_bytes(), &mut out, HitFormat::Json, opts).unwrap();
+    let json = serde_json::to_string_pretty(&hits).unwrap() + "\n";
+    assert!(out == json.as_bytes(), "JSON differs");
+    let mut out = Vec::new();
+    trace_rays_to(&sys, &rays[..0], &mut out, HitFormat::Json, opts).unwrap();
+    assert_eq!(out, b"[]\n");
+    // Errors past the first chunk: a bad number on line 68,003 (ray 68,000 after the header,
+    // the comment and the blank line), a wavelength without an index on the ray after it.
+    let mut lines: Vec<&str> = csv.lines().collect();
+    lines[68_002] = "0,0,-10,0,0,1,x";
+    let e = trace_csv_to(
+        &sys,
+        lines.join("\n").as_bytes(),
+        std::io::sink(),
+        HitFormat::Csv,
+        opts,
+    );
+    let e = e.unwrap_err();
+    assert!(
+        e.message().starts_with("line 68003, column 7"),
+        "{}",
+        e.message()
+    );
+    lines[68_002] = "0,0,-10,0,0,1,1e-300";
+    let e = trace_csv_to(
+        &sys,
+        lines.join("\n").as_bytes(),
+        std::io::sink(),
+        HitFormat::Csv,
+        opts,
+    );
+    let e = e.unwrap_err();
+    assert!(
+        e.message().starts_with("ray 68000 (wavelength 1e-300 nm)"),
+        "{}",
+        e.message()
+    );
+}
+
 /// A field angle of 90° or more (or NaN) is refused: tan flips sign past 90°, so such a field
 /// traced silently from the wrong side before.
 #[test]
