@@ -9,7 +9,7 @@ use tolray::analysis::{spot_diagram_rows, SpotOptions};
 use tolray::deep::{step, DeepConfig, DeepState, Phase};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{Adjustments, Param, System};
-use tolray::psf::{psf_map, PsfModel, PsfOptions};
+use tolray::psf::{psf_map, psf_streamed, PsfModel, PsfOptions};
 use tolray::real::{Dual, GRAD_WIDTH};
 use tolray::trace::simd::{self, Isa};
 use tolray::trace::{trace, Field, Pupil, PupilPattern, RayBatch, RaySet, TraceOptions, Traceable};
@@ -205,6 +205,32 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         let rate = launched * surfaces / s / 1e6;
         figs.push(Figure {
             what: "spot, lens2, grid:1024".into(),
+            isa: Some(active),
+            threads: t,
+            value: rate,
+            unit: "M ray-surfaces/s",
+            note: f64_rate
+                .get(&t)
+                .map(|k| format!("{:.0} % of the f64 kernel", 100.0 * rate / k))
+                .unwrap_or_default(),
+        });
+    }
+
+    // One PSF end to end (`tolray psf`): 262,144 random pupil rays generated, traced and
+    // splatted a chunk at a time.
+    let mut popts = PsfOptions::for_lens(&lens);
+    popts.pupil = random(1 << 18);
+    for &t in &counts {
+        let s = pool(t)?.install(|| {
+            median_s(
+                budget,
+                || (),
+                |()| psf_streamed(&lens, &sys, Field::fraction(0.7), LAMBDA_D_NM, &popts),
+            )
+        });
+        let rate = (1 << 18) as f64 * surfaces / s / 1e6;
+        figs.push(Figure {
+            what: "PSF, lens2, 262,144 rays".into(),
             isa: Some(active),
             threads: t,
             value: rate,

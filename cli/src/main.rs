@@ -101,7 +101,7 @@ enum Command {
     /// Simulates a capture: an image blurred by the lens' spatially variant RGB PSF map, plus noise.
     Render(deep::RenderArgs),
     /// The kernel's and the commands' speed on this machine (ray-surfaces/s per core and on all
-    /// cores in f32, f64 and dual numbers, the spot analysis, a PSF map, a deep-optics
+    /// cores in f32, f64 and dual numbers, the spot analysis, a PSF, a PSF map, a deep-optics
     /// iteration), with the instruction set in use.
     Bench(bench::BenchArgs),
 }
