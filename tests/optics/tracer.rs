@@ -558,37 +558,19 @@ fn streamed_raw_trace_writes_the_whole_trace() {
     let mut out = Vec::new();
     trace_rays_to(&sys, &rays[..0], &mut out, HitFormat::Json, opts).unwrap();
     assert_eq!(out, b"[]\n");
-    // Errors past the first chunk: a bad number on line 68,003 (ray 68,000 after the header,
-    // the comment and the blank line), a wavelength without an index on the ray after it.
-    let mut lines: Vec<&str> = csv.lines().collect();
-    lines[68_002] = "0,0,-10,0,0,1,x";
-    let e = trace_csv_to(
-        &sys,
-        lines.join("\n").as_bytes(),
-        std::io::sink(),
-        HitFormat::Csv,
-        opts,
-    );
-    let e = e.unwrap_err();
-    assert!(
-        e.message().starts_with("line 68003, column 7"),
-        "{}",
-        e.message()
-    );
-    lines[68_002] = "0,0,-10,0,0,1,1e-300";
-    let e = trace_csv_to(
-        &sys,
-        lines.join("\n").as_bytes(),
-        std::io::sink(),
-        HitFormat::Csv,
-        opts,
-    );
-    let e = e.unwrap_err();
-    assert!(
-        e.message().starts_with("ray 68000 (wavelength 1e-300 nm)"),
-        "{}",
-        e.message()
-    );
+    // Errors past the first chunk, on line 68,003 (ray 68,000 after the header, the comment and
+    // the blank line): a bad number, then a wavelength without an index.
+    let refused = |line: &str| {
+        let mut lines: Vec<&str> = csv.lines().collect();
+        lines[68_002] = line;
+        let text = lines.join("\n");
+        let e = trace_csv_to(&sys, text.as_bytes(), std::io::sink(), HitFormat::Csv, opts);
+        e.unwrap_err().message().to_string()
+    };
+    let e = refused("0,0,-10,0,0,1,x");
+    assert!(e.starts_with("line 68003, column 7"), "{e}");
+    let e = refused("0,0,-10,0,0,1,1e-300");
+    assert!(e.starts_with("ray 68000 (wavelength 1e-300 nm)"), "{e}");
 }
 
 /// A field angle of 90° or more (or NaN) is refused: tan flips sign past 90°, so such a field
