@@ -281,8 +281,8 @@ const STREAMED_PSF_BYTES: usize = 64 << 20;
 /// The geometric PSF of `field` at `wavelength_nm` through `sys`, centred as `opts` says, with
 /// the rays of `opts.pupil` (launched from `lens`'s paraxial entrance pupil at its primary
 /// wavelength, as [`Bundles::pairs`] launches them) generated, traced and splatted a chunk at a
-/// time on the rayon pool ([`RayStream`]): memory independent of the number of rays, every core
-/// busy. Returns the PSF and the chief ray's sensor point (`None` when that ray is lost).
+/// time on the rayon pool ([`RayStream`]): memory independent of the number of rays, the work
+/// split into up to 16 runs of chunks (fewer for a small pupil or a large window). Returns the PSF and the chief ray's sensor point (`None` when that ray is lost).
 ///
 /// The numbers are [`psf_of`]'s on the same rays up to rounding: the pixels are summed in runs of
 /// chunks (a number of runs fixed by `opts.ks`, so that the result does not depend on the thread
@@ -290,7 +290,8 @@ const STREAMED_PSF_BYTES: usize = 64 << 20;
 /// then the splat); so does a chief-centred one whose chief ray is lost.
 ///
 /// # Errors
-/// Ray-generation errors (the paraxial entrance pupil, a chief ray that cannot be aimed).
+/// Options that [`check_options`] refuses; ray-generation errors (the paraxial entrance pupil, a
+/// chief ray that cannot be aimed).
 ///
 /// # Examples
 /// ```
@@ -314,6 +315,7 @@ pub fn psf_streamed(
     wavelength_nm: f64,
     opts: &PsfOptions,
 ) -> Result<(Vec<f64>, Option<[f64; 2]>)> {
+    check_options(opts)?;
     let para = lens.paraxial(lens.primary_wavelength_nm)?;
     let stream = RayStream::new(lens, &para, field, &opts.pupil, wavelength_nm)?;
     let trace = TraceOptions::default();

@@ -46,16 +46,24 @@ pub fn run(a: TraceArgs) -> anyhow::Result<()> {
     // The hits are written as they are traced, to a temporary file renamed over --out at the end
     // (nothing is left there on an error). CSV input streams too; a JSON array is read whole.
     let mut counts = None;
-    tolray::files::write_atomic_with(&out, |w| {
+    tolray::files::write_atomic_with(&out, |file| {
+        // A failed write is reported with the output's path, not the input's.
+        let mut w = Noting {
+            inner: file,
+            failed: None,
+        };
         let n = if is_json(&rays) {
             let text = std::fs::read_to_string(&rays).map_err(|e| tolray::Error::io(&rays, e))?;
             let input = parse_json(&text).map_err(|e| e.context(rays.display()))?;
-            trace_rays_to(&sys, &input, w, format, opts)
+            trace_rays_to(&sys, &input, &mut w, format, opts)
         } else {
             let file = std::fs::File::open(&rays).map_err(|e| tolray::Error::io(&rays, e))?;
             let input = std::io::BufReader::with_capacity(1 << 20, file);
-            trace_csv_to(&sys, input, w, format, opts)
+            trace_csv_to(&sys, input, &mut w, format, opts)
         };
+        if let Some(e) = w.failed.take() {
+            return Err(tolray::Error::io(&out, e));
+        }
         counts = Some(n.map_err(|e| e.context(rays.display()))?);
         Ok(())
     })?;
@@ -67,4 +75,27 @@ pub fn run(a: TraceArgs) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
+}
+
+/// A writer that keeps a copy of its first error.
+struct Noting<W> {
+    inner: W,
+    failed: Option<std::io::Error>,
+}
+
+impl<W: std::io::Write> std::io::Write for Noting<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(buf).inspect_err(|e| self.note(e))
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush().inspect_err(|e| self.note(e))
+    }
+}
+
+impl<W> Noting<W> {
+    fn note(&mut self, e: &std::io::Error) {
+        if self.failed.is_none() {
+            self.failed = Some(std::io::Error::new(e.kind(), e.to_string()));
+        }
+    }
 }

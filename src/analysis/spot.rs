@@ -630,7 +630,7 @@ mod tests {
     /// the extremes' quadrilateral.
     #[test]
     fn dropping_interior_points_keeps_the_hull() {
-        let plain = |pts: &[[f64; 2]]| {
+        let filtered = |pts: &[[f64; 2]]| {
             let mut p = pts.to_vec();
             drop_interior(&mut p);
             (convex_hull(pts), pts.len() - p.len())
@@ -660,7 +660,7 @@ mod tests {
                     }
                 })
                 .collect();
-            let (with, dropped) = plain(&pts);
+            let (with, dropped) = filtered(&pts);
             dropped_any |= dropped > 0;
             // Without the filter.
             let hull = monotone_chain(pts.clone());

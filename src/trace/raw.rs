@@ -249,7 +249,8 @@ fn csv_row(s: &mut String, h: &RawHit) {
     );
 }
 
-/// Rays read, traced and written at a time by [`trace_csv_to`] and [`trace_rays_to`].
+/// Input lines (CSV) or rays read, traced and written at a time by [`trace_csv_to`] and
+/// [`trace_rays_to`].
 pub const STREAM_RAYS: usize = 1 << 16;
 
 /// The format of the hits that [`trace_csv_to`] and [`trace_rays_to`] write.
