@@ -8,8 +8,8 @@
 //! the statistics of a 1024 x 1024 pupil grid at 0.7 field, one thread and all threads), the
 //! work `tolray spot` does; a PSF of 1,000,000 random pupil rays end to end (`psf/lens2`, the
 //! work of `tolray psf`); and a raw trace of the kernel benchmark's rays from CSV text to CSV text
-//! (`raw/lens2`, the work of `tolray trace`). Throughput is reported in elements = ray-surfaces (rays x (surfaces +
-//! image plane)).
+//! (`raw/lens2`, the work of `tolray trace`). Throughput is reported in elements = ray-surfaces
+//! (rays x (surfaces + image plane)).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use tolray::analysis::{spot_diagram_rows, SpotOptions};

@@ -282,7 +282,8 @@ const STREAMED_PSF_BYTES: usize = 64 << 20;
 /// the rays of `opts.pupil` (launched from `lens`'s paraxial entrance pupil at its primary
 /// wavelength, as [`Bundles::pairs`] launches them) generated, traced and splatted a chunk at a
 /// time on the rayon pool ([`RayStream`]): memory independent of the number of rays, the work
-/// split into up to 16 runs of chunks (fewer for a small pupil or a large window). Returns the PSF and the chief ray's sensor point (`None` when that ray is lost).
+/// split into up to 16 runs of chunks (fewer for a small pupil or a large window). Returns the
+/// PSF and the chief ray's sensor point (`None` when that ray is lost).
 ///
 /// The numbers are [`psf_of`]'s on the same rays up to rounding: the pixels are summed in runs of
 /// chunks (a number of runs fixed by `opts.ks`, so that the result does not depend on the thread

@@ -405,7 +405,8 @@ pub fn trace_rays_to(
 /// use tolray::trace::raw::{parse_csv, trace_csv_to, trace_rays_to, HitFormat};
 /// use tolray::trace::TraceOptions;
 /// let sys = tolray::lens::builtin("lens1").unwrap().compile();
-/// let csv = "ox,oy,oz,dx,dy,dz,wavelength_nm\n0,1,-10,0,0,1,587.6\n# a comment\n0,2,-10,0,0.1,1,486.1\n";
+/// let csv = "ox,oy,oz,dx,dy,dz,wavelength_nm\n\
+///            0,1,-10,0,0,1,587.6\n# a comment\n0,2,-10,0,0.1,1,486.1\n";
 /// let mut out = Vec::new();
 /// let n = trace_csv_to(&sys, csv.as_bytes(), &mut out, HitFormat::Json, TraceOptions::default())?;
 /// assert_eq!((n.rays, n.alive), (2, 2));

@@ -134,7 +134,8 @@ impl RayStream {
     /// use tolray::trace::{Field, Pupil, RayStream, TraceOptions};
     /// let lens = tolray::Lens::load("lens2")?;
     /// let para = lens.paraxial(587.5618)?;
-    /// let stream = RayStream::new(&lens, &para, Field::fraction(0.7), &Pupil::grid(128), 587.5618)?;
+    /// let pupil = Pupil::grid(128);
+    /// let stream = RayStream::new(&lens, &para, Field::fraction(0.7), &pupil, 587.5618)?;
     /// let sys = lens.compile();
     /// let count = |parts| {
     ///     let runs = stream.fold_parts::<f64, usize>(
