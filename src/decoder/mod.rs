@@ -98,6 +98,16 @@ pub struct Crop {
     pub h: usize,
 }
 
+/// What one crop of a training batch contributes: its scaled loss, its decoded image, its
+/// parameter gradients (U-Net, Wiener; empty without that stage) and dL/dcapture.
+struct CropPass {
+    loss: f64,
+    xhat: Vec<f32>,
+    dunet: Vec<f32>,
+    dwiener: Vec<f64>,
+    dy: Vec<f32>,
+}
+
 /// What a training pass over a batch returns.
 #[derive(Clone, Debug)]
 pub struct BatchOutput {
@@ -344,7 +354,7 @@ impl Decoder {
         for (c, b) in crops.iter().zip(&base) {
             input.extend(self.unet_input(c, b));
         }
-        let (out, _) = u.forward(&input, crops.len(), h, w)?;
+        let out = u.infer(&input, crops.len(), h, w)?;
         Ok(base
             .into_iter()
             .enumerate()
@@ -355,6 +365,73 @@ impl Decoder {
                 b
             })
             .collect())
+    }
+
+    /// One crop of [`Decoder::train_batch`]: decoded, scored (its loss scaled by `inv`) and
+    /// differentiated, its activations freed before it returns.
+    fn crop_pass(
+        &self,
+        c: &Crop,
+        (w, h): (usize, usize),
+        wiener: Option<&wiener::Wiener>,
+        unet: Option<&unet::Unet>,
+        inv: f64,
+        weights: &ImageLossWeights,
+    ) -> Result<CropPass> {
+        let m = 3 * w * h;
+        let (base, wcache) = match wiener {
+            Some(f) => f
+                .forward_patch(c.tile, &c.y, w, h)
+                .map(|(o, k)| (o, Some(k)))?,
+            None => (c.y.clone(), None),
+        };
+        // The U-Net residual.
+        let ucache = unet.map(|u| u.forward_one(&self.unet_input(c, &base), h, w, true));
+        let xhat: Vec<f32> = match &ucache {
+            Some((out, _)) => base.iter().zip(out).map(|(a, r)| a + r).collect(),
+            None => base,
+        };
+        let (l, mut g) = loss::image_loss(&xhat, &c.x, w, h, weights);
+        for v in g.iter_mut() {
+            *v *= inv as f32;
+        }
+        let mut dbase = g.clone();
+        let mut dy = unet::written_zeros(m);
+        let mut dunet = Vec::new();
+        if let (Some(u), Some((_, cache))) = (unet, ucache) {
+            dunet = vec![0f32; u.params.len()];
+            let di = u.backward_one(&cache, &g, &mut dunet);
+            drop(cache);
+            for (a, b) in dbase.iter_mut().zip(&di[..m]) {
+                *a += b;
+            }
+            for (a, b) in dy.iter_mut().zip(&di[m..2 * m]) {
+                *a += b;
+            }
+        }
+        let mut dwiener = Vec::new();
+        match (wiener, &wcache) {
+            (Some(f), Some(cache)) => {
+                dwiener = vec![0.0; self.n_wiener];
+                let mut dyj = unet::written_zeros(m);
+                f.backward_patch(c.tile, cache, &dbase, &mut dwiener, &mut dyj);
+                for (a, b) in dy.iter_mut().zip(&dyj) {
+                    *a += b;
+                }
+            }
+            _ => {
+                for (a, v) in dy.iter_mut().zip(&dbase) {
+                    *a += v;
+                }
+            }
+        }
+        Ok(CropPass {
+            loss: l * inv,
+            xhat,
+            dunet,
+            dwiener,
+            dy,
+        })
     }
 
     /// Decodes the batch, evaluates the mean image loss against each crop's `x`, and returns its
@@ -370,58 +447,29 @@ impl Decoder {
             ));
         }
         let n = crops.len();
-        let wiener = self.kind.has_wiener().then(|| self.wiener());
-        let fwd: Vec<(Vec<f32>, Option<wiener::WienerCache>)> = crops
-            .par_iter()
-            .map(|c| match &wiener {
-                Some(f) => f
-                    .forward_patch(c.tile, &c.y, w, h)
-                    .map(|(o, k)| (o, Some(k))),
-                None => Ok((c.y.clone(), None)),
-            })
-            .collect::<Result<_>>()?;
-        // The U-Net residual.
-        let unet = if self.kind.has_unet() {
-            let u = self.unet()?;
-            let mut input = Vec::with_capacity(n * UNET_IN * w * h);
-            for (c, (b, _)) in crops.iter().zip(&fwd) {
-                input.extend(self.unet_input(c, b));
-            }
-            let (out, cache) = u.forward(&input, n, h, w)?;
-            Some((u, out, cache))
-        } else {
-            None
-        };
         let m = 3 * w * h;
-        let xhat: Vec<Vec<f32>> = fwd
-            .iter()
-            .enumerate()
-            .map(|(j, (b, _))| match &unet {
-                Some((_, out, _)) => b
-                    .iter()
-                    .zip(&out[j * m..(j + 1) * m])
-                    .map(|(a, r)| a + r)
-                    .collect(),
-                None => b.clone(),
-            })
-            .collect();
-        // Loss per crop; the batch loss is their mean.
+        let wiener = self.kind.has_wiener().then(|| self.wiener());
+        let unet = match self.kind.has_unet() {
+            true => {
+                let u = self.unet()?;
+                u.check(UNET_IN * w * h, 1, h, w)?;
+                Some(u)
+            }
+            false => None,
+        };
+        // Each crop through the whole pipeline on its own (Wiener, U-Net residual, loss, U-Net
+        // and Wiener backward), so that only the crops in flight hold their activations; the
+        // parts are reduced below in crop order (thread-count free).
         let inv = 1.0 / n as f64;
-        let losses: Vec<(f64, Vec<f32>)> = xhat
+        let parts: Vec<CropPass> = crops
             .par_iter()
-            .zip(crops.par_iter())
-            .map(|(xh, c)| {
-                let (l, mut g) = loss::image_loss(xh, &c.x, w, h, weights);
-                for v in g.iter_mut() {
-                    *v *= inv as f32;
-                }
-                (l * inv, g)
-            })
-            .collect();
-        let loss: f64 = losses.iter().map(|l| l.0).sum();
+            .map(|c| self.crop_pass(c, (w, h), wiener.as_ref(), unet.as_ref(), inv, weights))
+            .collect::<Result<_>>()?;
+        // The batch loss is the crops' mean.
+        let loss: f64 = parts.iter().map(|p| p.loss).sum();
         let mut se = 0.0;
-        for (xh, c) in xhat.iter().zip(crops) {
-            for (a, b) in xh.iter().zip(&c.x) {
+        for (p, c) in parts.iter().zip(crops) {
+            for (a, b) in p.xhat.iter().zip(&c.x) {
                 let d = crate::image::linear_to_srgb(a.clamp(0.0, 1.0)) as f64
                     - crate::image::linear_to_srgb(b.clamp(0.0, 1.0)) as f64;
                 se += d * d;
@@ -429,60 +477,25 @@ impl Decoder {
         }
         let psnr_db = -10.0 * (se / (n * m) as f64).max(1e-20).log10();
         let mut dparams = vec![0.0; self.params.len()];
-        let mut dbase: Vec<Vec<f32>> = losses.iter().map(|l| l.1.clone()).collect();
-        let mut dy: Vec<Vec<f32>> = vec![vec![0.0; m]; n];
-        if let Some((u, _, cache)) = &unet {
-            let dout: Vec<f32> = losses.iter().flat_map(|l| l.1.iter().copied()).collect();
+        if let Some(u) = &unet {
             let mut dp = vec![0f32; u.params.len()];
-            let mut dinput = vec![0f32; n * UNET_IN * w * h];
-            u.backward(cache, &dout, &mut dp, &mut dinput);
+            for p in &parts {
+                for (a, b) in dp.iter_mut().zip(&p.dunet) {
+                    *a += b;
+                }
+            }
             for (d, s) in dparams[self.n_wiener..].iter_mut().zip(&dp) {
                 *d += *s as f64;
             }
-            let k = UNET_IN * w * h;
-            for j in 0..n {
-                let di = &dinput[j * k..(j + 1) * k];
-                for (a, b) in dbase[j].iter_mut().zip(&di[..m]) {
-                    *a += b;
-                }
-                for (a, b) in dy[j].iter_mut().zip(&di[m..2 * m]) {
+        }
+        if wiener.is_some() {
+            for p in &parts {
+                for (a, b) in dparams[..self.n_wiener].iter_mut().zip(&p.dwiener) {
                     *a += b;
                 }
             }
         }
-        match (&wiener, self.kind.has_wiener()) {
-            (Some(f), true) => {
-                // Each crop's Wiener backward, reduced in crop order (thread-count free).
-                let parts: Vec<(Vec<f64>, Vec<f32>)> = fwd
-                    .par_iter()
-                    .zip(crops.par_iter())
-                    .zip(dbase.par_iter())
-                    .map(|(((_, cache), c), db)| {
-                        let mut dp = vec![0.0; self.n_wiener];
-                        let mut dyj = vec![0f32; m];
-                        if let Some(cache) = cache {
-                            f.backward_patch(c.tile, cache, db, &mut dp, &mut dyj);
-                        }
-                        (dp, dyj)
-                    })
-                    .collect();
-                for (j, (dp, dyj)) in parts.into_iter().enumerate() {
-                    for (a, b) in dparams[..self.n_wiener].iter_mut().zip(&dp) {
-                        *a += b;
-                    }
-                    for (a, b) in dy[j].iter_mut().zip(&dyj) {
-                        *a += b;
-                    }
-                }
-            }
-            _ => {
-                for (d, b) in dy.iter_mut().zip(&dbase) {
-                    for (a, v) in d.iter_mut().zip(b) {
-                        *a += v;
-                    }
-                }
-            }
-        }
+        let dy = parts.into_iter().map(|p| p.dy).collect();
         Ok(BatchOutput {
             loss,
             psnr_db,

@@ -55,96 +55,171 @@ pub struct Cache {
     outs: Vec<Vec<f32>>,
 }
 
-/// im2col for a 3x3 (zero padding 1) or 1x1 convolution: `(cin · k²) x (h · w)`.
-fn im2col(inp: &[f32], cin: usize, h: usize, w: usize, k: usize) -> Vec<f32> {
+/// Columns `p0..p1` (pixels in row-major order) of im2col for a 3x3 (zero padding 1) or 1x1
+/// convolution: `(cin · k²) x (p1 - p0)` into `col`, every value written.
+fn im2col_band(
+    inp: &[f32],
+    cin: usize,
+    h: usize,
+    w: usize,
+    k: usize,
+    (p0, p1): (usize, usize),
+    col: &mut [f32],
+) {
     debug_assert!(k == 1 || k == 3, "only 1x1 and 3x3 kernels");
     debug_assert_eq!(inp.len(), cin * h * w, "input is cin x h x w");
+    let (hw, nb) = (h * w, p1 - p0);
+    debug_assert!(p0 < p1 && p1 <= hw && col.len() == cin * k * k * nb);
     if k == 1 {
-        return inp.to_vec();
-    }
-    let hw = h * w;
-    let mut col = vec![0f32; cin * 9 * hw];
-    for c in 0..cin {
-        for ky in 0..3 {
-            for kx in 0..3 {
-                let row = &mut col[(c * 9 + ky * 3 + kx) * hw..(c * 9 + ky * 3 + kx + 1) * hw];
-                for y in 0..h {
-                    let sy = y as isize + ky as isize - 1;
-                    if sy < 0 || sy >= h as isize {
-                        continue;
-                    }
-                    let src = &inp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
-                    let dst = &mut row[y * w..(y + 1) * w];
-                    match kx {
-                        0 => dst[1..].copy_from_slice(&src[..w - 1]),
-                        1 => dst.copy_from_slice(src),
-                        _ => dst[..w - 1].copy_from_slice(&src[1..]),
-                    }
-                }
-            }
-        }
-    }
-    col
-}
-
-/// The adjoint of [`im2col`]: adds the columns back into `dinp`.
-fn col2im(col: &[f32], cin: usize, h: usize, w: usize, k: usize, dinp: &mut [f32]) {
-    debug_assert_eq!(
-        col.len(),
-        cin * k * k * h * w,
-        "columns are (cin k²) x (h w)"
-    );
-    debug_assert_eq!(dinp.len(), cin * h * w, "the input gradient is cin x h x w");
-    let hw = h * w;
-    if k == 1 {
-        for (d, c) in dinp.iter_mut().zip(col) {
-            *d += c;
+        for c in 0..cin {
+            col[c * nb..(c + 1) * nb].copy_from_slice(&inp[c * hw + p0..c * hw + p1]);
         }
         return;
     }
     for c in 0..cin {
         for ky in 0..3 {
             for kx in 0..3 {
-                let row = &col[(c * 9 + ky * 3 + kx) * hw..(c * 9 + ky * 3 + kx + 1) * hw];
-                for y in 0..h {
+                let row = &mut col[(c * 9 + ky * 3 + kx) * nb..(c * 9 + ky * 3 + kx + 1) * nb];
+                // Output pixels (y, xa..xb) of the band, row by row; the source column is
+                // x + kx - 1, valid for x in lo..hi.
+                let mut p = p0;
+                while p < p1 {
+                    let (y, xa) = (p / w, p % w);
+                    let xb = (p1 - y * w).min(w);
+                    let dst = &mut row[p - p0..p - p0 + xb - xa];
                     let sy = y as isize + ky as isize - 1;
-                    if sy < 0 || sy >= h as isize {
-                        continue;
+                    let (lo, hi) = (xa.max(1 - kx.min(1)), xb.min(w + 1 - kx.max(1)));
+                    if sy < 0 || sy >= h as isize || lo >= hi {
+                        dst.fill(0.0);
+                    } else {
+                        let src = &inp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
+                        dst[..lo - xa].fill(0.0);
+                        dst[lo - xa..hi - xa].copy_from_slice(&src[lo + kx - 1..hi + kx - 1]);
+                        dst[hi - xa..].fill(0.0);
                     }
-                    let dst = &mut dinp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
-                    let src = &row[y * w..(y + 1) * w];
-                    match kx {
-                        0 => dst[..w - 1]
-                            .iter_mut()
-                            .zip(&src[1..])
-                            .for_each(|(d, s)| *d += s),
-                        1 => dst.iter_mut().zip(src).for_each(|(d, s)| *d += s),
-                        _ => dst[1..]
-                            .iter_mut()
-                            .zip(&src[..w - 1])
-                            .for_each(|(d, s)| *d += s),
-                    }
+                    p = y * w + xb;
                 }
             }
         }
     }
 }
 
-/// `c (m x n) = beta · c + a (m x k) · b (k x n)` with strides (row, column) for a and b.
+/// The adjoint of [`im2col_band`]: adds the columns of pixels `p0..p1` back into `dinp`.
+///
+/// Every input value receives its terms in the order of (ky, kx), as an adjoint of the whole
+/// image does, when the bands of an image are added from the last to the first: a later pixel
+/// reaches an input through an earlier (ky, kx).
+fn col2im_band(
+    col: &[f32],
+    cin: usize,
+    h: usize,
+    w: usize,
+    k: usize,
+    (p0, p1): (usize, usize),
+    dinp: &mut [f32],
+) {
+    let (hw, nb) = (h * w, p1 - p0);
+    debug_assert_eq!(col.len(), cin * k * k * nb, "columns are (cin k²) x band");
+    debug_assert_eq!(dinp.len(), cin * hw, "the input gradient is cin x h x w");
+    if k == 1 {
+        for c in 0..cin {
+            let d = &mut dinp[c * hw + p0..c * hw + p1];
+            d.iter_mut()
+                .zip(&col[c * nb..(c + 1) * nb])
+                .for_each(|(d, s)| *d += s);
+        }
+        return;
+    }
+    for c in 0..cin {
+        for ky in 0..3 {
+            for kx in 0..3 {
+                let row = &col[(c * 9 + ky * 3 + kx) * nb..(c * 9 + ky * 3 + kx + 1) * nb];
+                let mut p = p0;
+                while p < p1 {
+                    let (y, xa) = (p / w, p % w);
+                    let xb = (p1 - y * w).min(w);
+                    let sy = y as isize + ky as isize - 1;
+                    let (lo, hi) = (xa.max(1 - kx.min(1)), xb.min(w + 1 - kx.max(1)));
+                    if sy >= 0 && sy < h as isize && lo < hi {
+                        let dst = &mut dinp[c * hw + sy as usize * w..c * hw + sy as usize * w + w];
+                        dst[lo + kx - 1..hi + kx - 1]
+                            .iter_mut()
+                            .zip(&row[lo - xa + p - p0..hi - xa + p - p0])
+                            .for_each(|(d, s)| *d += s);
+                    }
+                    p = y * w + xb;
+                }
+            }
+        }
+    }
+}
+
+/// Pixels per band of a convolution with `kk` columns per pixel: a multiple of
+/// matrixmultiply's SGEMM depth block (256), so that a weight gradient summed band by band
+/// adds the same blocks in the same order as one product over the whole image; about 512 KB of
+/// columns, which stay in the L2 cache between im2col and the product.
+fn band_px(kk: usize, hw: usize) -> usize {
+    const KC: usize = 256;
+    ((128 * 1024 / kk.max(1)) / KC)
+        .max(1)
+        .saturating_mul(KC)
+        .min(hw)
+}
+
+thread_local! {
+    /// Each thread's column buffer for one band (kept between convolutions: the whole-image
+    /// im2col of a 256² crop was 19 MB allocated, faulted in and freed per convolution).
+    static COLUMNS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` on this thread's column buffer of `len` values (a fresh one if it is in use).
+fn with_columns<R>(len: usize, f: impl FnOnce(&mut [f32]) -> R) -> R {
+    COLUMNS.with(|b| match b.try_borrow_mut() {
+        Ok(mut v) => {
+            if v.len() < len {
+                v.resize(len, 0.0);
+            }
+            f(&mut v[..len])
+        }
+        Err(_) => f(&mut vec![0f32; len]),
+    })
+}
+
+/// `n` zeros in pages already written. A large `vec![0.0; n]` is fresh memory the kernel maps
+/// to its shared zero page when first read; a gradient buffer's first `+=` reads it and then
+/// faults again to write, and that second fault flushes the TLB of every core running the
+/// process (16 % of a paper-batch training iteration on 2 cores, measured with perf).
+pub(crate) fn written_zeros(n: usize) -> Vec<f32> {
+    let mut v = vec![0f32; n];
+    std::hint::black_box(v.as_mut_slice()).fill(0.0);
+    v
+}
+
+/// `c (m x n, row stride rsc) = beta · c + a (m x k) · b (k x n)` with strides (row, column)
+/// for a and b.
 #[allow(clippy::too_many_arguments)]
 fn gemm(
-    m: usize,
-    k: usize,
-    n: usize,
+    (m, k, n): (usize, usize, usize),
     a: &[f32],
     (rsa, csa): (isize, isize),
     b: &[f32],
     (rsb, csb): (isize, isize),
     beta: f32,
     c: &mut [f32],
+    rsc: usize,
 ) {
-    // SAFETY: the slices hold at least the strided extents: a is m x k, b is k x n, c is m x n
-    // (row-major, stride n), as every caller allocates them.
+    let extent = |rs: isize, cs: isize, r: usize, cc: usize| {
+        (r.saturating_sub(1)) as isize * rs + (cc.saturating_sub(1)) as isize * cs + 1
+    };
+    assert!(
+        extent(rsa, csa, m, k) <= a.len() as isize
+            && extent(rsb, csb, k, n) <= b.len() as isize
+            && (m == 0 || n == 0 || (m - 1) * rsc + n <= c.len())
+            && rsc >= n,
+        "gemm operands smaller than their shapes"
+    );
+    // SAFETY: the assertion above: a, b and c hold their strided extents (all strides are
+    // non-negative), and c's rows do not overlap.
     unsafe {
         matrixmultiply::sgemm(
             m,
@@ -159,38 +234,58 @@ fn gemm(
             csb,
             beta,
             c.as_mut_ptr(),
-            n as isize,
+            rsc as isize,
             1,
         );
     }
 }
 
-/// Convolution forward: `out[co] = b[co] + Σ W[co] · im2col(inp)`, `cout x (h · w)`.
+/// Convolution forward: `out[co] = b[co] + Σ W[co] · im2col(inp)`, `cout x (h · w)`, a band of
+/// pixels at a time.
 fn conv_forward(p: &[f32], cv: &Conv, inp: &[f32], h: usize, w: usize) -> Vec<f32> {
+    let nb = band_px(cv.cin * cv.k * cv.k, h * w);
+    conv_forward_bands(p, cv, inp, (h, w), nb)
+}
+
+/// [`conv_forward`] in bands of `nb` pixels.
+fn conv_forward_bands(
+    p: &[f32],
+    cv: &Conv,
+    inp: &[f32],
+    (h, w): (usize, usize),
+    nb: usize,
+) -> Vec<f32> {
     let hw = h * w;
     let kk = cv.cin * cv.k * cv.k;
     debug_assert!(cv.w + cv.cout * kk <= p.len() && cv.b + cv.cout <= p.len());
-    let col = im2col(inp, cv.cin, h, w, cv.k);
     let mut out = vec![0f32; cv.cout * hw];
     for (co, o) in out.chunks_mut(hw).enumerate() {
         o.fill(p[cv.b + co]);
     }
     let wt = &p[cv.w..cv.w + cv.cout * kk];
-    gemm(
-        cv.cout,
-        kk,
-        hw,
-        wt,
-        (kk as isize, 1),
-        &col,
-        (hw as isize, 1),
-        1.0,
-        &mut out,
-    );
+    with_columns(kk * nb, |col| {
+        for p0 in (0..hw).step_by(nb) {
+            let p1 = (p0 + nb).min(hw);
+            let col = &mut col[..kk * (p1 - p0)];
+            im2col_band(inp, cv.cin, h, w, cv.k, (p0, p1), col);
+            gemm(
+                (cv.cout, kk, p1 - p0),
+                wt,
+                (kk as isize, 1),
+                col,
+                ((p1 - p0) as isize, 1),
+                1.0,
+                &mut out[p0..],
+                hw,
+            );
+        }
+    });
     out
 }
 
-/// Convolution backward: adds dW, db into `dp` and dL/dinput into `dinp`.
+/// Convolution backward: adds dW, db into `dp` and dL/dinput into `dinp`, a band of pixels at a
+/// time (the weight gradient from the first band to the last, the input gradient from the last
+/// to the first: both add their terms in the order of the whole-image products).
 #[allow(clippy::too_many_arguments)]
 fn conv_backward(
     p: &[f32],
@@ -202,6 +297,22 @@ fn conv_backward(
     dp: &mut [f32],
     dinp: &mut [f32],
 ) {
+    let nb = band_px(cv.cin * cv.k * cv.k, h * w);
+    conv_backward_bands(p, cv, inp, (h, w), dout, dp, dinp, nb);
+}
+
+/// [`conv_backward`] in bands of `nb` pixels (a multiple of 256 for the same weight gradient).
+#[allow(clippy::too_many_arguments)]
+fn conv_backward_bands(
+    p: &[f32],
+    cv: &Conv,
+    inp: &[f32],
+    (h, w): (usize, usize),
+    dout: &[f32],
+    dp: &mut [f32],
+    dinp: &mut [f32],
+    nb: usize,
+) {
     let hw = h * w;
     let kk = cv.cin * cv.k * cv.k;
     debug_assert_eq!(
@@ -210,37 +321,45 @@ fn conv_backward(
         "the output gradient is cout x h x w"
     );
     debug_assert_eq!(dp.len(), p.len(), "one gradient per parameter");
-    let col = im2col(inp, cv.cin, h, w, cv.k);
-    // dW (cout x kk) += dout (cout x hw) · colᵀ (hw x kk).
-    gemm(
-        cv.cout,
-        hw,
-        kk,
-        dout,
-        (hw as isize, 1),
-        &col,
-        (1, hw as isize),
-        1.0,
-        &mut dp[cv.w..cv.w + cv.cout * kk],
-    );
+    let wt = &p[cv.w..cv.w + cv.cout * kk];
+    with_columns(kk * nb, |col| {
+        // dW (cout x kk) += dout (cout x hw) · colᵀ (hw x kk).
+        for p0 in (0..hw).step_by(nb) {
+            let p1 = (p0 + nb).min(hw);
+            let col = &mut col[..kk * (p1 - p0)];
+            im2col_band(inp, cv.cin, h, w, cv.k, (p0, p1), col);
+            gemm(
+                (cv.cout, p1 - p0, kk),
+                &dout[p0..],
+                (hw as isize, 1),
+                col,
+                (1, (p1 - p0) as isize),
+                1.0,
+                &mut dp[cv.w..cv.w + cv.cout * kk],
+                kk,
+            );
+        }
+        // dcol (kk x band) = Wᵀ (kk x cout) · dout (cout x band), added back into dinp.
+        let starts: Vec<usize> = (0..hw).step_by(nb).collect();
+        for &p0 in starts.iter().rev() {
+            let p1 = (p0 + nb).min(hw);
+            let dcol = &mut col[..kk * (p1 - p0)];
+            gemm(
+                (kk, cv.cout, p1 - p0),
+                wt,
+                (1, kk as isize),
+                &dout[p0..],
+                (hw as isize, 1),
+                0.0,
+                dcol,
+                p1 - p0,
+            );
+            col2im_band(dcol, cv.cin, h, w, cv.k, (p0, p1), dinp);
+        }
+    });
     for (co, d) in dout.chunks(hw).enumerate() {
         dp[cv.b + co] += d.iter().sum::<f32>();
     }
-    // dcol (kk x hw) = Wᵀ (kk x cout) · dout (cout x hw).
-    let mut dcol = vec![0f32; kk * hw];
-    let wt = &p[cv.w..cv.w + cv.cout * kk];
-    gemm(
-        kk,
-        cv.cout,
-        hw,
-        wt,
-        (1, kk as isize),
-        dout,
-        (hw as isize, 1),
-        0.0,
-        &mut dcol,
-    );
-    col2im(&dcol, cv.cin, h, w, cv.k, dinp);
 }
 
 fn relu(v: &mut [f32]) {
@@ -399,7 +518,7 @@ impl Unet {
         self.params.len()
     }
 
-    fn check(&self, len: usize, n: usize, h: usize, w: usize) -> Result<()> {
+    pub(crate) fn check(&self, len: usize, n: usize, h: usize, w: usize) -> Result<()> {
         let m = 1 << self.cfg.levels;
         if h == 0
             || w == 0
@@ -415,7 +534,15 @@ impl Unet {
         Ok(())
     }
 
-    fn forward_one(&self, x: &[f32], h: usize, w: usize) -> (Vec<f32>, Cache) {
+    /// One sample forward; with `keep`, the cache its backward pass needs (without, the cache
+    /// is empty and no activation outlives its use).
+    pub(crate) fn forward_one(
+        &self,
+        x: &[f32],
+        h: usize,
+        w: usize,
+        keep: bool,
+    ) -> (Vec<f32>, Cache) {
         let p = &self.params;
         let (mut ins, mut outs) = (Vec::new(), Vec::new());
         let mut ci = 0;
@@ -423,8 +550,10 @@ impl Unet {
             |x: Vec<f32>, h: usize, w: usize, ins: &mut Vec<Vec<f32>>, outs: &mut Vec<Vec<f32>>| {
                 let mut o = conv_forward(p, &self.convs[ci], &x, h, w);
                 relu(&mut o);
-                ins.push(x);
-                outs.push(o.clone());
+                if keep {
+                    ins.push(x);
+                    outs.push(o.clone());
+                }
                 ci += 1;
                 o
             };
@@ -452,17 +581,21 @@ impl Unet {
             x = conv_relu(a, hh, ww, &mut ins, &mut outs);
         }
         let out = conv_forward(p, &self.convs[self.convs.len() - 1], &x, h, w);
-        ins.push(x);
+        if keep {
+            ins.push(x);
+        }
         (out, Cache { h, w, ins, outs })
     }
 
-    fn backward_one(&self, cache: &Cache, dout: &[f32], dp: &mut [f32]) -> Vec<f32> {
+    /// One sample backward from the cache of [`Unet::forward_one`] with `keep`: adds dL/dparams
+    /// into `dp` and returns dL/dinput.
+    pub(crate) fn backward_one(&self, cache: &Cache, dout: &[f32], dp: &mut [f32]) -> Vec<f32> {
         let p = &self.params;
         let (h, w, l_n) = (cache.h, cache.w, self.cfg.levels);
         let ch = |l: usize| self.cfg.width << l;
         let nc = self.convs.len();
         // Output layer.
-        let mut dx = vec![0f32; cache.ins[nc - 1].len()];
+        let mut dx = written_zeros(cache.ins[nc - 1].len());
         conv_backward(
             p,
             &self.convs[nc - 1],
@@ -476,7 +609,7 @@ impl Unet {
         // A ReLU convolution backward: from dL/dout to dL/dinput.
         let back = |i: usize, mut d: Vec<f32>, hh: usize, ww: usize, dp: &mut [f32]| {
             relu_backward(&mut d, &cache.outs[i]);
-            let mut di = vec![0f32; cache.ins[i].len()];
+            let mut di = written_zeros(cache.ins[i].len());
             conv_backward(p, &self.convs[i], &cache.ins[i], hh, ww, &d, dp, &mut di);
             di
         };
@@ -489,7 +622,7 @@ impl Unet {
             let dcat = back(i, da, hh, ww, dp);
             let nu = ch(l + 1) * hh * ww;
             dskips[l] = dcat[nu..].to_vec();
-            let mut dprev = vec![0f32; ch(l + 1) * (hh / 2) * (ww / 2)];
+            let mut dprev = written_zeros(ch(l + 1) * (hh / 2) * (ww / 2));
             up_backward(&dcat[..nu], ch(l + 1), hh / 2, ww / 2, &mut dprev);
             dx = dprev;
             hh /= 2;
@@ -527,7 +660,7 @@ impl Unet {
         let k = self.cfg.in_channels * h * w;
         let per: Vec<(Vec<f32>, Cache)> = (0..n)
             .into_par_iter()
-            .map(|j| self.forward_one(&input[j * k..(j + 1) * k], h, w))
+            .map(|j| self.forward_one(&input[j * k..(j + 1) * k], h, w, true))
             .collect();
         let mut out = Vec::with_capacity(n * 3 * h * w);
         let mut caches = Vec::with_capacity(n);
@@ -536,6 +669,30 @@ impl Unet {
             caches.push(c);
         }
         Ok((out, caches))
+    }
+
+    /// Forward pass without caches: the `n x 3 x h x w` output of [`Unet::forward`], each
+    /// sample's activations freed as it goes.
+    ///
+    /// ```
+    /// use tolray::decoder::unet::{Unet, UnetConfig};
+    /// let u = Unet::new(UnetConfig { in_channels: 3, width: 2, levels: 1 }, 0)?;
+    /// let x: Vec<f32> = (0..2 * 3 * 4 * 4).map(|i| (i % 7) as f32 / 7.0).collect();
+    /// let (out, _caches) = u.forward(&x, 2, 4, 4)?;
+    /// assert_eq!(u.infer(&x, 2, 4, 4)?, out);
+    /// # Ok::<(), tolray::Error>(())
+    /// ```
+    ///
+    /// # Errors
+    /// [`crate::ErrorKind::Argument`] for sizes that do not fit.
+    pub fn infer(&self, input: &[f32], n: usize, h: usize, w: usize) -> Result<Vec<f32>> {
+        self.check(input.len(), n, h, w)?;
+        let k = self.cfg.in_channels * h * w;
+        let per: Vec<Vec<f32>> = (0..n)
+            .into_par_iter()
+            .map(|j| self.forward_one(&input[j * k..(j + 1) * k], h, w, false).0)
+            .collect();
+        Ok(per.concat())
     }
 
     /// Backward pass: adds dL/dparams into `dparams` (summed over samples in sample order) and
@@ -650,6 +807,80 @@ mod tests {
         let lhs: f32 = up(&a, 2, 4, 4).iter().zip(&b).map(|(p, q)| p * q).sum();
         let rhs: f32 = a.iter().zip(pool(&b, 2, 8, 8)).map(|(p, q)| p * q).sum();
         assert!((lhs - 4.0 * rhs).abs() < 1e-4);
+    }
+
+    /// Convolutions band by band give the bits of one band over the whole image (the weight
+    /// gradient in bands of 256 pixels, the input gradient added from the last band to the
+    /// first), and agree with a direct convolution in f64; bands end inside image rows.
+    #[test]
+    fn convolutions_in_bands_equal_one_band_and_the_direct_sum() {
+        for (cin, cout, k, h, w) in [(5, 8, 3, 40, 48), (3, 4, 3, 17, 31), (8, 3, 1, 20, 30)] {
+            let cv = Conv {
+                cin,
+                cout,
+                k,
+                w: 0,
+                b: cout * cin * k * k,
+            };
+            let p = lcg(cv.b + cout, 21);
+            let hw = h * w;
+            let inp = lcg(cin * hw, 22);
+            let dout = lcg(cout * hw, 23);
+            let run = |nb: usize| {
+                let out = conv_forward_bands(&p, &cv, &inp, (h, w), nb);
+                let (mut dp, mut dinp) = (vec![0f32; p.len()], vec![0f32; inp.len()]);
+                conv_backward_bands(&p, &cv, &inp, (h, w), &dout, &mut dp, &mut dinp, nb);
+                (out, dp, dinp)
+            };
+            let whole = run(hw);
+            assert!(hw > 2 * 256 && hw % 256 != 0 && 256 % w != 0);
+            assert_eq!(run(256), whole, "{cin}x{cout} k{k} {h}x{w}");
+            // Forward and input gradient in any band width.
+            let odd = run(100);
+            assert_eq!((&odd.0, &odd.2), (&whole.0, &whole.2));
+            // The direct sums, in f64.
+            let r = (k / 2) as isize;
+            let at = |c: usize, y: isize, x: isize| {
+                if y < 0 || x < 0 || y >= h as isize || x >= w as isize {
+                    0.0
+                } else {
+                    inp[c * hw + y as usize * w + x as usize] as f64
+                }
+            };
+            let wgt = |co: usize, c: usize, ky: usize, kx: usize| {
+                p[((co * cin + c) * k + ky) * k + kx] as f64
+            };
+            for (q, &o) in whole.0.iter().enumerate().step_by(7) {
+                let (co, y, x) = (q / hw, ((q % hw) / w) as isize, (q % w) as isize);
+                let mut s = p[cv.b + co] as f64;
+                for c in 0..cin {
+                    for ky in 0..k {
+                        for kx in 0..k {
+                            s += wgt(co, c, ky, kx)
+                                * at(c, y + ky as isize - r, x + kx as isize - r);
+                        }
+                    }
+                }
+                assert!((s - o as f64).abs() < 1e-5, "out {q}: {s} vs {o}");
+            }
+            for (q, &d) in whole.2.iter().enumerate().step_by(5) {
+                let (c, y, x) = (q / hw, (q % hw) / w, q % w);
+                let mut s = 0.0;
+                for co in 0..cout {
+                    for ky in 0..k {
+                        for kx in 0..k {
+                            let (oy, ox) =
+                                (y as isize - ky as isize + r, x as isize - kx as isize + r);
+                            if oy >= 0 && ox >= 0 && oy < h as isize && ox < w as isize {
+                                let g = dout[co * hw + oy as usize * w + ox as usize] as f64;
+                                s += wgt(co, c, ky, kx) * g;
+                            }
+                        }
+                    }
+                }
+                assert!((s - d as f64).abs() < 1e-5, "dinput {q}: {s} vs {d}");
+            }
+        }
     }
 
     #[test]
