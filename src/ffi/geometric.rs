@@ -8,6 +8,7 @@ use crate::math::Vec3;
 use crate::optim::{self, PsfLoss, SpotLoss, SpotMeasure};
 use crate::psf::{self, PsfCentre, PsfOptions};
 use crate::trace::{self, Bundles, Field, Pupil, PupilPattern, RayBatch, TraceOptions};
+use rayon::prelude::*;
 
 /// A field point. Checked (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 4, `x` and `y` finite. How a
 /// field becomes rays: "Ray bundles" in the comment at the top of tolray.h.
@@ -328,6 +329,92 @@ fn params(
         .collect()
 }
 
+/// Rays per chunk of [`tolray_trace`] (1.3 MB of rays in f64).
+const TRACE_CHUNK: usize = 16_384;
+
+/// The caller's arrays of [`tolray_trace`] as addresses (the closures that read and write them
+/// run on the thread pool).
+struct TraceColumns {
+    ins: [usize; 6],
+    outs: [usize; 6],
+    opl: usize,
+    status: usize,
+}
+
+impl TraceColumns {
+    /// Whether chunks of indices can be read, traced and written independently: no two arrays
+    /// overlap except doubles at the same address (a ray traced in place), which each chunk
+    /// reads before writing, as the whole trace does.
+    fn chunks_are_independent(&self, n: usize) -> bool {
+        let mut spans: Vec<(usize, usize, usize)> = self
+            .ins
+            .iter()
+            .chain(&self.outs)
+            .map(|&p| (p, n.saturating_mul(8), 8))
+            .collect();
+        if self.opl != 0 {
+            spans.push((self.opl, n.saturating_mul(8), 8));
+        }
+        spans.push((self.status, n.saturating_mul(4), 4));
+        spans.iter().enumerate().all(|(i, &(p, len, size))| {
+            spans[..i].iter().all(|&(q, lq, sq)| {
+                let apart = p.saturating_add(len) <= q || q.saturating_add(lq) <= p;
+                apart || (p == q && size == sq)
+            })
+        })
+    }
+
+    /// Rays `a..b` of the inputs.
+    ///
+    /// # Safety
+    /// The input arrays hold at least `b` readable doubles.
+    unsafe fn read(&self, a: usize, b: usize) -> RayBatch<f64> {
+        let mut batch = RayBatch::with_capacity(b - a);
+        let [x, y, z, dx, dy, dz] = self.ins.map(|p| p as *const f64);
+        for i in a..b {
+            // SAFETY: i < b, as the caller promises.
+            let v = |p: *const f64| unsafe { p.add(i).read() };
+            batch.push(Vec3::new(v(x), v(y), v(z)), Vec3::new(v(dx), v(dy), v(dz)));
+        }
+        batch
+    }
+
+    /// Writes `batch` as rays `a..` of the outputs (in the image surface's frame with `image`).
+    ///
+    /// # Safety
+    /// The output arrays hold at least `a + batch.len()` writable elements.
+    unsafe fn write(
+        &self,
+        batch: &RayBatch<f64>,
+        a: usize,
+        image: Option<&crate::math::Rigid<f64>>,
+    ) {
+        let [x, y, z, dx, dy, dz] = self.outs.map(|p| p as *mut f64);
+        let (opl, status) = (self.opl as *mut f64, self.status as *mut u32);
+        for k in 0..batch.len() {
+            let r = batch.get(k);
+            let (o, d) = match image {
+                Some(img) => (img.point_to_local(r.o), img.rotation.apply_t(r.d)),
+                None => (r.o, r.d),
+            };
+            let i = a + k;
+            // SAFETY: i < a + batch.len(), as the caller promises.
+            unsafe {
+                *x.add(i) = o.x;
+                *y.add(i) = o.y;
+                *z.add(i) = o.z;
+                *dx.add(i) = d.x;
+                *dy.add(i) = d.y;
+                *dz.add(i) = d.z;
+                if !opl.is_null() {
+                    *opl.add(i) = r.opl;
+                }
+                *status.add(i) = r.status.code();
+            }
+        }
+    }
+}
+
 /// Traces `n` caller rays of one wavelength through `system` (its tolerance pattern applied), in
 /// parallel (rayon; results do not depend on the thread count). `wavelength_nm` (finite, 100 nm
 /// to 10 mm exclusive) sets every medium's index. `flags` combines `TOLRAY_TRACE_*` (other bits:
@@ -373,51 +460,42 @@ pub unsafe extern "C" fn tolray_trace(
         if n > 0 && rout.status.is_null() {
             return Err(FfiError::null("out->status"));
         }
-        // Read every input before writing any output: the arrays may alias.
-        let mut batch: RayBatch<f64> = RayBatch::with_capacity(n);
         {
+            // Checks only (NULL, size): the rays are read through the pointers below.
             // SAFETY: each column is NULL or has `n` readable elements, as # Safety says.
-            let col = |p, name| unsafe { c_slice(p, n, name) };
-            let (x, y, z) = (
-                col(rin.x, "rays->x")?,
-                col(rin.y, "rays->y")?,
-                col(rin.z, "rays->z")?,
-            );
-            let (dx, dy, dz) = (
-                col(rin.dx, "rays->dx")?,
-                col(rin.dy, "rays->dy")?,
-                col(rin.dz, "rays->dz")?,
-            );
-            for i in 0..n {
-                batch.push(Vec3::new(x[i], y[i], z[i]), Vec3::new(dx[i], dy[i], dz[i]));
-            }
+            let col = |p, name| unsafe { c_slice(p, n, name) }.map(|_| ());
+            col(rin.x, "rays->x")?;
+            col(rin.y, "rays->y")?;
+            col(rin.z, "rays->z")?;
+            col(rin.dx, "rays->dx")?;
+            col(rin.dy, "rays->dy")?;
+            col(rin.dz, "rays->dz")?;
         }
+        let cols = TraceColumns {
+            ins: [rin.x, rin.y, rin.z, rin.dx, rin.dy, rin.dz].map(|p| p as usize),
+            outs: outs.map(|p| p as usize),
+            opl: rout.opl as usize,
+            status: rout.status as usize,
+        };
         let opts = TraceOptions {
             apertures: flags & TOLRAY_TRACE_APERTURES != 0,
         };
-        trace::trace(&s.sys, wavelength_nm, &mut batch, opts);
         let sensor = flags & TOLRAY_TRACE_SENSOR_FRAME != 0;
-        for i in 0..n {
-            let r = batch.get(i);
-            let (o, d) = if sensor {
-                let img = &s.sys.image;
-                (img.point_to_local(r.o), img.rotation.apply_t(r.d))
-            } else {
-                (r.o, r.d)
-            };
-            // SAFETY: every output array holds `n` writable elements (checked non-NULL above).
-            unsafe {
-                *rout.x.add(i) = o.x;
-                *rout.y.add(i) = o.y;
-                *rout.z.add(i) = o.z;
-                *rout.dx.add(i) = d.x;
-                *rout.dy.add(i) = d.y;
-                *rout.dz.add(i) = d.z;
-                if !rout.opl.is_null() {
-                    *rout.opl.add(i) = r.opl;
-                }
-                *rout.status.add(i) = r.status.code();
-            }
+        let run = |a: usize, b: usize| {
+            // SAFETY: every array holds `n` elements (# Safety), `a..b` lies within `0..n`.
+            let mut batch = unsafe { cols.read(a, b) };
+            trace::trace(&s.sys, wavelength_nm, &mut batch, opts);
+            // SAFETY: as above; the outputs are writable.
+            unsafe { cols.write(&batch, a, sensor.then_some(&s.sys.image)) };
+        };
+        if cols.chunks_are_independent(n) {
+            // Chunk by chunk on the pool: memory bounded, reads and writes in parallel.
+            (0..n.div_ceil(TRACE_CHUNK))
+                .into_par_iter()
+                .for_each(|c| run(c * TRACE_CHUNK, ((c + 1) * TRACE_CHUNK).min(n)));
+        } else {
+            // Arrays that overlap at an offset: read every input before writing any output.
+            run(0, n);
         }
         Ok(())
     })

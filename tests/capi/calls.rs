@@ -814,3 +814,140 @@ pub(super) fn g_of(
     )
     .unwrap()
 }
+
+/// `tolray_trace` reads, traces and writes chunks of rays on the thread pool when no arrays
+/// overlap at an offset: its output equals the library's trace of the same rays, with arrays
+/// apart, traced in place (outputs on the inputs), and overlapping at an offset (the whole-set
+/// path: every input read before any output is written), at 1 and 3 threads.
+#[test]
+fn trace_through_the_c_abi_in_chunks_and_in_place() {
+    use std::ptr::null_mut;
+    use tolray::ffi::*;
+    use tolray::lens::Lens;
+    use tolray::math::Vec3;
+    use tolray::trace::{trace, RayBatch, TraceOptions};
+    let n = 40_000; // three chunks, the last partial
+    let rays: Vec<[f64; 6]> = (0..n)
+        .map(|i| {
+            let t = i as f64 * 0.618_033_988_749_895;
+            let (r, a) = ((t.fract()).sqrt() * 14.0, i as f64 * 2.399_963);
+            let (dx, dy) = (
+                0.004 * (t * 7.0).sin(),
+                0.03 * ((i % 17) as f64 / 16.0 - 0.5),
+            );
+            let m = (1.0 + dx * dx + dy * dy).sqrt();
+            [r * a.cos(), r * a.sin(), -5.0, dx / m, dy / m, 1.0 / m]
+        })
+        .collect();
+    let lens = Lens::load("lens2").unwrap();
+    let mut b = RayBatch::<f64>::new();
+    for r in &rays {
+        b.push(Vec3::new(r[0], r[1], r[2]), Vec3::new(r[3], r[4], r[5]));
+    }
+    let opts = TraceOptions { apertures: true };
+    trace(&lens.compile(), 550.0, &mut b, opts);
+    let want: Vec<[f64; 8]> = b
+        .iter()
+        .map(|r| {
+            let s = r.status.code() as f64;
+            [r.o.x, r.o.y, r.o.z, r.d.x, r.d.y, r.d.z, r.opl, s]
+        })
+        .collect();
+    assert!(want.iter().any(|w| w[7] != 0.0) && want.iter().any(|w| w[7] == 0.0));
+    let name = std::ffi::CString::new("lens2").unwrap();
+    let mut lh = null_mut();
+    // SAFETY: valid pointers; handles freed below.
+    let sys = unsafe {
+        assert_eq!(
+            tolray_lens_load(name.as_ptr(), &mut lh),
+            tolray_status::TOLRAY_OK
+        );
+        nominal_system(lh)
+    };
+    // Columns of n + 8 doubles: inputs from 0, outputs from `shift` (in the inputs' columns
+    // when `shared`).
+    let run = |threads: usize, shared: bool, shift: usize| {
+        let mut cols = vec![vec![0f64; n + 8]; 13];
+        for (j, col) in cols.iter_mut().take(6).enumerate() {
+            for (i, r) in rays.iter().enumerate() {
+                col[i] = r[j];
+            }
+        }
+        let mut status = vec![0u32; n];
+        let p: Vec<*mut f64> = cols.iter_mut().map(|c| c.as_mut_ptr()).collect();
+        // SAFETY: every pointer below stays within its column of n + 8 doubles.
+        let (rin, rout) = unsafe {
+            let at = |k: usize, off: usize| p[k].add(off);
+            let rin = tolray_rays_in {
+                x: at(0, 0),
+                y: at(1, 0),
+                z: at(2, 0),
+                dx: at(3, 0),
+                dy: at(4, 0),
+                dz: at(5, 0),
+            };
+            let o = |k: usize| at(if shared { k - 6 } else { k }, shift);
+            let rout = tolray_rays_out {
+                x: o(6),
+                y: o(7),
+                z: o(8),
+                dx: o(9),
+                dy: o(10),
+                dz: o(11),
+                opl: at(12, shift),
+                status: status.as_mut_ptr(),
+            };
+            (rin, rout)
+        };
+        /// The call's pointers, moved to the pool's thread (the test owns what they point to).
+        struct Call(*const tolray_system, tolray_rays_in, tolray_rays_out);
+        // SAFETY: the pointees outlive the call, and nothing else touches them meanwhile.
+        unsafe impl Send for Call {}
+        let call = Call(sys, rin, rout);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let st = pool.install(move || {
+            let c = call;
+            // SAFETY: live system; every array holds n elements from its pointer.
+            unsafe { tolray_trace(c.0, 550.0, TOLRAY_TRACE_APERTURES, n, &c.1, &c.2) }
+        });
+        assert_eq!(st, tolray_status::TOLRAY_OK);
+        let first = if shared { 0 } else { 6 };
+        (0..n)
+            .map(|i| {
+                let c = |k: usize| cols[k][i + shift];
+                let s = status[i] as f64;
+                [
+                    c(first),
+                    c(first + 1),
+                    c(first + 2),
+                    c(first + 3),
+                    c(first + 4),
+                    c(first + 5),
+                    c(12),
+                    s,
+                ]
+            })
+            .collect::<Vec<_>>()
+    };
+    for threads in [1, 3] {
+        assert!(
+            run(threads, false, 0) == want,
+            "arrays apart, {threads} threads"
+        );
+        assert!(run(threads, true, 0) == want, "in place, {threads} threads");
+        // Outputs 8 doubles after the inputs in the same columns: a chunk would overwrite the
+        // first inputs of the next; the whole-set path reads them all first.
+        assert!(
+            run(threads, true, 8) == want,
+            "overlapping, {threads} threads"
+        );
+    }
+    // SAFETY: handles from the calls above.
+    unsafe {
+        tolray_system_free(sys);
+        tolray_lens_free(lh);
+    }
+}
