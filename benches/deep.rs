@@ -4,9 +4,14 @@
 //!   rays' PSFs and through diffraction PSFs, and at the paper's (64 crops of 256²), tolerance
 //!   phase, Wiener + U-Net decoder;
 //! - a decoder training step alone (64 crops of 64², Wiener + U-Net width 8);
+//! - the U-Net alone, forward and backward over 64 crops of 64² and of 256² (width 8, 3 levels,
+//!   8 input channels), crop by crop on the thread pool as training runs it: the work
+//!   `scripts/bench/unet_vs_pytorch.py` times in PyTorch in the same run;
 //! - the evaluation of one fabricated unit (RGB PSF map of 8192 rays per PSF, 3 images of 384²).
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+use rayon::prelude::*;
+use tolray::decoder::unet::{Unet, UnetConfig};
 use tolray::decoder::{Crop, DecoderKind, ImageLossWeights};
 use tolray::deep::eval::{evaluate, EvalConfig, EvalImages};
 use tolray::deep::{step, DeepConfig, DeepState, Phase};
@@ -85,6 +90,59 @@ fn bench(c: &mut Criterion) {
                 .unwrap()
         })
     });
+
+    // The U-Net alone: L = Σ out · g per crop; parameter gradients summed in crop order.
+    let cfg = UnetConfig {
+        in_channels: 8,
+        width: 8,
+        levels: 3,
+    };
+    let mut u = Unet::new(cfg, 1).unwrap();
+    // A nonzero output layer and biases, so that gradients reach every layer.
+    for (i, v) in u.params.iter_mut().enumerate() {
+        if *v == 0.0 {
+            *v = 0.01 * ((i % 7) as f32 - 3.0);
+        }
+    }
+    for side in [64, 256] {
+        let k = cfg.in_channels * side * side;
+        let x: Vec<Vec<f32>> = (0..64)
+            .map(|j| {
+                let img = DeadLeaves::default()
+                    .generate(side, side, 3, j)
+                    .unwrap()
+                    .data;
+                img.iter()
+                    .chain(&img)
+                    .chain(&img[..2 * side * side])
+                    .copied()
+                    .collect()
+            })
+            .collect();
+        assert!(x.iter().all(|v| v.len() == k));
+        let grad: Vec<f32> = (0..3 * side * side)
+            .map(|i| ((i % 13) as f32 - 6.0) / 64.0)
+            .collect();
+        g.bench_function(format!("unet_step/64x{side}px/width8"), |b| {
+            b.iter(|| {
+                let per: Vec<(Vec<f32>, Vec<f32>)> = x
+                    .par_iter()
+                    .map(|xj| {
+                        let (_, cache) = u.forward(xj, 1, side, side).unwrap();
+                        let mut dp = vec![0f32; u.params.len()];
+                        let mut dx = vec![0f32; k];
+                        u.backward(&cache, &grad, &mut dp, &mut dx);
+                        (dp, dx)
+                    })
+                    .collect();
+                let mut dp = vec![0f32; u.params.len()];
+                for (d, _) in &per {
+                    dp.iter_mut().zip(d).for_each(|(a, b)| *a += b);
+                }
+                dp
+            })
+        });
+    }
 
     let ec = EvalConfig::default();
     let images = EvalImages::builtin(8 * ec.patch_px, 2, ec.seed).unwrap();

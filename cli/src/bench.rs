@@ -20,7 +20,7 @@ use tolray::Lens;
 pub enum DeepSize {
     /// The demo's batch: 32 crops of 32², through the rays' PSFs.
     Demo,
-    /// The paper's batch: 64 crops of 256² (about 10 s a run on two cores).
+    /// The paper's batch: 64 crops of 256² (about 6 s a run on two cores).
     Paper,
     /// No deep-optics iteration.
     None,
