@@ -940,3 +940,39 @@ pub unsafe extern "C" fn tolray_add_sensor_noise(
         Ok(())
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::TraceColumns;
+
+    /// Chunks stream for arrays apart and for doubles traced in place; arrays overlapping at an
+    /// offset, or a status array on a double array's address, take the whole-set path.
+    #[test]
+    fn trace_chunks_stream_unless_arrays_overlap_at_an_offset() {
+        let n = 100;
+        let apart = |k: usize| 0x10_0000 + k * 0x1000; // column k, 4 KB apart (n doubles: 800 B)
+        let cols = |ins: [usize; 6], outs: [usize; 6], opl: usize, status: usize| TraceColumns {
+            ins,
+            outs,
+            opl,
+            status,
+        };
+        let ins = [0, 1, 2, 3, 4, 5].map(apart);
+        let outs = [6, 7, 8, 9, 10, 11].map(apart);
+        assert!(cols(ins, outs, apart(12), apart(13)).chunks_are_independent(n));
+        assert!(cols(ins, outs, 0, apart(13)).chunks_are_independent(n));
+        // In place, and an output on another input's column at the same address.
+        assert!(cols(ins, ins, apart(12), apart(13)).chunks_are_independent(n));
+        let mut crossed = ins;
+        crossed.swap(0, 1);
+        assert!(cols(ins, crossed, ins[2], apart(13)).chunks_are_independent(n));
+        // Outputs 8 bytes after their inputs; opl inside an input; status on a double array.
+        assert!(!cols(ins, ins.map(|p| p + 8), apart(12), apart(13)).chunks_are_independent(n));
+        assert!(!cols(ins, outs, ins[3] + 16, apart(13)).chunks_are_independent(n));
+        assert!(!cols(ins, outs, apart(12), outs[0]).chunks_are_independent(n));
+        // The last double of one array against the first of the next: apart when they touch.
+        let tight = [0, 1, 2, 3, 4, 5].map(|k| 0x10_0000 + k * 8 * n);
+        assert!(cols(tight, outs, apart(12), apart(13)).chunks_are_independent(n));
+        assert!(!cols(tight, outs, apart(12), apart(13)).chunks_are_independent(n + 1));
+    }
+}
