@@ -11,7 +11,7 @@
 //! (`raw/lens2`, the work of `tolray trace`). Throughput is reported in elements = ray-surfaces
 //! (rays x (surfaces + image plane)).
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 use tolray::analysis::{spot_diagram_rows, SpotOptions};
 use tolray::lens::material::LAMBDA_D_NM;
 use tolray::lens::{zemax, GlassCatalogs, System};
@@ -62,12 +62,15 @@ fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
         g.throughput(Throughput::Elements(RAYS as u64 * surfaces));
         g.sample_size(10);
         for (threads, pool) in pools() {
+            // The fresh copy of the rays is made outside the timing (a serial 64 MB copy in f64).
             g.bench_with_input(BenchmarkId::new("threads", threads), &threads, |b, _| {
-                let mut batch = fresh.clone();
-                b.iter(|| {
-                    batch.clone_from(&fresh);
-                    pool.install(|| trace(&sys, LAMBDA_D_NM, &mut batch, TraceOptions::default()));
-                });
+                b.iter_batched_ref(
+                    || fresh.clone(),
+                    |batch| {
+                        pool.install(|| trace(&sys, LAMBDA_D_NM, batch, TraceOptions::default()))
+                    },
+                    BatchSize::LargeInput,
+                );
             });
         }
         g.finish();
