@@ -102,18 +102,12 @@ fn bench_kinds(c: &mut Criterion) {
         let sys32: System<f32> = sys64.convert();
         let (fresh64, fresh32) = (set.batch::<f64>(), set.batch::<f32>());
         g.bench_function(format!("{name}/f32"), |b| {
-            let mut batch = fresh32.clone();
-            b.iter(|| {
-                batch.clone_from(&fresh32);
-                trace(&sys32, wl, &mut batch, TraceOptions::default());
-            });
+            let run = |batch: &mut RayBatch<f32>| trace(&sys32, wl, batch, TraceOptions::default());
+            b.iter_batched_ref(|| fresh32.clone(), run, BatchSize::LargeInput);
         });
         g.bench_function(format!("{name}/f64"), |b| {
-            let mut batch = fresh64.clone();
-            b.iter(|| {
-                batch.clone_from(&fresh64);
-                trace(&sys64, wl, &mut batch, TraceOptions::default());
-            });
+            let run = |batch: &mut RayBatch<f64>| trace(&sys64, wl, batch, TraceOptions::default());
+            b.iter_batched_ref(|| fresh64.clone(), run, BatchSize::LargeInput);
         });
     }
     g.finish();
