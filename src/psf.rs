@@ -321,11 +321,7 @@ pub fn psf_streamed(
     let stream = RayStream::new(lens, &para, field, &opts.pupil, wavelength_nm)?;
     let trace = TraceOptions::default();
     let to_sensor = sensor_map(sys);
-    let mut chief_batch = RayBatch::<f64>::new();
-    let (o, d) = stream.chief();
-    chief_batch.push(o, d);
-    trace_serial(sys, wavelength_nm, &mut chief_batch, trace);
-    let chief = chief_batch.get(0);
+    let chief = stream.traced_chief(sys, wavelength_nm, trace);
     let chief = chief.status.is_alive().then(|| to_sensor(chief.o));
     let centre = match (opts.centre, chief) {
         (PsfCentre::Chief, Some(c)) => c,

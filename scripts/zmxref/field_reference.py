@@ -54,6 +54,11 @@ FILES = [
     # RealImageHeightField, Newton on the chief ray through the paraxial pupil centre at the
     # primary wavelength, to the image surface's global x, y; the image plane is not tilted).
     "rayoptics/US05831776-1.zmx",
+    # The object on the first surface (object distance 0), two hand-made lenses beside the
+    # corpus (added 2026-12-01): object heights with an object-space NA (a source on a flat
+    # face), and real image heights with the first surface convex toward the object.
+    "../object-on-surface.zmx",
+    "../object-on-curved-surface.zmx",
 ]
 NGRID = 16
 

@@ -3,7 +3,7 @@
 use crate::error::{Error, Result};
 use crate::lens::{Lens, System};
 use crate::real::{sqrt_or_zero, Real};
-use crate::trace::{self, Field, Pupil, RayBatch, RayStream, TraceOptions};
+use crate::trace::{Field, Pupil, RayStream, TraceOptions};
 use serde::Serialize;
 
 /// Spot statistics. Sizes in micrometres, positions on the sensor in millimetres.
@@ -567,11 +567,7 @@ fn rows(
                     spot.merge(chunk);
                 },
             );
-            let mut chief_batch = RayBatch::<f64>::new();
-            let (co, cd) = stream.chief();
-            chief_batch.push(co, cd);
-            trace::trace_serial(sys, wl, &mut chief_batch, opts.trace);
-            let chief_ray = chief_batch.get(0);
+            let chief_ray = stream.traced_chief(sys, wl, opts.trace);
             let chief = chief_ray.status.is_alive().then(|| to_sensor(chief_ray));
             if w == 0 {
                 chief0 = chief;

@@ -452,7 +452,7 @@ impl Decoder {
         let unet = match self.kind.has_unet() {
             true => {
                 let u = self.unet()?;
-                u.check(UNET_IN * w * h, 1, h, w)?;
+                u.check_size(h, w)?;
                 Some(u)
             }
             false => None,

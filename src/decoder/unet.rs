@@ -342,8 +342,7 @@ fn conv_backward_bands(
             );
         }
         // dcol (kk x band) = Wᵀ (kk x cout) · dout (cout x band), added back into dinp.
-        let starts: Vec<usize> = (0..hw).step_by(nb).collect();
-        for &p0 in starts.iter().rev() {
+        for p0 in (0..hw).step_by(nb).rev() {
             let p1 = (p0 + nb).min(hw);
             let dcol = &mut col[..kk * (p1 - p0)];
             gemm(
@@ -520,17 +519,28 @@ impl Unet {
         self.params.len()
     }
 
+    /// Checks that `len` values are `n` images of the input channels x `h` x `w` that pass
+    /// through the levels ([`Unet::check_size`]).
     pub(crate) fn check(&self, len: usize, n: usize, h: usize, w: usize) -> Result<()> {
-        let m = 1 << self.cfg.levels;
-        if h == 0
-            || w == 0
-            || !h.is_multiple_of(m)
-            || !w.is_multiple_of(m)
-            || len != n * self.cfg.in_channels * h * w
-        {
+        self.check_size(h, w)?;
+        if len != n * self.cfg.in_channels * h * w {
             return Err(Error::argument(format!(
-                "U-Net: {len} values for {n} x {} x {h}x{w}; sizes must be multiples of {m}",
+                "U-Net: {len} values for {n} x {} x {h}x{w}",
                 self.cfg.in_channels
+            )));
+        }
+        Ok(())
+    }
+
+    /// Checks that an image of `w` x `h` px passes through the U-Net's levels: both sizes
+    /// positive multiples of 2^levels.
+    pub(crate) fn check_size(&self, h: usize, w: usize) -> Result<()> {
+        let m = 1 << self.cfg.levels;
+        if h == 0 || w == 0 || !h.is_multiple_of(m) || !w.is_multiple_of(m) {
+            return Err(Error::argument(format!(
+                "U-Net: an image of {w}x{h} px; its width and height must be multiples of {m} \
+                 (2 to the power of its {} levels)",
+                self.cfg.levels
             )));
         }
         Ok(())

@@ -54,6 +54,8 @@ pub enum Object {
     /// At a finite distance in front of the first vertex (the object plane is `z = -distance_mm`).
     Finite {
         /// Distance from the object plane to the first vertex, mm: positive for a real object;
+        /// 0 for an object on the first vertex's plane (OpticStudio's object thickness 0: a
+        /// source in contact with the first surface; its fields are object or image heights);
         /// negative for a virtual object behind the first vertex, on which the entering beam
         /// converges (OpticStudio's negative object thickness).
         distance_mm: f64,
@@ -62,20 +64,22 @@ pub enum Object {
 
 impl Object {
     /// Parses `inf` / `infinity`, a distance in mm to a real object in front of the first
-    /// vertex (its magnitude: DeepLens' negative `obj_depth` is accepted), or `virtual:MM`, a
-    /// virtual object MM behind the first vertex (a beam converging on it).
+    /// vertex (its magnitude: DeepLens' negative `obj_depth` is accepted; 0 puts the object on
+    /// the first vertex's plane), or `virtual:MM`, a virtual object MM behind the first vertex
+    /// (a beam converging on it).
     ///
     /// ```
     /// use tolray::Object;
     /// assert_eq!(Object::parse("-1000").unwrap(), Object::Finite { distance_mm: 1000.0 });
     /// assert_eq!(Object::parse("virtual:50").unwrap(), Object::Finite { distance_mm: -50.0 });
     /// assert_eq!(Object::parse("inf").unwrap(), Object::Infinite);
+    /// assert_eq!(Object::parse("0").unwrap(), Object::Finite { distance_mm: 0.0 });
     /// assert!(Object::parse("virtual:inf").is_err());
     /// assert!(Object::parse("1e300").is_err()); // beyond MAX_OBJECT_DISTANCE_MM: write inf
     /// ```
     ///
     /// # Errors
-    /// [`crate::ErrorKind::Argument`] for anything else, a zero distance, a distance beyond
+    /// [`crate::ErrorKind::Argument`] for anything else, a distance beyond
     /// [`MAX_OBJECT_DISTANCE_MM`], or a virtual object that is not a finite positive distance.
     pub fn parse(s: &str) -> Result<Object> {
         let t = s.trim().to_ascii_lowercase();
@@ -94,7 +98,7 @@ impl Object {
         }
         match t.parse::<f64>() {
             Ok(v) if v.is_infinite() => Ok(Object::Infinite),
-            Ok(v) if v != 0.0 && v.abs() <= MAX_OBJECT_DISTANCE_MM => Ok(Object::Finite {
+            Ok(v) if v.abs() <= MAX_OBJECT_DISTANCE_MM => Ok(Object::Finite {
                 distance_mm: v.abs(),
             }),
             _ => Err(Error::argument(format!(
@@ -680,13 +684,13 @@ impl Lens {
                 self.check_indices(w)?;
             }
         }
-        // A negative distance is a virtual object behind the first vertex (a converging beam).
+        // A negative distance is a virtual object behind the first vertex (a converging beam); 0
+        // the object on the first vertex's plane.
         if let Object::Finite { distance_mm } = self.object {
-            if distance_mm == 0.0 || !(distance_mm.abs() <= MAX_OBJECT_DISTANCE_MM) {
+            if !(distance_mm.abs() <= MAX_OBJECT_DISTANCE_MM) {
                 return Err(Error::invalid(format!(
-                    "object distance {distance_mm} mm: it must be finite, not 0 and at most 1e15 \
-                     mm in magnitude (farther is an object at infinity; negative: a virtual \
-                     object)"
+                    "object distance {distance_mm} mm: it must be finite and at most 1e15 mm in \
+                     magnitude (farther is an object at infinity; negative: a virtual object)"
                 )));
             }
         }

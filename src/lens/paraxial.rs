@@ -508,6 +508,14 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
 
     let (working_fnum, magnification) = match lens.object {
         Object::Infinite => (efl.map(|f| f / (2.0 * enp_r)), 0.0),
+        // (An object on the first vertex's plane meets this with the stop on the first surface.)
+        Object::Finite { distance_mm } if enp_z + distance_mm == 0.0 => {
+            return Err(Error::numerical(format!(
+                "the paraxial entrance pupil lies on the object plane ({distance_mm} mm in front \
+                 of the first vertex) at {wavelength_nm} nm: no cone of rays from an object point \
+                 fills it"
+            )))
+        }
         Object::Finite { distance_mm } => {
             let u0 = enp_r / (enp_z + distance_mm);
             let r = p.ynu(0, u0 * distance_mm, u0);

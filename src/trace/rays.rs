@@ -123,13 +123,15 @@ impl Field {
     }
 
     /// The field at object-side tangents `q` (as [`Field::tangents`] gives them): an angle for
-    /// an object at infinity, an object height for a finite one.
+    /// an object at infinity, an object height for a finite one (`q` itself for an object on
+    /// the first vertex's plane).
     pub(crate) fn of_tangents(lens: &Lens, q: [f64; 2]) -> Field {
         match lens.object {
             Object::Infinite => Field::AngleDeg {
                 x: q[0].atan().to_degrees(),
                 y: q[1].atan().to_degrees(),
             },
+            Object::Finite { distance_mm: 0.0 } => Field::HeightMm { x: q[0], y: q[1] },
             Object::Finite { distance_mm } => Field::HeightMm {
                 x: q[0] * distance_mm,
                 y: q[1] * distance_mm,
@@ -140,8 +142,12 @@ impl Field {
     /// Field angles (tan x, tan y) seen from the first vertex for a lens with the first-order
     /// numbers `o` (the focal length turns a fraction of the field into an angle, the chief
     /// ray's image height an image height), in any number type. A real image height must be
-    /// resolved first ([`Field::resolved`]).
+    /// resolved first ([`Field::resolved`]). For an object on the first vertex's plane (object
+    /// distance 0), which no angle about that vertex locates, the object height in mm instead.
     pub(crate) fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
+        if lens.object == (Object::Finite { distance_mm: 0.0 }) {
+            return self.heights_on_first_vertex(o);
+        }
         let (tx, ty) = match *self {
             Field::AngleDeg { x, y } => {
                 // tan flips sign past 90°: a field there is not a direction toward the lens.
@@ -225,8 +231,57 @@ impl Field {
     }
 }
 
+impl Field {
+    /// [`Field::tangents`] for an object on the first vertex's plane: the object height (x, y)
+    /// in mm, from an object or image height; an angle or a fraction of the field (an angle
+    /// about the first vertex) is refused.
+    fn heights_on_first_vertex<S: Real>(&self, o: &LaunchOptics<S>) -> Result<(S, S)> {
+        let (hx, hy) = match *self {
+            Field::HeightMm { x, y } => (S::cst(x), S::cst(y)),
+            Field::ImageHeightMm { x, y } => {
+                // The paraxial chief ray's image height per mm of object height.
+                let k = o.chief_image_height_mm;
+                if !(k.value().abs() > 1e-300 && k.value().is_finite()) {
+                    return Err(Error::numerical(format!(
+                        "image height field ({x}, {y}) mm: the paraxial chief ray does not reach \
+                         the image plane at a finite height"
+                    )));
+                }
+                (S::cst(x) / k, S::cst(y) / k)
+            }
+            Field::AngleDeg { .. } | Field::Fraction { .. } => {
+                return Err(Error::argument(format!(
+                    "field {}: the object is on the first vertex's plane (object distance 0), \
+                     where a field angle about that vertex names no object point; give the \
+                     field as an object height (2.5mm) or an image height (14mm@image)",
+                    self.label()
+                )))
+            }
+            Field::RealImageHeightMm { x, y } => {
+                return Err(Error::argument(format!(
+                    "real image height field ({x}, {y}) mm has no launch of its own: it is solved \
+                     for the field that reaches it first"
+                )))
+            }
+        };
+        let h = hx.value().hypot(hy.value());
+        if !(h <= MAX_OBJECT_HEIGHT_MM) {
+            return Err(Error::argument(format!(
+                "field {}: an object height of {h:e} mm on the first vertex's plane; give at most \
+                 {MAX_OBJECT_HEIGHT_MM:e} mm",
+                self.label()
+            )));
+        }
+        Ok((hx, hy))
+    }
+}
+
 /// Largest tangent of a field's chief ray to the axis that is launched (89.99994°).
 pub(crate) const MAX_FIELD_TANGENT: f64 = 1e6;
+
+/// Largest object height launched from the first vertex's plane (object distance 0), mm: as
+/// [`MAX_FIELD_TANGENT`] bounds a tangent, so that the launch's squares stay far from overflow.
+const MAX_OBJECT_HEIGHT_MM: f64 = 1e6;
 
 /// How the entrance pupil is sampled.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -802,6 +857,18 @@ impl<S: Real> Beam<S> {
             S::cst(z_ep.value().min(sag).min(0.0) - 1.0)
         };
         let source = match lens.object {
+            // The object on the first vertex's plane: (tx, ty) are its heights, mm.
+            Object::Finite { distance_mm: 0.0 } => {
+                if !(z_ep.value() > 0.0) {
+                    return Err(Error::invalid(format!(
+                        "the object is on the first vertex's plane (object distance 0) and the \
+                         entrance pupil is not behind it ({} mm from the first vertex): no beam \
+                         leaves the object toward the pupil",
+                        z_ep.value()
+                    )));
+                }
+                Source::Point(Vec3::new(tx, ty, S::cst(0.0)))
+            }
             Object::Finite { distance_mm } => {
                 let q = Vec3::new(
                     S::cst(distance_mm) * tx,

@@ -80,6 +80,20 @@ impl RayStream {
         self.launcher.chief
     }
 
+    /// The chief ray traced in `f64` through `sys` at `wavelength_nm` (on this thread).
+    pub(crate) fn traced_chief(
+        &self,
+        sys: &System<f64>,
+        wavelength_nm: f64,
+        opts: TraceOptions,
+    ) -> super::Ray<f64> {
+        let mut batch = RayBatch::<f64>::new();
+        let (o, d) = self.chief();
+        batch.push(o, d);
+        super::trace_serial(sys, wavelength_nm, &mut batch, opts);
+        batch.get(0)
+    }
+
     /// The number of chunks ([`Pupil::chunks`]).
     pub fn chunks(&self) -> usize {
         self.pupil.chunks()

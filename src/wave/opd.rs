@@ -41,7 +41,7 @@ pub(crate) struct SphereOpd<S> {
 fn start_path<S: Real>(object: Object, n0: S, o: Vec3<S>, d: Vec3<S>) -> S {
     match object {
         Object::Infinite => n0 * o.dot(d),
-        Object::Finite { distance_mm } if distance_mm > 0.0 => S::cst(0.0),
+        Object::Finite { distance_mm } if distance_mm >= 0.0 => S::cst(0.0),
         // Rays converge on the point at z = -distance_mm: the path still to go there.
         Object::Finite { distance_mm } => -n0 * (S::cst(-distance_mm) - o.z) / d.z,
     }

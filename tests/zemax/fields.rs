@@ -10,7 +10,9 @@ use super::*;
 /// decentred and tilted system with fields off both axes (where the mirrored field that tolray
 /// traced before lands 280 mm away), object-height fields, paraxial image heights (FTYP 2, a
 /// catadioptric lens at infinity) and real image heights (FTYP 3, solved by Newton's method on
-/// the chief ray, at a finite object) (`field_reference.json`,
+/// the chief ray, at a finite object), and the object on the first surface (object distance 0,
+/// two hand-made lenses beside the corpus: object heights, and real image heights with the first
+/// surface curved toward the object) (`field_reference.json`,
 /// scripts/zmxref/field_reference.py).
 #[test]
 fn file_fields_and_vignetting_launch_the_rays_opticstudio_means() {

@@ -389,6 +389,132 @@ fn a_virtual_object_is_a_converging_beam() {
     assert_eq!(back.object, lens.object);
 }
 
+/// The object on the first surface (OpticStudio's object thickness 0): a source on the flat
+/// face of a plano-convex lens, relayed by a biconvex lens (tests/data/zemax/object-on-surface.zmx,
+/// object heights and an object-space NA). The paraxial image distance and magnification agree
+/// with the refraction equation surface by surface (worked here, independently of tolray's
+/// paraxial code; optiland's magnification from the same file is -1.6898237608998985), and the
+/// entrance pupil with the file's NA (its radius is the pupil distance times tan asin 0.1);
+/// every generated ray, also with ray aiming, starts at the object point on the first vertex's
+/// plane; the chief ray's wavefront error is 0 there; a field angle (which names no point on
+/// that plane) and an entrance pupil on the object plane are refused with the reason; the
+/// object stays put when the first surface moves away from it; JSON and .zmx keep it. (Its rays
+/// land where optiland's do: `file_fields_and_vignetting_launch_the_rays_opticstudio_means`.)
+#[test]
+fn an_object_on_the_first_surface_launches_from_it() {
+    let z = read("object-on-surface.zmx");
+    assert!(z.warnings.is_empty(), "{:?}", z.warnings);
+    let lens = &z.lens;
+    assert_eq!(lens.object, Object::Finite { distance_mm: 0.0 });
+    let p = lens.paraxial(LAMBDA_D_NM).unwrap();
+    // n'/s' = n/s + (n' - n)/R from the object 5 mm inside the first lens (its flat face images
+    // the object onto itself), with the magnification n s' / (n' s) of each surface.
+    let (n1, n2) = (1.5168, 1.6727);
+    let refract = |n: f64, s: f64, n_: f64, r: f64| {
+        let s_ = n_ / (n / s + (n_ - n) / r);
+        (s_, n * s_ / (n_ * s))
+    };
+    let (s2, m2) = refract(n1, -5.0, 1.0, -5.0);
+    let (s4, m4) = refract(1.0, s2 - 2.0, n2, 5.0);
+    let (s5, m5) = refract(n2, s4 - 3.0, 1.0, -5.0);
+    let m = m2 * m4 * m5;
+    assert!(
+        (p.image_distance_mm.unwrap() - s5).abs() < 1e-10,
+        "{p:?} vs {s5}"
+    );
+    assert!(
+        (p.magnification - m).abs() < 1e-12,
+        "{} vs {m}",
+        p.magnification
+    );
+    assert!((m + 1.6898237608998985).abs() < 1e-12, "{m}");
+    let r_ep = p.entrance_pupil_z_mm * 0.1f64.asin().tan();
+    assert!(
+        (p.entrance_pupil_diameter_mm / 2.0 - r_ep).abs() < 1e-12,
+        "{p:?}"
+    );
+    for (h, aim) in [(0.0, false), (0.5, false), (0.5, true)] {
+        let set = tolray::trace::RaySet::generate(
+            lens,
+            &p,
+            Field::HeightMm { x: 0.0, y: h },
+            &Pupil {
+                pattern: PupilPattern::Grid(8),
+                scale: 1.0,
+                aim,
+            },
+            LAMBDA_D_NM,
+        )
+        .unwrap();
+        assert!(set.origins.len() > 40);
+        for o in set.origins.iter().chain([&set.chief.0]) {
+            assert_eq!(*o, Vec3::cst(0.0, h, 0.0), "h {h} aim {aim}");
+        }
+    }
+    let sys = lens.compile();
+    let w = tolray::wave::wavefront(
+        lens,
+        &sys,
+        Field::HeightMm { x: 0.0, y: 0.5 },
+        LAMBDA_D_NM,
+        &tolray::wave::WaveOptions::default(),
+    )
+    .unwrap();
+    let centre = w
+        .pupil
+        .iter()
+        .position(|q| q[0].hypot(q[1]) < 0.05)
+        .unwrap();
+    assert!(w.opd_waves[centre].abs() < 0.05, "{}", w.opd_waves[centre]);
+    assert!(w.opd_waves.iter().all(|v| v.is_finite()) && w.opd_waves.len() > 100);
+    // An angle about the first vertex names no point on its plane.
+    for f in [Field::angle(2.0), Field::fraction(0.5)] {
+        let err =
+            tolray::trace::RaySet::generate(lens, &p, f, &Pupil::grid(4), LAMBDA_D_NM).unwrap_err();
+        assert!(
+            err.message().contains("object distance 0") && err.message().contains("height"),
+            "{}",
+            err.message()
+        );
+    }
+    // The stop on the first surface puts the entrance pupil on the object plane; 30 mm behind
+    // the plano-convex lens (past its focus), the stop's image lies in front of the object.
+    let mut on_plane = lens.clone();
+    for (i, s) in on_plane.surfaces.iter_mut().enumerate() {
+        s.is_stop = i == 0;
+    }
+    let err = on_plane.paraxial(LAMBDA_D_NM).unwrap_err();
+    assert!(
+        err.message()
+            .contains("entrance pupil lies on the object plane"),
+        "{}",
+        err.message()
+    );
+    let mut in_front = lens.clone();
+    in_front.surfaces[1].d_next_mm = 30.0;
+    let p = in_front.paraxial(LAMBDA_D_NM).unwrap();
+    assert!(p.entrance_pupil_z_mm < 0.0, "{p:?}");
+    let f = Field::HeightMm { x: 0.0, y: 0.5 };
+    let err = tolray::trace::RaySet::generate(&in_front, &p, f, &Pupil::grid(4), LAMBDA_D_NM)
+        .unwrap_err();
+    assert!(
+        err.message().contains("entrance pupil is not behind it"),
+        "{}",
+        err.message()
+    );
+    // The object stays where it is when the first surface moves away from it.
+    let mut adj = Adjustments::none(lens.surfaces.len());
+    adj.surface_motion[0].translation = Vec3::cst(0.0, 0.0, 0.01);
+    let moved = lens.with_adjustments(&adj).unwrap();
+    assert_eq!(moved.object, Object::Finite { distance_mm: 0.01 });
+    // Both formats keep it.
+    let back = json::from_str(&json::to_string(lens)).unwrap();
+    assert_eq!(back.object, lens.object);
+    let back = parse(&zemax::to_string(lens, None)).unwrap().lens;
+    assert_eq!(back.object, lens.object);
+    assert_same_trace(&back.compile(), &sys, 1e-12, "read back");
+}
+
 /// A real-glass afocal lens in OpticStudio's afocal image space: a Keplerian 2x reducer of two
 /// N-BK7 plano-convex lenses (tests/data/zemax/keplerian.zmx, spaced so that a paraxial ray
 /// leaves parallel) reads as afocal with angular magnification -2 (the lenses' focal lengths

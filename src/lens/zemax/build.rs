@@ -33,13 +33,14 @@ pub(super) fn object_distance(
             ))
         }
         Some(At { v: None, .. }) => None,
-        // A negative thickness is a virtual object behind the first surface.
+        // A negative thickness is a virtual object behind the first surface; 0 the object on
+        // the first surface's vertex plane.
         Some(At { v: Some(d), line })
-            if *d == 0.0 || !((d * scale).abs() <= crate::lens::MAX_OBJECT_DISTANCE_MM) =>
+            if !((d * scale).abs() <= crate::lens::MAX_OBJECT_DISTANCE_MM) =>
         {
             return Err(invalid(
                 *line,
-                format!("object distance {d}: it must be finite, not 0 and at most 1e15 mm (or INFINITY; negative for a virtual object)"),
+                format!("object distance {d}: it must be finite and at most 1e15 mm (or INFINITY; negative for a virtual object)"),
             ))
         }
         Some(At { v: Some(d), .. }) => Some(d * scale),
@@ -251,15 +252,6 @@ pub(super) fn build(
         fields: Vec::new(),
         image_plane,
     };
-    if let Object::Finite { distance_mm } = lens.object {
-        if distance_mm == 0.0 {
-            return Err(invalid(
-                built[0].raw.line,
-                "the first lens surface lies on the object plane",
-            ));
-        }
-    }
-
     // Beyond 20 µm every medium must be defined at each of the file's wavelengths (millimetre-wave
     // refractors in constant indices; `WAVM 587.56`, nanometres for micrometres, is refused);
     // below, a glass is taken beyond its formula's range as OpticStudio takes it, but not where
