@@ -145,8 +145,14 @@ impl Field {
     /// resolved first ([`Field::resolved`]). For an object on the first vertex's plane (object
     /// distance 0), which no angle about that vertex locates, the object height in mm instead.
     pub(crate) fn tangents<S: Real>(&self, lens: &Lens, o: &LaunchOptics<S>) -> Result<(S, S)> {
-        if lens.object == (Object::Finite { distance_mm: 0.0 }) {
-            return self.heights_on_first_vertex(o);
+        let on_vertex = lens.object == (Object::Finite { distance_mm: 0.0 });
+        if on_vertex && matches!(self, Field::AngleDeg { .. } | Field::Fraction { .. }) {
+            return Err(Error::argument(format!(
+                "field {}: the object is on the first vertex's plane (object distance 0), where a \
+                 field angle about that vertex names no object point; give the field as an object \
+                 height (2.5mm) or an image height (14mm@image)",
+                self.label()
+            )));
         }
         let (tx, ty) = match *self {
             Field::AngleDeg { x, y } => {
@@ -176,6 +182,7 @@ impl Field {
                 (S::cst(x) * t, S::cst(y) * t)
             }
             Field::HeightMm { x, y } => match lens.object {
+                Object::Finite { distance_mm: 0.0 } => (S::cst(x), S::cst(y)),
                 Object::Finite { distance_mm } => {
                     (S::cst(x / distance_mm), S::cst(y / distance_mm))
                 }
@@ -197,6 +204,7 @@ impl Field {
                 match lens.object {
                     // Slope u = h / k rises; tolray's tangent names the object's side: -u.
                     Object::Infinite => (S::cst(-x) / k, S::cst(-y) / k),
+                    Object::Finite { distance_mm: 0.0 } => (S::cst(x) / k, S::cst(y) / k),
                     // Object height h / k, at the object distance d.
                     Object::Finite { distance_mm } => {
                         let d = S::cst(distance_mm);
@@ -211,6 +219,17 @@ impl Field {
                 )))
             }
         };
+        if on_vertex {
+            let h = tx.value().hypot(ty.value());
+            if !(h <= MAX_OBJECT_HEIGHT_MM) {
+                return Err(Error::argument(format!(
+                    "field {}: an object height of {h:e} mm on the first vertex's plane; give at \
+                     most {MAX_OBJECT_HEIGHT_MM:e} mm",
+                    self.label()
+                )));
+            }
+            return Ok((tx, ty));
+        }
         // A direction toward the lens: beyond this the beam's z component (below 1e-6) leaves
         // the launch geometry to rounding, and its squares overflow long before 1e300.
         let t = tx.value().hypot(ty.value());
@@ -228,51 +247,6 @@ impl Field {
             )));
         }
         Ok((tx, ty))
-    }
-}
-
-impl Field {
-    /// [`Field::tangents`] for an object on the first vertex's plane: the object height (x, y)
-    /// in mm, from an object or image height; an angle or a fraction of the field (an angle
-    /// about the first vertex) is refused.
-    fn heights_on_first_vertex<S: Real>(&self, o: &LaunchOptics<S>) -> Result<(S, S)> {
-        let (hx, hy) = match *self {
-            Field::HeightMm { x, y } => (S::cst(x), S::cst(y)),
-            Field::ImageHeightMm { x, y } => {
-                // The paraxial chief ray's image height per mm of object height.
-                let k = o.chief_image_height_mm;
-                if !(k.value().abs() > 1e-300 && k.value().is_finite()) {
-                    return Err(Error::numerical(format!(
-                        "image height field ({x}, {y}) mm: the paraxial chief ray does not reach \
-                         the image plane at a finite height"
-                    )));
-                }
-                (S::cst(x) / k, S::cst(y) / k)
-            }
-            Field::AngleDeg { .. } | Field::Fraction { .. } => {
-                return Err(Error::argument(format!(
-                    "field {}: the object is on the first vertex's plane (object distance 0), \
-                     where a field angle about that vertex names no object point; give the \
-                     field as an object height (2.5mm) or an image height (14mm@image)",
-                    self.label()
-                )))
-            }
-            Field::RealImageHeightMm { x, y } => {
-                return Err(Error::argument(format!(
-                    "real image height field ({x}, {y}) mm has no launch of its own: it is solved \
-                     for the field that reaches it first"
-                )))
-            }
-        };
-        let h = hx.value().hypot(hy.value());
-        if !(h <= MAX_OBJECT_HEIGHT_MM) {
-            return Err(Error::argument(format!(
-                "field {}: an object height of {h:e} mm on the first vertex's plane; give at most \
-                 {MAX_OBJECT_HEIGHT_MM:e} mm",
-                self.label()
-            )));
-        }
-        Ok((hx, hy))
     }
 }
 
