@@ -166,8 +166,9 @@ fn errors_say_what_and_where() {
 /// A sensor size and a resolution whose aspects differ would make non-square pixels, which
 /// tolray cannot model: refused, naming both (the sensor was silently reshaped to the
 /// resolution's aspect). Without a resolution, a size gets 2000 pixels along its longer side
-/// and its own aspect. `obj_depth: 0` is a prescription error (INVALID_INPUT in the C ABI),
-/// like the others, not a command-line argument error.
+/// and its own aspect. An `obj_depth` beyond the largest finite object distance is a prescription
+/// error (INVALID_INPUT in the C ABI), like the others, not a command-line argument error;
+/// `obj_depth: 0` puts the object on the first vertex's plane.
 #[test]
 fn sensor_aspect_and_object_depth_are_prescription_errors() {
     let mut v = lens1_value();
@@ -195,9 +196,12 @@ fn sensor_aspect_and_object_depth_are_prescription_errors() {
 
     let mut v = lens1_value();
     v["obj_depth"] = json!(0.0);
+    let l = from_value(&v).unwrap();
+    assert_eq!(l.object, Object::Finite { distance_mm: 0.0 });
+    v["obj_depth"] = json!(-1e300);
     let e = from_value(&v).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Invalid, "{}", e.message());
-    assert!(e.message().contains("\"obj_depth\" 0"), "{}", e.message());
+    assert!(e.message().contains("\"obj_depth\" -1"), "{}", e.message());
 }
 
 /// Structural and textual mutations of a real lens file: the reader must never panic, and any
