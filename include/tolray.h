@@ -1448,6 +1448,11 @@ tolray_status tolray_system_new(const struct tolray_lens *lens,
  * why and where. `n` may be 0 (nothing is read or written; the arrays may be NULL); otherwise
  * every array but `out->opl` must be non-NULL (`TOLRAY_ERROR_NULL_ARGUMENT`).
  *
+ * The output arrays may be the input arrays (a trace in place: `out->x == rays->x` and so on)
+ * or overlap them in any way. Arrays that are apart or the same (the same doubles at the same
+ * address) are traced in chunks of 16384 rays, memory independent of `n`; arrays that overlap
+ * at an offset are read in full before any output is written (a copy of all `n` rays).
+ *
  * # Safety
  * `system`, `rays`, `out` are valid pointers; the arrays they name hold `n` doubles (`status`:
  * `n` uint32) and are readable (inputs) or writable (outputs).

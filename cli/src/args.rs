@@ -16,8 +16,8 @@ use tolray::{Lens, Object};
 pub struct LensArgs {
     /// Lens JSON or Zemax .zmx file, or a built-in name (lens1, lens2, cooke-triplet).
     pub lens: String,
-    /// Object distance in front of the first vertex in mm, "inf", or "virtual:MM" (a beam
-    /// converging on a point MM behind the first vertex) (default: from the lens file).
+    /// Object distance in front of the first vertex in mm (0: on the vertex's plane), "inf",
+    /// or "virtual:MM" (a beam converging on a point MM behind the first vertex) (default: from the lens file).
     #[arg(long, value_name = "MM|inf|virtual:MM")]
     pub object: Option<String>,
     /// A Zemax AGF glass catalog, searched before the built-in glasses (repeatable).

@@ -44,8 +44,8 @@ pub struct TrainArgs {
     /// Lens JSON file or built-in name (ignored with --resume); with --decoder and --stage
     /// tolerance, a design folder (lens.json and decoder.bin, e.g. an earlier run's stage1).
     pub lens: Option<String>,
-    /// Object distance in front of the first vertex in mm, "inf", or "virtual:MM" (a beam
-    /// converging on a point MM behind the first vertex).
+    /// Object distance in front of the first vertex in mm (0: on the vertex's plane), "inf",
+    /// or "virtual:MM" (a beam converging on a point MM behind the first vertex).
     #[arg(long, value_name = "MM|inf|virtual:MM")]
     pub object: Option<String>,
     /// Which stages to run.
