@@ -18,7 +18,7 @@ pub struct Dual<T, const N: usize> {
 impl<T: Real, const N: usize> Dual<T, N> {
     /// A variable with value `re` seeded in direction `k` (derivative 1 there, 0 elsewhere).
     pub fn var(re: T, k: usize) -> Self {
-        let mut eps = [T::cst(0.0); N];
+        let mut eps = Self::ZERO.eps;
         eps[k] = T::cst(1.0);
         Dual { re, eps }
     }
@@ -27,7 +27,7 @@ impl<T: Real, const N: usize> Dual<T, N> {
     pub fn constant(re: T) -> Self {
         Dual {
             re,
-            eps: [T::cst(0.0); N],
+            eps: Self::ZERO.eps,
         }
     }
     /// `f(re)` with derivative `df` by the chain rule.
@@ -75,7 +75,7 @@ impl<T: Real, const N: usize> Mul for Dual<T, N> {
     type Output = Self;
     #[inline(always)]
     fn mul(self, o: Self) -> Self {
-        let mut eps = [T::cst(0.0); N];
+        let mut eps = Self::ZERO.eps;
         for k in 0..N {
             eps[k] = self.eps[k] * o.re + o.eps[k] * self.re;
         }
@@ -94,7 +94,7 @@ impl<T: Real, const N: usize> Div for Dual<T, N> {
         // gradient passes agree bit for bit.
         let inv = T::cst(1.0) / o.re;
         let re = self.re / o.re;
-        let mut eps = [T::cst(0.0); N];
+        let mut eps = Self::ZERO.eps;
         for k in 0..N {
             eps[k] = (self.eps[k] - re * o.eps[k]) * inv;
         }
@@ -159,6 +159,10 @@ impl<T: Real, const N: usize> Real for Dual<T, N> {
     fn cos(self) -> Self {
         self.chain(self.re.cos(), -self.re.sin())
     }
+    const ZERO: Self = Dual {
+        re: T::ZERO,
+        eps: [T::ZERO; N],
+    };
     const EPSILON: f64 = T::EPSILON;
     const NAME: &'static str = "dual";
     const PARTS: usize = T::PARTS * (N + 1);

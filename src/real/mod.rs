@@ -91,6 +91,9 @@ pub trait Real:
     fn is_constant(self) -> bool {
         true
     }
+    /// Zero (derivatives zero), as a constant: what [`Real::cst`]`(0.0)` gives, known at compile
+    /// time (a dual number's zero is then a constant, not parts filled at run time).
+    const ZERO: Self;
     /// Machine epsilon of the value type.
     const EPSILON: f64;
     /// Short type name for reports and benchmark labels.
@@ -151,6 +154,7 @@ macro_rules! impl_real_float {
             fn is_zero(self) -> bool {
                 self == 0.0
             }
+            const ZERO: Self = 0.0;
             const EPSILON: f64 = <$t>::EPSILON as f64;
             const NAME: &'static str = stringify!($t);
         }

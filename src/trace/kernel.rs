@@ -31,6 +31,7 @@ use super::{Block, CODE_BACKWARD, CODE_INVALID, CODE_MISSED, CODE_TIR, CODE_VIGN
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::real::{Dual, Real};
+use crate::trace::simd::{with_avx2, with_avx512, ISA_AVX2, ISA_AVX512, ISA_BASELINE};
 
 const PLANE: u8 = 0;
 const QUADRIC: u8 = 1;
@@ -52,7 +53,7 @@ pub trait Traceable: Real {
         clip: bool,
         blocks: &mut [Block<Self>],
     ) {
-        trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+        trace_blocks_generic::<Self, ISA_BASELINE>(sys, n, wavelength_nm, clip, blocks);
     }
 }
 
@@ -77,7 +78,7 @@ mod builds {
                 clip: bool,
                 blocks: &mut [Block<f32>],
             ) {
-                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+                trace_blocks_generic::<_, ISA>(sys, n, wavelength_nm, clip, blocks)
             }
         }
     }
@@ -92,7 +93,7 @@ mod builds {
                 clip: bool,
                 blocks: &mut [Block<f64>],
             ) {
-                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+                trace_blocks_generic::<_, ISA>(sys, n, wavelength_nm, clip, blocks)
             }
         }
     }
@@ -108,7 +109,7 @@ mod builds {
                 clip: bool,
                 blocks: &mut [Block<Dual<f64, GRAD_WIDTH>>],
             ) {
-                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+                trace_blocks_generic::<_, ISA>(sys, n, wavelength_nm, clip, blocks)
             }
         }
     }
@@ -123,7 +124,7 @@ mod builds {
                 clip: bool,
                 blocks: &mut [Block<Dual<f64, 1>>],
             ) {
-                trace_blocks_generic(sys, n, wavelength_nm, clip, blocks)
+                trace_blocks_generic::<_, ISA>(sys, n, wavelength_nm, clip, blocks)
             }
         }
     }
@@ -174,7 +175,7 @@ impl<const N: usize> Traceable for Dual<f64, N> {
             let (sys, n, blocks) = same_width::<N, 1>(sys, n, blocks);
             trace_blocks_dual1(sys, n, wavelength_nm, clip, blocks);
         } else {
-            trace_blocks_generic(sys, n, wavelength_nm, clip, blocks);
+            trace_blocks_generic::<Self, ISA_BASELINE>(sys, n, wavelength_nm, clip, blocks);
         }
     }
 }
@@ -209,9 +210,9 @@ fn same_width<'a, const A: usize, const B: usize>(
 const GROUP: usize = 8;
 
 /// The generic block loop: groups of blocks outside, then passes (the surfaces, then the image
-/// plane), then blocks and lanes.
+/// plane), then blocks and lanes; `ISA` is the build it is compiled into (see [`lanes_in`]).
 #[inline(always)]
-pub(crate) fn trace_blocks_generic<S: Real>(
+pub(crate) fn trace_blocks_generic<S: Real, const ISA: u8>(
     sys: &System<S>,
     n: &[S],
     wavelength_nm: f64,
@@ -256,9 +257,9 @@ pub(crate) fn trace_blocks_generic<S: Real>(
             };
             let code = i as u32;
             if i % 2 == 0 {
-                surface(row, n1, eta, ruling, code, clip, group, scratch);
+                surface::<S, ISA>(row, n1, eta, ruling, code, clip, group, scratch);
             } else {
-                surface(row, n1, eta, ruling, code, clip, scratch, group);
+                surface::<S, ISA>(row, n1, eta, ruling, code, clip, scratch, group);
             }
         }
         if n_rows.is_multiple_of(2) {
@@ -274,7 +275,7 @@ pub(crate) fn trace_blocks_generic<S: Real>(
 /// `ruling` is a grating's m λ T / n1, a diffractive phase's λ / (2π n1) (0 without either).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn surface<S: Real>(
+fn surface<S: Real, const ISA: u8>(
     row: &SurfaceRow<S>,
     n1: S,
     eta: S,
@@ -289,7 +290,7 @@ fn surface<S: Real>(
     }
     macro_rules! go {
         ($kind:expr, $rot:expr, $clip:expr) => {
-            lanes::<S, { $kind }, { $rot }, { $clip }>(row, n1, eta, ruling, code, src, dst)
+            lanes_in::<S, ISA, { $kind }, { $rot }, { $clip }>(row, n1, eta, ruling, code, src, dst)
         };
     }
     match (row.kind, row.rotated, clip) {
@@ -305,6 +306,69 @@ fn surface<S: Real>(
         (SurfaceKind::Asphere, false, true) => go!(ASPHERE, false, true),
         (SurfaceKind::Asphere, true, false) => go!(ASPHERE, true, false),
         (SurfaceKind::Asphere, true, true) => go!(ASPHERE, true, true),
+    }
+}
+
+/// The lane loop `lanes::<S, KIND, ROT, CLIP>` as a surface pass of the build `ISA` runs it:
+/// inlined for plain floats, and for numbers with derivative parts called out of line, compiled
+/// with the same build's target features.
+///
+/// Each arithmetic operation on a dual number is a small loop over its parts until LLVM unrolls
+/// it, so a dual-number kernel with every lane loop inlined was one function with over 6,000
+/// loops, and LLVM's loop passes (LoopRotate above all) cost time in proportion to the size of
+/// the function a loop sits in: the three builds of the gradient kernel took about half of the
+/// library's optimisation time (`-Z llvm-time-trace`). Out of line, each of the twelve lane loops
+/// is a function of its own. A call per surface and group of blocks costs nothing measurable.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn lanes_in<S: Real, const ISA: u8, const KIND: u8, const ROT: bool, const CLIP: bool>(
+    row: &SurfaceRow<S>,
+    n1: S,
+    eta: S,
+    ruling: S,
+    code: u32,
+    src: &[Block<S>],
+    dst: &mut [Block<S>],
+) {
+    if const { S::PARTS == 1 } {
+        return lanes::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst);
+    }
+    // One function per build, compiled with the build's target features (`$with`).
+    macro_rules! outlined {
+        ($with:ident, $name:ident) => {
+            $with! {
+                #[inline(never)]
+                #[allow(clippy::too_many_arguments)]
+                fn $name<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
+                    row: &SurfaceRow<S>,
+                    n1: S,
+                    eta: S,
+                    ruling: S,
+                    code: u32,
+                    src: &[Block<S>],
+                    dst: &mut [Block<S>],
+                ) {
+                    lanes::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst)
+                }
+            }
+        };
+    }
+    macro_rules! baseline_features {
+        ($item:item) => {
+            $item
+        };
+    }
+    outlined!(with_avx512, avx512);
+    outlined!(with_avx2, avx2);
+    outlined!(baseline_features, baseline);
+    match ISA {
+        // SAFETY: `ISA` is the build this code is compiled into (`simd::isa_dispatch`), which
+        // runs only on a CPU with its features.
+        #[cfg(target_arch = "x86_64")]
+        ISA_AVX512 => unsafe { avx512::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst) },
+        #[cfg(target_arch = "x86_64")]
+        ISA_AVX2 => unsafe { avx2::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst) },
+        _ => baseline::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst),
     }
 }
 

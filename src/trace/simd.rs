@@ -100,9 +100,9 @@ impl Isa {
 
     fn code(self) -> u8 {
         match self {
-            Isa::Avx512 => 1,
-            Isa::Avx2 => 2,
-            Isa::Baseline => 3,
+            Isa::Avx512 => ISA_AVX512,
+            Isa::Avx2 => ISA_AVX2,
+            Isa::Baseline => ISA_BASELINE,
         }
     }
 }
@@ -177,21 +177,63 @@ pub fn set_active(isa: Isa) -> Result<()> {
     Ok(())
 }
 
+/// `$item` (a function) with the AVX-512 build's target features.
+macro_rules! with_avx512 {
+    ($item:item) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq,avx512cd,avx2,fma")]
+        $item
+    };
+}
+pub(crate) use with_avx512;
+
+/// `$item` (a function) with the AVX2 build's target features.
+macro_rules! with_avx2 {
+    ($item:item) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        $item
+    };
+}
+pub(crate) use with_avx2;
+
+/// The code of the build a function of [`isa_dispatch`] runs in, its constant `ISA` (see
+/// `trace::kernel::lanes_in`): the AVX-512 build.
+pub(crate) const ISA_AVX512: u8 = 1;
+/// The AVX2 build's code.
+pub(crate) const ISA_AVX2: u8 = 2;
+/// The baseline build's code.
+pub(crate) const ISA_BASELINE: u8 = 3;
+
 /// Defines `$name`, running `$body` (a call of `#[inline(always)]` generic code) compiled for the
 /// active [`Isa`]: a function per build with the build's target features, and a dispatcher.
+/// Inside `$body`, the constant `ISA` is the build's code ([`ISA_AVX512`], [`ISA_AVX2`],
+/// [`ISA_BASELINE`]), for code that calls functions compiled out of line in the same build.
 macro_rules! isa_dispatch {
     ($(#[$m:meta])* $vis:vis fn $name:ident $(<$($lt:lifetime),*>)?
         ($($arg:ident : $ty:ty),* $(,)?) $body:block) => {
         $(#[$m])*
         $vis fn $name $(<$($lt),*>)? ($($arg: $ty),*) {
-            #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq,avx512cd,avx2,fma")]
-            fn avx512 $(<$($lt),*>)? ($($arg: $ty),*) $body
-            #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx2,fma")]
-            fn avx2 $(<$($lt),*>)? ($($arg: $ty),*) $body
+            $crate::trace::simd::with_avx512! {
+                fn avx512 $(<$($lt),*>)? ($($arg: $ty),*) {
+                    #[allow(dead_code)]
+                    const ISA: u8 = $crate::trace::simd::ISA_AVX512;
+                    $body
+                }
+            }
+            $crate::trace::simd::with_avx2! {
+                fn avx2 $(<$($lt),*>)? ($($arg: $ty),*) {
+                    #[allow(dead_code)]
+                    const ISA: u8 = $crate::trace::simd::ISA_AVX2;
+                    $body
+                }
+            }
             #[inline(never)]
-            fn baseline $(<$($lt),*>)? ($($arg: $ty),*) $body
+            fn baseline $(<$($lt),*>)? ($($arg: $ty),*) {
+                #[allow(dead_code)]
+                const ISA: u8 = $crate::trace::simd::ISA_BASELINE;
+                $body
+            }
             match $crate::trace::simd::active() {
                 // SAFETY: `active` returns only builds the CPU runs (`Isa::supported`).
                 #[cfg(target_arch = "x86_64")]

@@ -180,6 +180,7 @@ impl Real for Dd {
     fn cos(self) -> Self {
         self.sin_cos().1
     }
+    const ZERO: Self = Dd { hi: 0.0, lo: 0.0 };
     const EPSILON: f64 = 4.930_380_657_631_324e-32; // 2^-104
     const NAME: &'static str = "double-double";
     // Its two f64 components, so that a linear map with constant coefficients (an FFT) applies
