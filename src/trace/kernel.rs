@@ -31,7 +31,7 @@ use super::{Block, CODE_BACKWARD, CODE_INVALID, CODE_MISSED, CODE_TIR, CODE_VIGN
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 use crate::real::{Dual, Real};
-use crate::trace::simd::{with_avx2, with_avx512, ISA_AVX2, ISA_AVX512, ISA_BASELINE};
+use crate::trace::simd::{with_avx2, with_avx512, ISA_BASELINE};
 
 const PLANE: u8 = 0;
 const QUADRIC: u8 = 1;
@@ -366,9 +366,13 @@ fn lanes_in<S: Real, const ISA: u8, const KIND: u8, const ROT: bool, const CLIP:
         // SAFETY: `ISA` is the build this code is compiled into (`simd::isa_dispatch`), which
         // runs only on a CPU with its features.
         #[cfg(target_arch = "x86_64")]
-        ISA_AVX512 => unsafe { avx512::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst) },
+        crate::trace::simd::ISA_AVX512 => unsafe {
+            avx512::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst)
+        },
         #[cfg(target_arch = "x86_64")]
-        ISA_AVX2 => unsafe { avx2::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst) },
+        crate::trace::simd::ISA_AVX2 => unsafe {
+            avx2::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst)
+        },
         _ => baseline::<S, KIND, ROT, CLIP>(row, n1, eta, ruling, code, src, dst),
     }
 }
