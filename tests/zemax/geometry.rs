@@ -309,6 +309,20 @@ fn fabricated_fold_mirror_systems_bake_and_round_trip() {
     assert_eq!(json::from_str(&json::to_string(&baked)).unwrap(), baked);
 }
 
+/// An 8 x 8 pupil grid's rays (at least 40 inside the pupil) from object height `h` mm, aimed or
+/// not, at the d line.
+fn grid_rays(lens: &Lens, p: &tolray::lens::Paraxial, h: f64, aim: bool) -> tolray::trace::RaySet {
+    let pupil = Pupil {
+        pattern: PupilPattern::Grid(8),
+        scale: 1.0,
+        aim,
+    };
+    let field = Field::HeightMm { x: 0.0, y: h };
+    let set = tolray::trace::RaySet::generate(lens, p, field, &pupil, LAMBDA_D_NM).unwrap();
+    assert!(set.origins.len() > 40);
+    set
+}
+
 /// A virtual object (OpticStudio's negative object thickness): a singlet meets a beam that
 /// converges on a point 50 mm behind its first vertex (tests/data/zemax/virtual-object.zmx).
 /// The paraxial image distance and magnification agree with the refraction equation surface by
@@ -340,19 +354,7 @@ fn a_virtual_object_is_a_converging_beam() {
     );
     let q = |h: f64| Vec3::cst(0.0, h, 50.0);
     for (h, aim) in [(0.0, false), (1.5, false), (1.5, true)] {
-        let set = tolray::trace::RaySet::generate(
-            lens,
-            &p,
-            Field::HeightMm { x: 0.0, y: h },
-            &Pupil {
-                pattern: PupilPattern::Grid(8),
-                scale: 1.0,
-                aim,
-            },
-            LAMBDA_D_NM,
-        )
-        .unwrap();
-        assert!(set.origins.len() > 40);
+        let set = grid_rays(lens, &p, h, aim);
         for (o, d) in set.origins.iter().zip(&set.directions) {
             assert!(o.z < 0.0, "starts in front of the lens: {o:?}");
             // The line o + t d passes through the object point.
@@ -439,19 +441,7 @@ fn an_object_on_the_first_surface_launches_from_it() {
         "{p:?}"
     );
     for (h, aim) in [(0.0, false), (0.5, false), (0.5, true)] {
-        let set = tolray::trace::RaySet::generate(
-            lens,
-            &p,
-            Field::HeightMm { x: 0.0, y: h },
-            &Pupil {
-                pattern: PupilPattern::Grid(8),
-                scale: 1.0,
-                aim,
-            },
-            LAMBDA_D_NM,
-        )
-        .unwrap();
-        assert!(set.origins.len() > 40);
+        let set = grid_rays(lens, &p, h, aim);
         for o in set.origins.iter().chain([&set.chief.0]) {
             assert_eq!(*o, Vec3::cst(0.0, h, 0.0), "h {h} aim {aim}");
         }
