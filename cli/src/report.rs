@@ -136,6 +136,28 @@ pub fn paraxial_text(lens: &Lens, p: &Paraxial) -> String {
                 "", ""
             ));
         }
+        if let tolray::lens::Material::Gradient(g) = &sf.material {
+            let terms = |c: &[f64], var: &str, step: usize| -> String {
+                (c.iter().enumerate())
+                    .filter(|(_, v)| **v != 0.0)
+                    .map(|(j, v)| format!(" {v:+e} {var}^{}", step * (j + 1)))
+                    .collect()
+            };
+            let lhs = match g.form {
+                tolray::lens::GradientForm::Index => "n = n0",
+                tolray::lens::GradientForm::IndexSquared => "n² = n0²",
+            };
+            s.push_str(&format!(
+                "  {:>4} {:>10} gradient index after it ({}): {lhs}{}{}, n0 = {}, r and z in mm from this vertex; steps of {} mm\n",
+                "",
+                "",
+                g.zemax_type(),
+                terms(&g.radial, "r", 2),
+                terms(&g.axial, "z", 1),
+                g.n0,
+                g.step_mm
+            ));
+        }
         if let Some(g) = sf.grating {
             s.push_str(&format!(
                 "  {:>4} {:>10} grating: {} lines/µm (grooves along local x), order {}\n",

@@ -522,11 +522,16 @@ fn mesh_disk(used: f64, row: &SurfaceRow<f64>) -> f64 {
 /// Refuses surfaces the check cannot mesh: it tessellates rotationally symmetric surfaces of
 /// bounded curvature (rings of equal sag), so toroids, Zernike sag surfaces and odd aspheres
 /// with a cone term are
-/// refused by name. (Gratings and ideal thin lenses are meshed as their substrate, a plane for
+/// refused by name, as are gradient-index media. (Gratings and ideal thin lenses are meshed as their substrate, a plane for
 /// the thin lens, and turn the rays as the reference tracer does: [`bend`].)
 fn supported(sys: &System<f64>) -> Result<()> {
     use tolray::lens::Shape;
     for (i, row) in sys.rows.iter().enumerate() {
+        if row.grin.is_some() {
+            return Err(Error::invalid(format!(
+                "the medium after surface {i} is a gradient-index medium, whose rays curve: the Embree check traces straight segments between meshed surfaces"
+            )));
+        }
         let what = match row.shape {
             Shape::Odd if row.asph[0] != 0.0 => {
                 "an odd asphere with a cone term (r^1: a point at the vertex)"

@@ -31,7 +31,9 @@
 //! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
 //! DGRATING; [`super::Grating`]); `"phase": {"order": 1, "norm_radius": 10, "coefficients":
 //! [-1000, 30]}`, a radial diffractive phase M Σ A_i ρ^(2i) in radians (OpticStudio's Binary 2;
-//! [`RadialPhase`]). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
+//! [`RadialPhase`]); `"gradient": {"form": "index", "n0": 1.6, "radial": [-0.05], "axial": [],
+//! "step_mm": 0.1}`, a gradient-index medium after the surface (OpticStudio's Gradient 1 to 3;
+//! [`Gradient`]; `"mat2"` then holds its vertex index). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
 //! turns the axis for everything after it (a fold mirror; [`super::Fold`]); the lens stays
 //! described unfolded.
 //!
@@ -50,14 +52,17 @@
 //! (OpticStudio's VDX, VDY, VCX, VCY; see [`crate::trace::Vignetting`]).
 
 use super::field::{Field, FieldPoint, Vignetting};
-use super::phase::RadialPhase;
+use super::gradient::GradientForm;
 use super::{
-    Aperture, ApertureShape, Fold, GlassCatalogs, Grating, ImagePlane, Lens, Material, Object,
-    Sensor, Shape, Surface, SurfaceRole, N_ASPH,
+    Aperture, ApertureShape, GlassCatalogs, ImagePlane, Lens, Material, Object, Sensor, Shape,
+    Surface, SurfaceRole, N_ASPH,
 };
 use crate::error::{Error, ErrorKind, Result};
 use serde_json::{json, Map, Value};
 use std::path::Path;
+
+mod surface_keys;
+use surface_keys::{fold, gradient, grating, phase};
 
 /// Reads a lens JSON file; every error names the file.
 ///
@@ -656,6 +661,12 @@ fn surface_from(
             ))
         }
     };
+    // tolray's "gradient" key makes the medium a gradient-index one ("mat2" then holds its
+    // vertex index, for readers without it).
+    let material = match gradient(s, at)? {
+        Some(g) => Material::Gradient(Box::new(g)),
+        None => material,
+    };
     let is_square = s.get("is_square").and_then(Value::as_bool).unwrap_or(false);
     if is_square {
         return Err(Error::invalid(format!(
@@ -800,105 +811,6 @@ fn surface_from(
         phase: phase(s, at)?,
     };
     Ok((surface, num(s, "d", at)?))
-}
-
-/// tolray's `"fold"` key of a mirror: `{"tilt_deg": [a, b, g], "pivot_mm": p}` (`pivot_mm`
-/// defaults to 0).
-fn fold(s: &Map<String, Value>, at: &str) -> Result<Option<Fold>> {
-    let Some(v) = s.get("fold") else {
-        return Ok(None);
-    };
-    let Some(obj) = v.as_object() else {
-        return Err(Error::new(
-            ErrorKind::Parse,
-            format!("{at}\"fold\" must be an object like {{\"tilt_deg\": [90, 0, 0], \"pivot_mm\": 0}}, found {v}"),
-        ));
-    };
-    if let Some(e) = unknown_key(obj, &["tilt_deg", "pivot_mm"]) {
-        return Err(Error::invalid(format!("{at}\"fold\": {e}")));
-    }
-    let Some(t) = num_array::<3>(obj, "tilt_deg", at)? else {
-        return Err(Error::invalid(format!(
-            "{at}\"fold\" needs \"tilt_deg\" (tilts about x, y, z in degrees)"
-        )));
-    };
-    let mut tilt_deg = [0.0; 3];
-    for (o, v) in tilt_deg.iter_mut().zip(t) {
-        *o = finite(v, at, "fold tilt_deg")?;
-    }
-    Ok(Some(Fold {
-        tilt_deg,
-        pivot_mm: match num(obj, "pivot_mm", at)? {
-            Some(p) => finite(p, at, "fold pivot_mm")?,
-            None => 0.0,
-        },
-    }))
-}
-
-/// tolray's `"grating"` key of a surface: `{"lines_per_um": T, "order": m}`.
-fn grating(s: &Map<String, Value>, at: &str) -> Result<Option<Grating>> {
-    let Some(v) = s.get("grating") else {
-        return Ok(None);
-    };
-    let Some(obj) = v.as_object() else {
-        return Err(Error::new(
-            ErrorKind::Parse,
-            format!("{at}\"grating\" must be an object like {{\"lines_per_um\": 0.6, \"order\": 1}}, found {v}"),
-        ));
-    };
-    if let Some(e) = unknown_key(obj, &["lines_per_um", "order"]) {
-        return Err(Error::invalid(format!("{at}\"grating\": {e}")));
-    }
-    let get = |key: &str| -> Result<f64> {
-        match num(obj, key, at)? {
-            Some(x) => finite(x, at, key),
-            None => Err(Error::invalid(format!("{at}\"grating\" needs \"{key}\""))),
-        }
-    };
-    Ok(Some(Grating {
-        lines_per_um: get("lines_per_um")?,
-        order: get("order")?,
-    }))
-}
-
-/// tolray's `"phase"` key: `{"order": 1, "norm_radius": 10, "coefficients": [-1000, 30]}` (a
-/// radial diffractive phase, OpticStudio's Binary 2: radians on ρ², ρ⁴, ...).
-fn phase(s: &Map<String, Value>, at: &str) -> Result<Option<RadialPhase>> {
-    let Some(v) = s.get("phase") else {
-        return Ok(None);
-    };
-    let Some(obj) = v.as_object() else {
-        return Err(Error::new(
-            ErrorKind::Parse,
-            format!("{at}\"phase\" must be an object like {{\"order\": 1, \"norm_radius\": 10, \"coefficients\": [-1000]}}, found {v}"),
-        ));
-    };
-    if let Some(e) = unknown_key(obj, &["order", "norm_radius", "coefficients"]) {
-        return Err(Error::invalid(format!("{at}\"phase\": {e}")));
-    }
-    let get = |key: &str| -> Result<f64> {
-        match num(obj, key, at)? {
-            Some(x) => finite(x, at, key),
-            None => Err(Error::invalid(format!("{at}\"phase\" needs \"{key}\""))),
-        }
-    };
-    let coefficients = match obj.get("coefficients") {
-        Some(Value::Array(v)) => v
-            .iter()
-            .map(|a| finite(a.as_f64().unwrap_or(f64::NAN), at, "coefficients"))
-            .collect::<Result<Vec<f64>>>()?,
-        other => {
-            return Err(Error::invalid(format!(
-                "{at}\"phase\" needs \"coefficients\", an array of numbers (radians), found {}",
-                other.map_or("nothing".to_string(), |o| o.to_string())
-            )))
-        }
-    };
-    Ok(Some(RadialPhase {
-        order: get("order")?,
-        norm_radius_mm: get("norm_radius")?,
-        coefficients,
-    }))
 }
 
 /// The lens as DeepLens 2.5-style JSON (plus tolray's ignored `"(object)"` key at infinity).
@@ -1051,6 +963,18 @@ pub fn to_value(lens: &Lens) -> Value {
             }
             m.insert("is_square".into(), json!(false));
             m.insert("mat2".into(), json!(s.material.json_name()));
+            if let Material::Gradient(g) = &s.material {
+                let form = match g.form {
+                    GradientForm::Index => "index",
+                    GradientForm::IndexSquared => "index_squared",
+                };
+                let used = |v: &[f64]| v.iter().rposition(|&a| a != 0.0).map_or(0, |j| j + 1);
+                m.insert(
+                    "gradient".into(),
+                    json!({"form": form, "n0": g.n0, "radial": g.radial[..used(&g.radial)],
+                        "axial": g.axial[..used(&g.axial)], "step_mm": g.step_mm}),
+                );
+            }
             if let Some(a) = aperture_value(s.aperture.as_ref()) {
                 m.insert("aperture".into(), a);
             }

@@ -277,6 +277,10 @@ pub enum Material {
         /// Dispersion scale (perturbed n_F − n_C over nominal).
         scale: f64,
     },
+    /// A gradient-index medium (OpticStudio's Gradient 1, 2 and 3): its index varies with
+    /// position in the frame of the surface it follows; [`Material::index`] gives its index at
+    /// that surface's vertex, at every wavelength.
+    Gradient(Box<super::gradient::Gradient>),
 }
 
 /// Index of a model glass (n_d, V_d) at `wavelength_nm` by its Cauchy law `n = A + B / λ²`
@@ -312,6 +316,7 @@ impl Material {
                 nd_new,
                 scale,
             } => nd_new + (base.index(wavelength_nm) - nd) * scale,
+            Material::Gradient(g) => g.n0,
         }
     }
 
@@ -345,6 +350,8 @@ impl Material {
                 }
             }
             Material::Agf(g) => g.name.to_ascii_lowercase(),
+            // The vertex index: the whole medium is tolray's "gradient" key of the surface.
+            Material::Gradient(g) => format!("{}", g.n0),
             Material::Perturbed { nd_new, .. } => {
                 let disp = self.index(LAMBDA_F_NM) - self.index(LAMBDA_C_NM);
                 let vd = (nd_new - 1.0) / disp;

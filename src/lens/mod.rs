@@ -14,6 +14,7 @@ mod catalog_agf;
 mod catalog_data;
 mod catalog_extra;
 pub mod field;
+pub mod gradient;
 pub mod json;
 pub mod material;
 pub mod paraxial;
@@ -28,6 +29,7 @@ pub mod zernike;
 
 pub use builtin::{builtin, builtin_names};
 pub use field::{Field, FieldPoint, Vignetting};
+pub use gradient::{Gradient, GradientForm};
 pub use material::{GlassCatalogs, Material};
 pub use paraxial::Paraxial;
 pub use surface::{Aperture, ApertureShape, Fold, Grating, Shape, Surface, SurfaceRole};
@@ -412,6 +414,38 @@ impl Lens {
         self.surfaces.last().map_or(0.0, |s| s.d_next_mm)
     }
 
+    /// Why the gradient-index medium `g` after surface `i` (light travelling `dir` along the
+    /// axis) cannot be traced, if it cannot: a surface must end it (not the image), its gap runs
+    /// forward, neither of its surfaces is a mirror, a grating or a diffractive phase, and
+    /// [`Gradient::validate`].
+    fn check_gradient(&self, i: usize, g: &Gradient, dir: f64) -> std::result::Result<(), String> {
+        g.validate().map_err(|e| e.full_message())?;
+        let Some(next) = self.surfaces.get(i + 1) else {
+            return Err("it must end at a surface before the image".into());
+        };
+        let s = &self.surfaces[i];
+        if !(s.d_next_mm * dir > 0.0) {
+            return Err(format!(
+                "its thickness {} mm must be positive, with the light going forward",
+                s.d_next_mm
+            ));
+        }
+        if s.d_next_mm.abs() / g.step_mm > 1e7 {
+            return Err(format!(
+                "step {} mm: more than 1e7 steps across its {} mm",
+                g.step_mm, s.d_next_mm
+            ));
+        }
+        for (k, t) in [(i, s), (i + 1, next)] {
+            if t.role == SurfaceRole::Mirror || t.grating.is_some() || t.phase.is_some() {
+                return Err(format!(
+                    "surface {k}, which bounds it, is a mirror, a grating or a diffractive phase"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Checks the prescription for things no tracer can handle and says which surface is wrong.
     ///
     /// # Errors
@@ -674,6 +708,15 @@ impl Lens {
                 }
                 Material::model(nd, vd).map_err(|e| at(format!("the medium after it: {e}")))?;
             }
+            if let Material::Gradient(g) = &s.material {
+                self.check_gradient(i, g, dirs[i + 1])
+                    .map_err(|m| at(format!("the gradient-index medium after it: {m}")))?;
+            }
+        }
+        if matches!(self.object_medium, Material::Gradient(_)) {
+            return Err(Error::invalid(
+                "the object space cannot be a gradient-index medium (it follows a surface)",
+            ));
         }
         if !(self.primary_wavelength_nm > 0.0) {
             return Err(Error::invalid("primary wavelength must be positive"));

@@ -115,6 +115,9 @@ struct Prescription<S> {
     bends: Vec<bool>,
     n: Vec<S>,
     gap: Vec<S>,
+    /// Through a gradient-index medium after a surface: the transfer matrix of (y, n u) and
+    /// the axial index where it ends (`None` for a homogeneous medium).
+    medium: Vec<Option<([S; 4], S)>>,
     /// Index of the object medium.
     n_object: S,
 }
@@ -136,6 +139,7 @@ impl<S: Real> Prescription<S> {
             bends: Vec::with_capacity(lens.surfaces.len()),
             n: Vec::with_capacity(lens.surfaces.len()),
             gap: Vec::with_capacity(lens.surfaces.len()),
+            medium: Vec::with_capacity(lens.surfaces.len()),
             n_object: S::cst(lens.object_medium.index(wavelength_nm)),
         };
         for (i, s) in lens.surfaces.iter().enumerate() {
@@ -166,7 +170,10 @@ impl<S: Real> Prescription<S> {
             // An ideal thin lens in a medium of (signed) index n: n u' = n u - y n / f.
             let mut thin = match s.shape {
                 Shape::Paraxial { focal_mm } => {
-                    let n_before = p.n.last().copied().unwrap_or(p.n_object);
+                    let n_before = match i {
+                        0 => p.n_object,
+                        _ => p.n_exit(i - 1),
+                    };
                     n_before / S::cst(focal_mm)
                 }
                 _ => S::cst(0.0),
@@ -183,19 +190,45 @@ impl<S: Real> Prescription<S> {
             }
             p.thin_power.push(thin);
             p.bends.push(lens.refracts(i));
+            let gap = lift(Param::Gap(i), S::cst(s.d_next_mm)) - vertex_sag;
+            let mut medium = None;
             let n = match s.material {
                 Material::Model { nd, vd } => model_index(
                     lift(Param::GlassNd(i), S::cst(nd)),
                     lift(Param::GlassVd(i), S::cst(vd)),
                     wavelength_nm,
                 ),
+                // Validation keeps mirrors away from these media: their indices are unsigned.
+                Material::Gradient(ref g) => {
+                    let (m, n_in, n_out) =
+                        super::gradient::GradientRow::new(g, i, lift).paraxial_transfer(gap);
+                    medium = Some((m, n_out));
+                    n_in
+                }
                 ref m => S::cst(m.index(wavelength_nm)),
             };
             p.n.push(n * S::cst(dirs[i + 1]));
-            p.gap
-                .push(lift(Param::Gap(i), S::cst(s.d_next_mm)) - vertex_sag);
+            p.medium.push(medium);
+            p.gap.push(gap);
         }
         p
+    }
+
+    /// A paraxial ray's height and slope at the vertex plane of surface `i + 1` from those
+    /// leaving surface `i`'s.
+    fn across(&self, i: usize, y: S, u: S) -> (S, S) {
+        match &self.medium[i] {
+            Some(([a, b, c, d], n_end)) => {
+                let w = self.n[i] * u;
+                (*a * y + *b * w, (*c * y + *d * w) / *n_end)
+            }
+            None => (y + u * self.gap[i], u),
+        }
+    }
+
+    /// The (signed) index where the medium after surface `i` ends.
+    fn n_exit(&self, i: usize) -> S {
+        self.medium[i].map_or(self.n[i], |(_, n)| n)
     }
 
     /// Traces a paraxial ray that arrives at the vertex plane of surface `start` (before
@@ -207,13 +240,17 @@ impl<S: Real> Prescription<S> {
         let last = self.n.len() - 1;
         for i in start..self.n.len() {
             heights[i] = y;
-            let n0 = if i == 0 { self.n_object } else { self.n[i - 1] };
+            let n0 = if i == 0 {
+                self.n_object
+            } else {
+                self.n_exit(i - 1)
+            };
             if self.bends[i] {
                 let power = self.curvature[i] * (self.n[i] - n0) + self.thin_power[i];
                 u = (n0 * u - y * power) / self.n[i];
             }
             if i < last {
-                y += u * self.gap[i];
+                (y, u) = self.across(i, y, u);
             }
         }
         Ynu {
@@ -406,7 +443,11 @@ pub fn exit_pupil_from_image_lifted<S: Real>(
         return Some(-to_image);
     }
     // Rays leave the stop vertex (after any refraction there) and meet surface stop + 1.
-    let chief = p.ynu(stop + 1, p.gap[stop], S::cst(1.0));
+    let (y, u) = match p.medium[stop] {
+        Some(_) => p.across(stop, S::cst(0.0), S::cst(1.0)),
+        None => (p.gap[stop], S::cst(1.0)),
+    };
+    let chief = p.ynu(stop + 1, y, u);
     if chief.u_last.value().abs() < 1e-14 {
         return None;
     }
@@ -495,9 +536,16 @@ pub fn analyze(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         (z[last], r_stop)
     } else {
         // Rays leave the stop vertex (after any refraction there) and meet surface stop + 1.
+        // (Through a gradient-index medium, by its transfer matrix.)
         let d = lens.surfaces[stop].d_next_mm;
-        let chief = p.ynu(stop + 1, d, 1.0);
-        let edge = p.ynu(stop + 1, r_stop, 0.0);
+        let from_stop = |y: f64, u: f64| match p.medium[stop] {
+            Some(_) => p.across(stop, y, u),
+            None => (y + u * d, u),
+        };
+        let (y, u) = from_stop(0.0, 1.0);
+        let chief = p.ynu(stop + 1, y, u);
+        let (y, u) = from_stop(r_stop, 0.0);
+        let edge = p.ynu(stop + 1, y, u);
         if chief.u_last.abs() < 1e-14 {
             (f64::INFINITY, f64::INFINITY)
         } else {

@@ -1,5 +1,6 @@
 //! The compiled lens: an immutable flat table of surfaces in one number type.
 
+use super::gradient::GradientRow;
 use super::phase::PhaseRow;
 use super::zernike::ZernikeSag;
 use super::{Aperture, ApertureShape, Grating, Lens, Material, Shape, N_ASPH};
@@ -39,6 +40,10 @@ pub enum Param {
     Phase(usize, usize),
     /// V_d of the model glass after surface `i`.
     GlassVd(usize),
+    /// Coefficient `j` of the gradient-index medium after surface `i`
+    /// ([`crate::lens::Gradient`]): 0 = n0, 1 to 6 the terms on r², ..., r¹², 7 to 9 those on z,
+    /// z², z³.
+    Gradient(usize, usize),
 }
 
 /// Rigid motions and curvature offsets applied to a nominal lens (tolerances, placements).
@@ -218,6 +223,8 @@ pub struct SurfaceRow<S> {
     pub virtual_ok: bool,
     /// The grating ruled on the surface, if any (grooves along the surface frame's x axis).
     pub grating: Option<Grating>,
+    /// The gradient-index medium after the surface, compiled (`None` for a homogeneous one).
+    pub grin: Option<Box<GradientRow<S>>>,
 }
 
 /// A compiled lens: flat, immutable, in number type `S`.
@@ -414,6 +421,12 @@ impl<S: Real> System<S> {
                 pos,
                 virtual_ok: i > 0 && lens.surfaces[i - 1].d_next_mm * dirs[i] < 0.0,
                 grating: s.grating,
+                grin: match &s.material {
+                    Material::Gradient(g) => Some(Box::new(
+                        GradientRow::new(g, i, lift).limit_steps(s.d_next_mm, g.step_mm),
+                    )),
+                    _ => None,
+                },
             });
             z += lift(Param::Gap(i), S::cst(s.d_next_mm));
         }
@@ -526,6 +539,7 @@ impl<S: Real> System<S> {
                     pos: r.pos.map_value(),
                     virtual_ok: r.virtual_ok,
                     grating: r.grating,
+                    grin: r.grin.as_ref().map(|g| Box::new(g.convert())),
                 })
                 .collect(),
             image: Rigid {

@@ -62,6 +62,23 @@ pub fn param_value(lens: &Lens, p: Param) -> Result<f64> {
                 ))
             })?,
         Param::Gap(i) => s(i)?.d_next_mm,
+        Param::Gradient(i, j) => match &s(i)?.material {
+            crate::lens::Material::Gradient(g) => match j {
+                0 => g.n0,
+                1..=6 => g.radial[j - 1],
+                7..=9 => g.axial[j - 7],
+                _ => {
+                    return Err(Error::argument(format!(
+                        "{p:?}: a gradient-index medium has coefficients 0 to 9"
+                    )))
+                }
+            },
+            _ => {
+                return Err(Error::argument(format!(
+                    "{p:?}: the medium after surface {i} is not a gradient-index medium"
+                )))
+            }
+        },
         Param::GlassNd(i) | Param::GlassVd(i) => match s(i)?.material {
             crate::lens::Material::Model { nd, vd } => {
                 if matches!(p, Param::GlassNd(_)) {
@@ -96,6 +113,15 @@ pub fn set_param(lens: &mut Lens, p: Param, v: f64) -> Result<()> {
             }
         }
         Param::Gap(i) => lens.surfaces[i].d_next_mm = v,
+        Param::Gradient(i, j) => {
+            if let crate::lens::Material::Gradient(g) = &mut lens.surfaces[i].material {
+                match j {
+                    0 => g.n0 = v,
+                    1..=6 => g.radial[j - 1] = v,
+                    _ => g.axial[j - 7] = v,
+                }
+            }
+        }
         Param::GlassNd(i) | Param::GlassVd(i) => {
             if let crate::lens::Material::Model { nd, vd } = &mut lens.surfaces[i].material {
                 if matches!(p, Param::GlassNd(_)) {

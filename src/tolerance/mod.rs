@@ -285,7 +285,8 @@ impl Perturbation {
 }
 
 /// A glass with its n_d shifted by `dn` and its Abbe number by `dv`, keeping the shape of its
-/// dispersion curve: n'(λ) = n_d' + (n(λ) - n_d) · ((n_d' - 1)/V') / ((n_d - 1)/V).
+/// dispersion curve: n'(λ) = n_d' + (n(λ) - n_d) · ((n_d' - 1)/V') / ((n_d - 1)/V); a
+/// gradient-index medium with its vertex index n0 shifted by `dn`.
 fn perturbed_material(base: &Material, dn: f64, dv: f64) -> std::result::Result<Material, String> {
     use crate::lens::material::{LAMBDA_C_NM, LAMBDA_D_NM, LAMBDA_F_NM};
     let nd = base.index(LAMBDA_D_NM);
@@ -299,6 +300,13 @@ fn perturbed_material(base: &Material, dn: f64, dv: f64) -> std::result::Result<
             "index error {dn} takes n_d above {}",
             crate::lens::material::MAX_INDEX
         ));
+    }
+    if let Material::Gradient(g) = base {
+        // A gradient-index medium keeps its profile about a vertex index shifted by `dn`; it
+        // has no dispersion for an Abbe-number error to change.
+        let mut g = g.clone();
+        g.n0 = nd2;
+        return Ok(Material::Gradient(g));
     }
     if disp == 0.0 {
         return Ok(Material::Constant(nd2));

@@ -27,6 +27,7 @@
 //! Each surface is applied to a group of blocks before the next surface, which amortizes the
 //! per-surface setup (about 7% faster than block by block).
 
+use super::gradient;
 use super::{Block, CODE_BACKWARD, CODE_INVALID, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
@@ -38,7 +39,7 @@ const QUADRIC: u8 = 1;
 const ASPHERE: u8 = 2;
 /// Odd aspheres, toroids and ideal thin lenses: one out-of-line loop per number type (see
 /// [`shaped`]).
-const SHAPED: u8 = 3;
+pub(super) const SHAPED: u8 = 3;
 
 /// A number type the tracer can run on. `f32`, `f64` and the dual numbers of widths 1 and
 /// [`crate::real::GRAD_WIDTH`] override [`Traceable::trace_blocks`] with builds for several
@@ -256,7 +257,19 @@ pub(crate) fn trace_blocks_generic<S: Real, const ISA: u8>(
                 (None, None) => S::cst(0.0),
             };
             let code = i as u32;
-            if i % 2 == 0 {
+            // A surface that ends a gradient-index medium: the pass through the medium to it.
+            let medium = i.checked_sub(1).and_then(|j| {
+                let entry = &sys.rows[j];
+                entry.grin.as_deref().map(|g| (entry, g))
+            });
+            if let Some((entry, g)) = medium {
+                let n2 = n[i + 1];
+                if i % 2 == 0 {
+                    gradient::exit_pass(entry, g, row, n2, code, clip, group, scratch);
+                } else {
+                    gradient::exit_pass(entry, g, row, n2, code, clip, scratch, group);
+                }
+            } else if i % 2 == 0 {
                 surface::<S, ISA>(row, n1, eta, ruling, code, clip, group, scratch);
             } else {
                 surface::<S, ISA>(row, n1, eta, ruling, code, clip, scratch, group);
@@ -285,7 +298,11 @@ fn surface<S: Real, const ISA: u8>(
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
-    if row.shape != Shape::Even || row.grating.is_some() || row.phase.is_some() {
+    if row.shape != Shape::Even
+        || row.grating.is_some()
+        || row.phase.is_some()
+        || row.grin.is_some()
+    {
         return shaped(row, n1, eta, ruling, code, clip, src, dst);
     }
     macro_rules! go {
@@ -415,7 +432,7 @@ fn image<S: Real>(sys: &System<S>, n_last: S, code: u32, src: &[Block<S>], dst: 
 }
 
 #[inline(always)]
-fn load<S: Real>(b: &Block<S>, l: usize) -> (Vec3<S>, Vec3<S>) {
+pub(super) fn load<S: Real>(b: &Block<S>, l: usize) -> (Vec3<S>, Vec3<S>) {
     (
         Vec3::new(b.o[0][l], b.o[1][l], b.o[2][l]),
         Vec3::new(b.d[0][l], b.d[1][l], b.d[2][l]),
@@ -424,7 +441,7 @@ fn load<S: Real>(b: &Block<S>, l: usize) -> (Vec3<S>, Vec3<S>) {
 
 /// `a` if `c`, else `b`, with bit operations: a branch-free select for statuses.
 #[inline(always)]
-fn select_u32(c: bool, a: u32, b: u32) -> u32 {
+pub(super) fn select_u32(c: bool, a: u32, b: u32) -> u32 {
     b ^ ((a ^ b) & (c as u32).wrapping_neg())
 }
 
@@ -432,7 +449,7 @@ fn select_u32(c: bool, a: u32, b: u32) -> u32 {
 /// (`why == 0`) takes the new state; one that fails keeps its state and takes the status `why`; a
 /// dead ray keeps its state and status.
 #[inline(always)]
-fn commit<S: Real>(
+pub(super) fn commit<S: Real>(
     src: &Block<S>,
     dst: &mut Block<S>,
     l: usize,
@@ -727,7 +744,7 @@ fn intersect<S: Real, const KIND: u8>(
 ///
 /// [`reference::bend`]: super::reference::bend
 #[inline(always)]
-fn turn<S: Real, const KIND: u8>(
+pub(super) fn turn<S: Real, const KIND: u8>(
     row: &SurfaceRow<S>,
     d: Vec3<S>,
     h: Vec3<S>,
@@ -869,6 +886,15 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             } else {
                 (S::cst(0.0), (S::cst(0.0), S::cst(0.0)))
             };
+            // Into a gradient-index medium: its index where the ray enters it.
+            let (eta, dense) = match &row.grin {
+                Some(g) if KIND == SHAPED => {
+                    let n2 = g.index(h);
+                    (n1 / n2, S::cst(0.0).lt(n2))
+                }
+                // (Other kinds never see a medium: `surface` sends such rows here, to SHAPED.)
+                _ => (eta, true),
+            };
             let (dr, dead) = turn::<S, KIND>(row, d, h, nrm, eta, kick);
             let (og, dg) = if ROT {
                 (row.rot.apply(h) + row.pos, row.rot.apply(dr))
@@ -877,6 +903,7 @@ fn lanes<S: Real, const KIND: u8, const ROT: bool, const CLIP: bool>(
             };
             // The first failure in the order missed, backward, vignetted, TIR; 0 if the ray goes on.
             let mut why = select_u32(dead, CODE_TIR | code, 0);
+            why = select_u32(!dense, CODE_MISSED | code, why);
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
             why = select_u32(backward, CODE_BACKWARD | code, why);
             why = select_u32(!hit, CODE_MISSED | code, why);

@@ -7,6 +7,7 @@
 //! A ray never becomes NaN silently: it carries a [`RayStatus`].
 
 mod bundles;
+mod gradient;
 mod kernel;
 pub mod raw;
 pub mod rays;

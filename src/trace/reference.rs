@@ -7,6 +7,7 @@
 //! that the kernel agrees with it.
 
 use super::RayStatus;
+use crate::lens::gradient::GradientRow;
 use crate::lens::{Shape, SurfaceKind, SurfaceRow, System};
 use crate::math::Vec3;
 
@@ -374,6 +375,90 @@ pub fn bend(
     Some((dn, 0.0))
 }
 
+/// A ray at `o` going `d` (global frame, on the surface `entry`) through the gradient-index
+/// medium `g` to the surface `row`: where it meets `row` and its unit direction there (both in
+/// `row`'s frame), the sag gradient there, the medium's index there and the path's optical
+/// length; or the status for surface code `i`.
+///
+/// Written apart from the kernel's integrator: the classical Runge-Kutta method on the
+/// first-order ray equations in arc length s (dR/ds = T / n, dT/ds = ∇n, dL/ds = n, with T = n
+/// times the unit direction), steps of the medium's length along the ray, and the crossing
+/// found by bisecting the last step's length.
+#[allow(clippy::type_complexity)]
+fn through_medium(
+    entry: &SurfaceRow<f64>,
+    g: &GradientRow<f64>,
+    row: &SurfaceRow<f64>,
+    o: Vec3<f64>,
+    d: Vec3<f64>,
+) -> Result<(Vec3<f64>, Vec3<f64>, [f64; 2], f64, f64), fn(u32) -> RayStatus> {
+    // State: position, optical direction, optical length (medium frame).
+    type State = (Vec3<f64>, Vec3<f64>, f64);
+    let rate = |(r, t, _): State| -> Option<State> {
+        let (n2, force) = g.n2_and_force(r);
+        (n2 > 0.0).then(|| {
+            let n = n2.sqrt();
+            (t * (1.0 / n), force * (1.0 / n), n)
+        })
+    };
+    let rk4 = |y: State, h: f64| -> Option<State> {
+        let add = |a: State, k: State, s: f64| (a.0 + k.0 * s, a.1 + k.1 * s, a.2 + k.2 * s);
+        let k1 = rate(y)?;
+        let k2 = rate(add(y, k1, h / 2.0))?;
+        let k3 = rate(add(y, k2, h / 2.0))?;
+        let k4 = rate(add(y, k3, h))?;
+        let sum = add(add(add(k1, k2, 2.0), k3, 2.0), k4, 1.0);
+        Some(add(y, sum, h / 6.0))
+    };
+    let to_row = |r: Vec3<f64>| row.rot.apply_t(entry.rot.apply(r) + entry.pos - row.pos);
+    let past = |r: Vec3<f64>| {
+        let q = to_row(r);
+        surface_sag_xy(row, q.x, q.y).map(|(z, _, _)| q.z - z)
+    };
+    let r0 = entry.rot.apply_t(o - entry.pos);
+    let n0 = g.index(r0);
+    if !(n0 > 0.0) {
+        return Err(RayStatus::Missed);
+    }
+    let mut y: State = (r0, entry.rot.apply_t(d) * n0, 0.0);
+    if !past(r0).is_some_and(|f| f < 0.0) {
+        return Err(RayStatus::Backward);
+    }
+    let h = g.dt * n0;
+    let mut steps = 0;
+    let end = loop {
+        let next = rk4(y, h).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+        match past(next.0) {
+            Some(f) if f >= 0.0 => break next,
+            _ if steps >= g.max_steps => return Err(RayStatus::Missed),
+            _ => {}
+        }
+        y = next;
+        steps += 1;
+    };
+    let _ = end;
+    // Bisection on the last step's length: `lo` before the surface, `hi` past it.
+    let (mut lo, mut hi) = (0.0, h);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        let s = rk4(y, mid).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+        if past(s.0).is_some_and(|f| f >= 0.0) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let (r, t, opl) = rk4(y, hi).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+    let q = to_row(r);
+    let (_, gx, gy) =
+        surface_sag_xy(row, q.x, q.y).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+    let dir = row.rot.apply_t(entry.rot.apply(t)).normalized();
+    Ok((q, dir, [gx, gy], g.index(r), opl))
+}
+
 /// Traces one ray of `wavelength_nm` through `sys` with indices `n` (as [`System::indices`]
 /// gives them at that wavelength: the object medium's, then the one after each surface), up to
 /// and including surface `upto` (or to the image plane when `upto` is `None`). Returns the state
@@ -393,24 +478,44 @@ pub fn trace_ray(
     let last = upto.map_or(sys.rows.len(), |u| u + 1).min(sys.rows.len());
     for (i, row) in sys.rows.iter().enumerate().take(last) {
         let fail = |status| RefRay { o, d, opl, status };
-        let p = row.rot.apply_t(o - row.pos);
-        let dl = row.rot.apply_t(d);
-        let Some((t, grad)) = intersect_local(row, p, dl) else {
-            return fail(RayStatus::Missed(i as u32));
+        let medium = i.checked_sub(1).and_then(|j| {
+            let entry = &sys.rows[j];
+            entry.grin.as_deref().map(|g| (entry, g))
+        });
+        // Where the ray meets the surface, in its frame: straight, or through a gradient-index
+        // medium (then also the direction there, the path's optical length and the index).
+        let (h, dl, grad, n1, path) = match medium {
+            Some((entry, g)) => match through_medium(entry, g, row, o, d) {
+                Ok(hit) => hit,
+                Err(status) => return fail(status(i as u32)),
+            },
+            None => {
+                let p = row.rot.apply_t(o - row.pos);
+                let dl = row.rot.apply_t(d);
+                let Some((t, grad)) = intersect_local(row, p, dl) else {
+                    return fail(RayStatus::Missed(i as u32));
+                };
+                if !row.virtual_ok && crate::trace::kernel::behind(t, p) {
+                    return fail(RayStatus::Backward(i as u32));
+                }
+                (p + dl * t, dl, grad, n[i], n[i] * t)
+            }
         };
-        if !row.virtual_ok && crate::trace::kernel::behind(t, p) {
-            return fail(RayStatus::Backward(i as u32));
-        }
-        let h = p + dl * t;
         if clip && row.clip.stops(h.x, h.y) {
             return fail(RayStatus::Vignetted(i as u32));
         }
-        let Some((dn, phase)) = bend(row, dl, h, unit_normal(grad), n[i], n[i + 1], wavelength_nm)
-        else {
+        let n2 = match &row.grin {
+            Some(g) => g.index(h),
+            None => n[i + 1],
+        };
+        if !(n2 > 0.0) {
+            return fail(RayStatus::Missed(i as u32));
+        }
+        let Some((dn, phase)) = bend(row, dl, h, unit_normal(grad), n1, n2, wavelength_nm) else {
             return fail(RayStatus::Tir(i as u32));
         };
         opl += phase;
-        opl += n[i] * t;
+        opl += path;
         o = row.rot.apply(h) + row.pos;
         d = row.rot.apply(dn);
     }

@@ -50,6 +50,16 @@ fn all_vars(lens: &Lens) -> Vec<Param> {
             v.push(Param::GlassNd(i));
             v.push(Param::GlassVd(i));
         }
+        // A gradient-index medium: n0, r² and the terms in use.
+        if let Material::Gradient(g) = &s.material {
+            let terms = g.radial.iter().chain(&g.axial).enumerate();
+            v.push(Param::Gradient(i, 0));
+            v.extend(
+                terms
+                    .filter(|&(j, a)| j == 0 || *a != 0.0)
+                    .map(|(j, _)| Param::Gradient(i, j + 1)),
+            );
+        }
     }
     v
 }
@@ -168,6 +178,16 @@ fn step(lens: &Lens, p: Param) -> f64 {
         Param::Phase(..) => 1e-2,
         Param::GlassNd(_) => 1e-7,
         Param::GlassVd(_) => 1e-4,
+        // A gradient-index coefficient: the step that changes the index by 1e-7 at the
+        // semi-diameter (radial terms) or across the gap (axial ones).
+        Param::Gradient(i, j) => {
+            let s = &lens.surfaces[i];
+            match j {
+                0 => 1e-7,
+                1..=6 => 1e-7 / s.semi_aperture_mm.powi(2 * j as i32),
+                _ => 1e-7 / s.d_next_mm.powi(j as i32 - 6),
+            }
+        }
     }
 }
 
@@ -226,6 +246,7 @@ fn gradients_match_finite_differences_nominal() {
     check("curved image", &zmx("curved-image.zmx"), false);
     check("Zernike sag surfaces", &zmx("zernike.zmx"), false);
     check("diffractive phase", &zmx("binary2.zmx"), false);
+    check("gradient index", &zmx("grin.zmx"), false);
 }
 
 /// A hand-made lens of tests/data/zemax: toroid.zmx (a toroidal front, a cylindrical back) or
@@ -272,6 +293,7 @@ fn gradients_match_finite_differences_perturbed() {
     check("Qcon aspheres", &zmx("qcon.zmx"), true);
     check("Zernike sag surfaces", &zmx("zernike.zmx"), true);
     check("diffractive phase", &zmx("binary2.zmx"), true);
+    check("gradient index", &zmx("grin.zmx"), true);
 }
 
 #[test]

@@ -11,6 +11,7 @@ mod criterion;
 mod double_double;
 mod gradient;
 mod grating;
+mod grin;
 mod json;
 mod psf;
 mod reference;

@@ -195,7 +195,8 @@ pub(super) fn build(
         match s.type_name().as_str() {
             "COORDBRK" => walk.coordinate_break(s, &mut warnings)?,
             "STANDARD" | "EVENASPH" | "ODDASPHE" | "TOROIDAL" | "PARAXIAL" | "DGRATING"
-            | "QED_TYPE" | "TILTSURF" | "FZERNSAG" | "SZERNSAG" | "BINARY_2" => {
+            | "QED_TYPE" | "TILTSURF" | "FZERNSAG" | "SZERNSAG" | "BINARY_2" | "GRINSUR1"
+            | "GRINSUR2" | "GRINSUR3" => {
                 // The frame in which the light leaves the surface: its own, or, when its
                 // thickness is 0, that of the first coordinate break after it with a non-zero
                 // thickness (or of the last one before the next surface).
@@ -217,7 +218,7 @@ pub(super) fn build(
                 return Err(invalid(
                     s.type_line(),
                     format!(
-                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING, QED_TYPE, TILTSURF, FZERNSAG, SZERNSAG, BINARY_2 and COORDBRK"
+                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING, QED_TYPE, TILTSURF, FZERNSAG, SZERNSAG, BINARY_2, GRINSUR1 to GRINSUR3 (Gradient 1 to 3) and COORDBRK"
                     ),
                 ))
             }

@@ -473,9 +473,24 @@ impl Walker {
         // PARM 0: extrapolate beyond the normalization radius (OpticStudio's default, 1);
         // PARM 9 and 10: the Zernike decenter.
         let (mut extrapolate, mut decenter_mm) = (true, [0.0; 2]);
+        // GRINSUR1 to 3: PARM 1 to 8 (Δt, n0, then the coefficients), in mm.
+        let grin = ty.starts_with("GRINSUR");
+        let mut grin_parm = [0.0; 9];
         for &(p, v, line) in &s.parm {
             match ty.as_str() {
                 "TILTSURF" => {}
+                "GRINSUR1" if p == 4 && v != 0.0 => {
+                    return Err(invalid(
+                        line,
+                        format!(
+                        "PARM 4 = {v}: tolray reads Gradient 1's n0 + nr2 r², not the r term nr1"
+                    ),
+                    ))
+                }
+                "GRINSUR1" if (1..=3).contains(&p) => grin_parm[p] = grin_in_mm(&ty, p, v, scale),
+                "GRINSUR2" | "GRINSUR3" if (1..=8).contains(&p) => {
+                    grin_parm[p] = grin_in_mm(ty.as_str(), p, v, scale);
+                }
                 "FZERNSAG" | "SZERNSAG" if p == 0 => {
                     if v != 0.0 && v != 1.0 {
                         return Err(invalid(
@@ -546,6 +561,8 @@ impl Walker {
                         "QED_TYPE" => "a Q-type surface keeps its data in XDAT",
                         "FZERNSAG" | "SZERNSAG" => "tolray reads Extrapolate (PARM 0), r^2 to r^16 (PARM 1 to 8) and the Zernike decenter (PARM 9, 10)",
                         "BINARY_2" => "tolray reads the diffraction order (PARM 0) and r^2 to r^16 (PARM 1 to 8)",
+                        "GRINSUR1" => "a Gradient 1 surface has Δt, n0 and nr2 (PARM 1 to 3)",
+                        "GRINSUR2" | "GRINSUR3" => "a Gradient 2 or 3 surface has Δt, n0 and six coefficients (PARM 1 to 8)",
                         _ => "a STANDARD surface has no parameters",
                     };
                     warnings.push(format!("line {line}: PARM {p} = {v} ignored: {what}"));
@@ -617,7 +634,31 @@ impl Walker {
         });
         // A mirror sends the light back through the medium it came in.
         let material = match &s.glas {
+            _ if mirror && grin => {
+                return Err(invalid(
+                    s.type_line(),
+                    format!("SURF {k}: a mirror cannot start a gradient-index medium ({ty})"),
+                ))
+            }
             _ if mirror => self.medium.clone(),
+            // The medium is the type's (Gradient 1 to 3 have no dispersion: any glass is unused).
+            _ if grin => {
+                let g = super::super::Gradient::from_zemax(&ty, &grin_parm)
+                    .expect("a GRINSUR type tolray reads");
+                if let Some(gl) = s.glas.as_ref().filter(|g| !g.v.is_empty()) {
+                    warnings.push(format!(
+                        "line {}: GLAS {} ignored: a {ty} surface's index is its own (n0 = {})",
+                        gl.line, gl.v[0], g.n0
+                    ));
+                }
+                g.validate().map_err(|e| {
+                    invalid(
+                        s.type_line(),
+                        format!("SURF {k} ({ty}): {}", e.full_message()),
+                    )
+                })?;
+                Material::Gradient(Box::new(g))
+            }
             Some(g) => glass(&g.v, g.line, catalogs, warnings)?,
             None => Material::Air,
         };
@@ -878,4 +919,18 @@ impl Walker {
         }
         Ok((r_sensor > 0.0).then_some(r_sensor))
     }
+}
+
+/// A Gradient 1-3 surface's PARM `p` = `v` in mm-based units, for a lens unit of `scale` mm:
+/// Δt (PARM 1) is a length, n0 (PARM 2) a number, and a coefficient on r^(2k) or z^j carries
+/// the inverse power of the length.
+fn grin_in_mm(ty: &str, p: usize, v: f64, scale: f64) -> f64 {
+    let power = match (ty, p) {
+        (_, 1) => return v * scale,
+        (_, 2) => return v,
+        // Gradient 3: nr2, nr4, nr6, then nz1, nz2, nz3.
+        ("GRINSUR3", 6..=8) => (p - 5) as i32,
+        _ => 2 * (p as i32 - 2),
+    };
+    v * scale.powi(-power)
 }

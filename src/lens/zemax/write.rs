@@ -93,7 +93,8 @@ pub(super) fn tilt_angles(n: [f64; 3], roll_deg: f64) -> (f64, f64, f64) {
 pub(super) fn glas_line(m: &Material) -> Option<String> {
     let model = |nd: f64, vd: f64| format!("GLAS ___BLANK 1 0 {} {} 0 0 0 0 0 0", fmt(nd), fmt(vd));
     match m {
-        Material::Air => None,
+        // The medium is the surface's type and parameters (GRINSUR1 to GRINSUR3).
+        Material::Air | Material::Gradient(_) => None,
         Material::Constant(n) => Some(model(*n, 0.0)),
         Material::Model { nd, vd } => Some(model(*nd, *vd)),
         Material::Catalog(g) => Some(format!(
@@ -325,8 +326,14 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             l.push("STOP".into());
         }
         let asph = s.is_aspheric();
-        l.push(
-            match s.shape {
+        let grin = match &s.material {
+            Material::Gradient(g) => Some(g),
+            _ => None,
+        };
+        l.push(match grin {
+            // (`write_file` refuses a gradient-index medium after a surface of another shape.)
+            Some(g) => format!("TYPE {}", g.zemax_type()),
+            None => match s.shape {
                 _ if s.grating.is_some() => "TYPE DGRATING",
                 _ if s.phase.is_some() => "TYPE BINARY_2",
                 Shape::Paraxial { .. } => "TYPE PARAXIAL",
@@ -342,12 +349,18 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
                 Shape::Even => "TYPE STANDARD",
             }
             .into(),
-        );
+        });
         l.push(format!("CURV {}", fmt(s.c)));
         if s.k != 0.0 || asph {
             l.push(format!("CONI {}", fmt(s.k)));
         }
         match s.shape {
+            _ if grin.is_some() => {
+                // PARM 1: Δt, 2: n0, 3..: the type's coefficients (mm).
+                for (k, v) in grin.map(|g| g.zemax_parms()).unwrap_or_default() {
+                    l.push(format!("PARM {k} {}", fmt(v)));
+                }
+            }
             _ if s.phase.is_some() => {
                 // PARM 0: the diffraction order, 1..8: r² .. r¹⁶; XDAT 1: the number of
                 // terms, 2: the normalization radius, 3..: A_1, A_2, ... (radians).
@@ -521,6 +534,10 @@ pub(super) fn aperture_lines(s: &Surface) -> Vec<String> {
 /// [`ErrorKind::Io`] naming the path.
 ///
 /// # Errors
+/// A gradient-index medium after a surface that is not a plain conic, or bounded by a
+/// decentred, tilted or rolled surface, is refused (OpticStudio's Gradient 1 to 3 surfaces are
+/// conics, and the coordinate breaks of a moved surface would end the medium early).
+///
 /// A lens with two built-in glasses of one name from two vendors that no `GCAT` order tells
 /// apart (Schott's F2 with Hikari's SF5: each name is in both catalogs) is refused, naming them,
 /// since the file would be read back with another glass; and any error of the write.
@@ -535,6 +552,12 @@ pub fn write_file(lens: &Lens, extras: Option<&ZmxExtras>, path: &Path) -> Resul
         .collect();
     order.extend(crate::lens::material::VENDOR_ORDER);
     for (i, s) in lens.surfaces.iter().enumerate() {
+        if let Some(m) = gradient_unwritable(lens, i) {
+            return Err(Error::invalid(format!(
+                "{}: surface {i}: {m}",
+                path.display()
+            )));
+        }
         if let Material::Catalog(g) = s.material {
             let found = crate::lens::material::find_in_vendors(g.name, &order);
             if let Some(h) = found.filter(|h| h.vendor != g.vendor) {
@@ -550,4 +573,23 @@ pub fn write_file(lens: &Lens, extras: Option<&ZmxExtras>, path: &Path) -> Resul
         }
     }
     crate::files::write_atomic(path, to_string(lens, extras).as_bytes())
+}
+
+/// Why the gradient-index medium around surface `i` cannot be written as OpticStudio's
+/// Gradient 1 to 3 (`None` when it can, or when there is none).
+fn gradient_unwritable(lens: &Lens, i: usize) -> Option<String> {
+    let s = &lens.surfaces[i];
+    let starts = matches!(s.material, Material::Gradient(_));
+    let ends = i > 0 && matches!(lens.surfaces[i - 1].material, Material::Gradient(_));
+    let moved = s.pos_xy_mm != [0.0, 0.0]
+        || s.vec_local[0] != 0.0
+        || s.vec_local[1] != 0.0
+        || s.roll_deg != 0.0;
+    if starts && (s.shape != Shape::Even || s.is_aspheric()) {
+        Some("a gradient-index medium follows a surface that is not a plain conic; OpticStudio's Gradient 1 to 3 surfaces are conics".into())
+    } else if (starts || ends) && moved {
+        Some("a decentred, tilted or rolled surface bounds a gradient-index medium; its coordinate breaks would end the medium in a .zmx file".into())
+    } else {
+        None
+    }
 }
