@@ -379,6 +379,12 @@
 #define TOLRAY_PARAM_PHASE 7
 
 /**
+ * Coefficient `term` of the gradient-index medium after a surface (OpticStudio's Gradient 1
+ * to 3): 0 is n0, 1 to 6 the terms on r^2 .. r^12, 7 to 9 those on z .. z^3 (mm-based units).
+ */
+#define TOLRAY_PARAM_GRADIENT 8
+
+/**
  * The reference sphere is centred on the chief ray's image point (OpticStudio's default).
  */
 #define TOLRAY_REFERENCE_CHIEF 0
@@ -560,11 +566,12 @@ typedef struct tolray_diffraction_options {
 
 /**
  * A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
- * lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 7; `surface` below the number of surfaces; `term`
+ * lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 8; `surface` below the number of surfaces; `term`
  * 0 to 7 for `TOLRAY_PARAM_ASPHERE`, below the surface's number of Zernike terms for
- * `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE` (ignored by the other
- * kinds); for the glass kinds, the medium after
- * the surface must be a model glass ("n_d/V_d" in the lens JSON).
+ * `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE`, 0 to 9 for
+ * `TOLRAY_PARAM_GRADIENT` (ignored by the other kinds); for the glass kinds, the medium after
+ * the surface must be a model glass ("n_d/V_d" in the lens JSON), for
+ * `TOLRAY_PARAM_GRADIENT` a gradient-index medium.
  */
 typedef struct tolray_param {
     /**
@@ -578,7 +585,8 @@ typedef struct tolray_param {
     /**
      * Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
      * (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1; for
-     * `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2).
+     * `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2); for `TOLRAY_PARAM_GRADIENT`, 0 is n0, 1 to 6
+     * the r^2 to r^12 terms, 7 to 9 the z to z^3 terms.
      */
     uint32_t term;
 } tolray_param;

@@ -35,11 +35,12 @@ pub struct tolray_system {
 }
 
 /// A design variable of a lens, for gradients and [`tolray_lens_with_param`]. Checked against the
-/// lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 7; `surface` below the number of surfaces; `term`
+/// lens (`TOLRAY_ERROR_ARGUMENT`): `kind` 0 to 8; `surface` below the number of surfaces; `term`
 /// 0 to 7 for `TOLRAY_PARAM_ASPHERE`, below the surface's number of Zernike terms for
-/// `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE` (ignored by the other
-/// kinds); for the glass kinds, the medium after
-/// the surface must be a model glass ("n_d/V_d" in the lens JSON).
+/// `TOLRAY_PARAM_ZERNIKE` or of phase terms for `TOLRAY_PARAM_PHASE`, 0 to 9 for
+/// `TOLRAY_PARAM_GRADIENT` (ignored by the other kinds); for the glass kinds, the medium after
+/// the surface must be a model glass ("n_d/V_d" in the lens JSON), for
+/// `TOLRAY_PARAM_GRADIENT` a gradient-index medium.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct tolray_param {
@@ -49,7 +50,8 @@ pub struct tolray_param {
     pub surface: u32,
     /// Asphere term index for `TOLRAY_PARAM_ASPHERE`: 0 is the r^2 coefficient, up to 7 (r^16)
     /// (on an odd asphere 0 is r^1; on a toroid, y^2); for `TOLRAY_PARAM_ZERNIKE`, 0 is Z1; for
-    /// `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2).
+    /// `TOLRAY_PARAM_PHASE`, 0 is A_1 (on rho^2); for `TOLRAY_PARAM_GRADIENT`, 0 is n0, 1 to 6
+    /// the r^2 to r^12 terms, 7 to 9 the z to z^3 terms.
     pub term: u32,
 }
 
@@ -74,6 +76,9 @@ pub const TOLRAY_PARAM_ZERNIKE: u32 = 6;
 /// Diffractive phase coefficient `term` (0 is A_1, on rho^2) of a surface's radial phase
 /// (OpticStudio's Binary 2), radians.
 pub const TOLRAY_PARAM_PHASE: u32 = 7;
+/// Coefficient `term` of the gradient-index medium after a surface (OpticStudio's Gradient 1
+/// to 3): 0 is n0, 1 to 6 the terms on r^2 .. r^12, 7 to 9 those on z .. z^3 (mm-based units).
+pub const TOLRAY_PARAM_GRADIENT: u32 = 8;
 
 impl tolray_param {
     pub(crate) fn to_param(self) -> FfiResult<Param> {
@@ -87,9 +92,10 @@ impl tolray_param {
             TOLRAY_PARAM_GLASS_VD => Param::GlassVd(s),
             TOLRAY_PARAM_ZERNIKE => Param::Zernike(s, self.term as usize),
             TOLRAY_PARAM_PHASE => Param::Phase(s, self.term as usize),
+            TOLRAY_PARAM_GRADIENT => Param::Gradient(s, self.term as usize),
             k => {
                 return Err(FfiError::argument(format!(
-                    "unknown parameter kind {k} (expected 0 to 7, TOLRAY_PARAM_*)"
+                    "unknown parameter kind {k} (expected 0 to 8, TOLRAY_PARAM_*)"
                 )))
             }
         })

@@ -416,14 +416,20 @@ impl Lens {
 
     /// Why the gradient-index medium `g` after surface `i` (light travelling `dir` along the
     /// axis) cannot be traced, if it cannot: a surface must end it (not the image), its gap runs
-    /// forward, neither of its surfaces is a mirror, a grating or a diffractive phase, and
-    /// [`Gradient::validate`].
+    /// forward, it follows a conic surface, neither of its surfaces is a mirror, a grating or a
+    /// diffractive phase, and [`Gradient::validate`].
     fn check_gradient(&self, i: usize, g: &Gradient, dir: f64) -> std::result::Result<(), String> {
         g.validate().map_err(|e| e.full_message())?;
         let Some(next) = self.surfaces.get(i + 1) else {
             return Err("it must end at a surface before the image".into());
         };
         let s = &self.surfaces[i];
+        // OpticStudio's Gradient 1 to 3 surfaces are conics: what a .zmx file can hold.
+        if s.shape != Shape::Even || s.is_aspheric() {
+            return Err(
+                "it must follow a conic surface (OpticStudio's Gradient surfaces are conics): no asphere terms or other shape".into(),
+            );
+        }
         if !(s.d_next_mm * dir > 0.0) {
             return Err(format!(
                 "its thickness {} mm must be positive, with the light going forward",

@@ -264,14 +264,75 @@ fn impossible_media_are_refused_with_the_reason() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("PARM 4") && e.contains("nr1"), "{e}");
-    // An aspheric surface before the medium cannot be written as OpticStudio's Gradient 3.
+    // Gradient 9 (SELFOC) needs OpticStudio's data file.
+    let text = std::fs::read_to_string(data("grin.zmx"))
+        .unwrap()
+        .replace("TYPE GRINSUR1", "TYPE GRINSUR9");
+    let e = tolray::lens::zemax::from_str(&text, &GlassCatalogs::builtin())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("GRADIENT_9.DAT") && e.contains("line 36"), "{e}");
+    // An aspheric surface before the medium: OpticStudio's Gradient surfaces are conics.
     let mut l = rod(g, 3.0, 5.0);
     l.surfaces[0].asph[1] = 1e-4;
+    let e = l.validate().unwrap_err().to_string();
+    assert!(e.contains("surface 0") && e.contains("conic"), "{e}");
+    // A tilted surface bounding it is traced, but its .zmx coordinate breaks would end the
+    // medium in OpticStudio: the write is refused, and no file is left.
+    let mut l = rod(g, 3.0, 5.0);
+    l.surfaces[1].vec_local = [0.0, 0.02, 1.0];
     l.validate().unwrap();
     let out = std::env::temp_dir().join(format!("tolray-grin-{}.zmx", std::process::id()));
     let e = tolray::lens::zemax::write_file(&l, None, &out)
         .unwrap_err()
         .to_string();
-    assert!(e.contains("surface 0") && e.contains("conic"), "{e}");
+    assert!(e.contains("surface 1") && e.contains("tilted"), "{e}");
     assert!(!out.exists(), "no half-written file");
+}
+
+/// The C ABI sets a medium's coefficients (`TOLRAY_PARAM_GRADIENT`) and refuses what the
+/// files would: an unusable n0, a coefficient that does not exist.
+#[test]
+fn the_c_abi_sets_gradient_coefficients() {
+    use std::ffi::CString;
+    use tolray::ffi::*;
+    let lens = tolray::lens::zemax::read_file(
+        std::path::Path::new(&data("grin.zmx")),
+        &GlassCatalogs::builtin(),
+    )
+    .unwrap()
+    .lens;
+    let text = CString::new(tolray::lens::json::to_string(&lens)).unwrap();
+    let mut handle = std::ptr::null_mut();
+    unsafe {
+        assert_eq!(
+            tolray_lens_from_json(text.as_ptr(), &mut handle),
+            tolray_status::TOLRAY_OK
+        );
+        for (term, value, ok) in [(1, -0.005, true), (0, 0.5, false), (10, 0.1, false)] {
+            let p = tolray_param {
+                kind: TOLRAY_PARAM_GRADIENT,
+                surface: 1,
+                term,
+            };
+            let mut out = std::ptr::null_mut();
+            let status = tolray_lens_with_param(handle, &p, value, &mut out);
+            assert_eq!(status == tolray_status::TOLRAY_OK, ok, "term {term}");
+            if !ok {
+                assert!(out.is_null());
+                continue;
+            }
+            let mut n = 0usize;
+            tolray_lens_to_json(out, std::ptr::null_mut(), 0, &mut n);
+            let mut buf = vec![0u8; n + 1];
+            tolray_lens_to_json(out, buf.as_mut_ptr().cast(), n + 1, &mut n);
+            let back = tolray::lens::json::from_str(std::str::from_utf8(&buf[..n]).unwrap());
+            let Material::Gradient(g) = &back.unwrap().surfaces[1].material else {
+                panic!("still a gradient-index medium");
+            };
+            assert_eq!(g.radial[0], -0.005);
+            tolray_lens_free(out);
+        }
+        tolray_lens_free(handle);
+    }
 }

@@ -215,12 +215,18 @@ pub(super) fn build(
                 walk.surface(k, s, frame_after, catalogs, &mut warnings)?
             }
             other => {
+                // The dispersive gradient types take their data from OpticStudio's own files.
+                let why = match other {
+                    "GRINSUR9" => " (Gradient 9, SELFOC: its n0 and A come from OpticStudio's GRADIENT_9.DAT, which is not public)",
+                    "GRINSUR5" | "GRINSU12" => " (a gradient whose dispersion comes from OpticStudio's SGRIN.DAT, which is not public)",
+                    _ => "",
+                };
                 return Err(invalid(
                     s.type_line(),
                     format!(
-                        "surface type {other} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING, QED_TYPE, TILTSURF, FZERNSAG, SZERNSAG, BINARY_2, GRINSUR1 to GRINSUR3 (Gradient 1 to 3) and COORDBRK"
+                        "surface type {other}{why} (SURF {k}) is not supported: tolray reads STANDARD, EVENASPH, ODDASPHE, TOROIDAL, PARAXIAL, DGRATING, QED_TYPE, TILTSURF, FZERNSAG, SZERNSAG, BINARY_2, GRINSUR1 to GRINSUR3 (Gradient 1 to 3) and COORDBRK"
                     ),
-                ))
+                ));
             }
         }
     }

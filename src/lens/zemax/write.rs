@@ -534,9 +534,8 @@ pub(super) fn aperture_lines(s: &Surface) -> Vec<String> {
 /// [`ErrorKind::Io`] naming the path.
 ///
 /// # Errors
-/// A gradient-index medium after a surface that is not a plain conic, or bounded by a
-/// decentred, tilted or rolled surface, is refused (OpticStudio's Gradient 1 to 3 surfaces are
-/// conics, and the coordinate breaks of a moved surface would end the medium early).
+/// A gradient-index medium bounded by a decentred, tilted or rolled surface is refused (the
+/// coordinate breaks of a moved surface would end OpticStudio's medium early).
 ///
 /// A lens with two built-in glasses of one name from two vendors that no `GCAT` order tells
 /// apart (Schott's F2 with Hikari's SF5: each name is in both catalogs) is refused, naming them,
@@ -585,9 +584,7 @@ fn gradient_unwritable(lens: &Lens, i: usize) -> Option<String> {
         || s.vec_local[0] != 0.0
         || s.vec_local[1] != 0.0
         || s.roll_deg != 0.0;
-    if starts && (s.shape != Shape::Even || s.is_aspheric()) {
-        Some("a gradient-index medium follows a surface that is not a plain conic; OpticStudio's Gradient 1 to 3 surfaces are conics".into())
-    } else if (starts || ends) && moved {
+    if (starts || ends) && moved {
         Some("a decentred, tilted or rolled surface bounds a gradient-index medium; its coordinate breaks would end the medium in a .zmx file".into())
     } else {
         None
