@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::math::Vec3;
 use crate::real::Real;
 
-/// How a [`Gradient`]'s polynomial P = Σ `radial`[k] r^(2k+2) + Σ `axial`[j] z^(j+1) gives
+/// How a [`Gradient`]'s polynomial P = Σ radial_k r^(2k+2) + Σ axial_j z^(j+1) gives
 /// the index.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GradientForm {

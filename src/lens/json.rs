@@ -31,11 +31,11 @@
 //! diffraction grating ruled on the surface (grooves along its local x axis, OpticStudio's
 //! DGRATING; [`super::Grating`]); `"phase": {"order": 1, "norm_radius": 10, "coefficients":
 //! [-1000, 30]}`, a radial diffractive phase M Σ A_i ρ^(2i) in radians (OpticStudio's Binary 2;
-//! [`RadialPhase`]); `"gradient": {"form": "index", "n0": 1.6, "radial": [-0.05], "axial": [],
-//! "step_mm": 0.1}`, a gradient-index medium after the surface (OpticStudio's Gradient 1 to 3;
-//! [`Gradient`]; `"mat2"` then holds its vertex index). On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}`
-//! turns the axis for everything after it (a fold mirror; [`super::Fold`]); the lens stays
-//! described unfolded.
+//! [`super::phase::RadialPhase`]); `"gradient": {"form": "index", "n0": 1.6, "radial":
+//! [-0.05], "axial": [], "step_mm": 0.1}`, a gradient-index medium after the surface
+//! (OpticStudio's Gradient 1 to 3; [`super::Gradient`]; `"mat2"` then holds its vertex index).
+//! On a mirror, `"fold": {"tilt_deg": [90, 0, 0], "pivot_mm": 0}` turns the axis for everything
+//! after it (a fold mirror; [`super::Fold`]); the lens stays described unfolded.
 //!
 //! A top-level `"image_plane"` (`{"decenter": [x, y], "normal": [x, y, z], "roll_deg": r}`)
 //! places a decentred, tilted or rolled image plane ([`super::ImagePlane`]); `"c"` (1/mm) and
