@@ -436,9 +436,11 @@ impl Lens {
                 s.d_next_mm
             ));
         }
-        if s.d_next_mm.abs() / g.step_mm > 1e7 {
+        // Past 1e4 steps the integration error is rounding (the test doublet agrees with the
+        // reference to 2e-14 mm at 2e3 steps) and a trace only gets slower.
+        if s.d_next_mm.abs() / g.step_mm > 1e4 {
             return Err(format!(
-                "step {} mm: more than 1e7 steps across its {} mm",
+                "step {} mm (Δt): more than 10,000 steps across its {} mm",
                 g.step_mm, s.d_next_mm
             ));
         }
