@@ -24,6 +24,12 @@ Two boundary-refraction modes are computed:
                 frame) and the fork's RealRays.refract.  The RK4 interior is identical.
 
 Usage: venv/bin/python trace.py [--steps 1e-4 5e-5] [--out results.json]
+
+Environment (2026-12-01): Python 3.11.7, numpy 2.4.6, the fork github:goldengrape/optiland at
+a31216b87a0a642cd6627a8898c68a9f2582bc3a (optiland 0.6.0) installed with `pip install -e` in a
+venv of its own. The stored tests/data/zemax/grin_optiland_fork.json keeps, of results.json,
+the `local_index` rays' start point, start direction, image point, image direction cosines
+and optical path (steps of 1e-5 mm; 2e-5 mm for the convergence figure).
 """
 from __future__ import annotations
 
