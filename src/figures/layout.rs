@@ -119,6 +119,19 @@ pub fn layout_figure(
                     ray_height[i] = ray_height[i].max(local.y.abs());
                 }
                 pts.push((r.o.z, r.o.y));
+                // Through a gradient-index medium the path curves: its steps' points.
+                // Both faces of the medium are drawn at least as high as the path climbs.
+                if let Some(i) = upto {
+                    let path = crate::trace::reference::gradient_path(sys, i, r.o, r.d);
+                    for p in &path {
+                        for k in [i, i + 1] {
+                            let row = &sys.rows[k];
+                            let local = row.rot.apply_t(*p - row.pos);
+                            ray_height[k] = ray_height[k].max(local.y.abs());
+                        }
+                    }
+                    pts.extend(path.iter().map(|p| (p.z, p.y)));
+                }
             }
             rays.push((colour, pts));
         }

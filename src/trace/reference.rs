@@ -392,6 +392,36 @@ fn through_medium(
     o: Vec3<f64>,
     d: Vec3<f64>,
 ) -> Result<(Vec3<f64>, Vec3<f64>, [f64; 2], f64, f64), fn(u32) -> RayStatus> {
+    through_medium_path(entry, g, row, o, d, None)
+}
+
+/// The points (global frame) a ray at `o` going `d` on surface `i` passes through in the
+/// gradient-index medium after it, one per integration step, up to where it meets surface
+/// `i + 1` (that point included); empty when the medium is homogeneous or the ray does not get
+/// through. For drawing the curved paths (the lens layout).
+pub fn gradient_path(sys: &System<f64>, i: usize, o: Vec3<f64>, d: Vec3<f64>) -> Vec<Vec3<f64>> {
+    let (Some(entry), Some(row)) = (sys.rows.get(i), sys.rows.get(i + 1)) else {
+        return Vec::new();
+    };
+    let Some(g) = entry.grin.as_deref() else {
+        return Vec::new();
+    };
+    let mut points = Vec::new();
+    match through_medium_path(entry, g, row, o, d, Some(&mut points)) {
+        Ok(_) => points,
+        Err(_) => Vec::new(),
+    }
+}
+
+#[allow(clippy::type_complexity)]
+fn through_medium_path(
+    entry: &SurfaceRow<f64>,
+    g: &GradientRow<f64>,
+    row: &SurfaceRow<f64>,
+    o: Vec3<f64>,
+    d: Vec3<f64>,
+    mut record: Option<&mut Vec<Vec3<f64>>>,
+) -> Result<(Vec3<f64>, Vec3<f64>, [f64; 2], f64, f64), fn(u32) -> RayStatus> {
     // State: position, optical direction, optical length (medium frame).
     type State = (Vec3<f64>, Vec3<f64>, f64);
     let rate = |(r, t, _): State| -> Option<State> {
@@ -435,6 +465,9 @@ fn through_medium(
         }
         y = next;
         steps += 1;
+        if let Some(r) = record.as_deref_mut() {
+            r.push(entry.rot.apply(y.0) + entry.pos);
+        }
     };
     let _ = end;
     // Bisection on the last step's length: `lo` before the surface, `hi` past it.
@@ -456,6 +489,9 @@ fn through_medium(
     let (_, gx, gy) =
         surface_sag_xy(row, q.x, q.y).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
     let dir = row.rot.apply_t(entry.rot.apply(t)).normalized();
+    if let Some(points) = record {
+        points.push(row.rot.apply(q) + row.pos);
+    }
     Ok((q, dir, [gx, gy], g.index(r), opl))
 }
 

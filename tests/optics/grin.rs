@@ -192,6 +192,18 @@ fn paraxial_focal_length_of_a_rod() {
         "{:?} vs {bfd}",
         p.bfd_mm
     );
+    // The same for the rod lens of tests/data/zemax/grin-rod.zmx (a stop in air, 0.1 mm in
+    // front of a 4.4 mm rod of n = 1.6 - 0.0871 r²).
+    let file = tolray::lens::zemax::read_file(
+        std::path::Path::new(&data("grin-rod.zmx")),
+        &GlassCatalogs::builtin(),
+    )
+    .unwrap()
+    .lens;
+    let g2: f64 = 2.0 * 0.0871 / 1.6;
+    let want = 1.0 / (1.6 * g2.sqrt() * (g2.sqrt() * 4.4).sin());
+    let got = file.paraxial(WL).unwrap().efl_mm.unwrap();
+    assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
     // A real ray at 1 µm from the axis crosses it at the paraxial focus.
     let sys = lens.compile();
     let mut b = RayBatch::<f64>::new();
