@@ -17,6 +17,13 @@ fn data(name: &str) -> String {
     concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/zemax/").to_string() + name
 }
 
+/// A lens of tests/data/zemax.
+fn zmx(name: &str) -> Lens {
+    tolray::lens::zemax::read_file(std::path::Path::new(&data(name)), &GlassCatalogs::builtin())
+        .unwrap()
+        .lens
+}
+
 /// A rod of length `len` mm between flat faces in air, its medium `g`, the image plane `back`
 /// mm behind it.
 fn rod(g: Gradient, len: f64, back: f64) -> Lens {
@@ -115,12 +122,7 @@ fn rod_rays_match_the_closed_form() {
 
 #[test]
 fn kernel_matches_the_reference_integrator() {
-    let zmx = tolray::lens::zemax::read_file(
-        std::path::Path::new(&data("grin.zmx")),
-        &GlassCatalogs::builtin(),
-    )
-    .unwrap();
-    let mut lens = zmx.lens;
+    let mut lens = zmx("grin.zmx");
     // Fine steps: both integrators converge (fourth order each) to the same path.
     for s in lens.surfaces.iter_mut() {
         if let Material::Gradient(g) = &mut s.material {
@@ -153,13 +155,7 @@ fn kernel_matches_the_reference_integrator() {
     // Measured 2026-12-01: 2e-14 mm and 3e-13 mm.
     assert!(worst[0] < 1e-10 && worst[1] < 1e-10, "{worst:?}");
     // At the file's own steps (50 µm), as close to the fine trace.
-    let coarse = tolray::lens::zemax::read_file(
-        std::path::Path::new(&data("grin.zmx")),
-        &GlassCatalogs::builtin(),
-    )
-    .unwrap()
-    .lens
-    .compile();
+    let coarse = zmx("grin.zmx").compile();
     let mut b2 = RayBatch::<f64>::new();
     for (o, d) in &starts {
         b2.push(*o, *d);
@@ -194,12 +190,7 @@ fn paraxial_focal_length_of_a_rod() {
     );
     // The same for the rod lens of tests/data/zemax/grin-rod.zmx (a stop in air, 0.1 mm in
     // front of a 4.4 mm rod of n = 1.6 - 0.0871 r²).
-    let file = tolray::lens::zemax::read_file(
-        std::path::Path::new(&data("grin-rod.zmx")),
-        &GlassCatalogs::builtin(),
-    )
-    .unwrap()
-    .lens;
+    let file = zmx("grin-rod.zmx");
     let g2: f64 = 2.0 * 0.0871 / 1.6;
     let want = 1.0 / (1.6 * g2.sqrt() * (g2.sqrt() * 4.4).sin());
     let got = file.paraxial(WL).unwrap().efl_mm.unwrap();
@@ -220,11 +211,8 @@ fn paraxial_focal_length_of_a_rod() {
 
 #[test]
 fn files_read_back_as_the_same_lens() {
-    let path = data("grin.zmx");
     let cat = GlassCatalogs::builtin();
-    let lens = tolray::lens::zemax::read_file(std::path::Path::new(&path), &cat)
-        .unwrap()
-        .lens;
+    let lens = zmx("grin.zmx");
     let Material::Gradient(g) = &lens.surfaces[1].material else {
         panic!("surface 1 starts a Gradient 3 medium");
     };
@@ -312,12 +300,7 @@ fn impossible_media_are_refused_with_the_reason() {
 fn the_c_abi_sets_gradient_coefficients() {
     use std::ffi::CString;
     use tolray::ffi::*;
-    let lens = tolray::lens::zemax::read_file(
-        std::path::Path::new(&data("grin.zmx")),
-        &GlassCatalogs::builtin(),
-    )
-    .unwrap()
-    .lens;
+    let lens = zmx("grin.zmx");
     let text = CString::new(tolray::lens::json::to_string(&lens)).unwrap();
     let mut handle = std::ptr::null_mut();
     unsafe {
@@ -366,12 +349,7 @@ fn rays_match_an_optiland_grin_solver() {
         5.0,
         2.5,
     );
-    let doublet = tolray::lens::zemax::read_file(
-        std::path::Path::new(&data("grin.zmx")),
-        &GlassCatalogs::builtin(),
-    )
-    .unwrap()
-    .lens;
+    let doublet = zmx("grin.zmx");
     let v3 = |v: &serde_json::Value| {
         let a: Vec<f64> = v
             .as_array()
