@@ -37,8 +37,9 @@ use crate::trace::simd::{with_avx2, with_avx512, ISA_BASELINE};
 const PLANE: u8 = 0;
 const QUADRIC: u8 = 1;
 const ASPHERE: u8 = 2;
-/// Odd aspheres, toroids and ideal thin lenses: one out-of-line loop per number type (see
-/// [`shaped`]).
+/// Odd aspheres, toroids, ideal thin lenses and surfaces that start a gradient-index medium:
+/// one out-of-line loop per number type (see [`shaped`]; the medium itself is
+/// [`super::gradient`]'s pass).
 pub(super) const SHAPED: u8 = 3;
 
 /// A number type the tracer can run on. `f32`, `f64` and the dual numbers of widths 1 and
