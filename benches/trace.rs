@@ -3,7 +3,8 @@
 //! each other build the CPU runs; and, per surface kind that needs Newton's method on its sag
 //! (`trace/kinds/...`, all threads), Thorlabs' ASL5040-UV (a Qbfs asphere), the hand-made Qcon
 //! singlet of the tests, Thorlabs' LJ1598L1 cylinder lens (a toroid) and the tests' Zernike sag
-//! singlet (a 17-term Fringe front, a 12-term Standard back), each at its primary
+//! singlet (a 17-term Fringe front, a 12-term Standard back), and the tests' gradient-index
+//! doublet (Gradient 3 and Gradient 1 media, ray paths integrated), each at its primary
 //! wavelength; and the spot analysis end to end (`spot/lens2`: ray generation, the f64 trace and
 //! the statistics of a 1024 x 1024 pupil grid at 0.7 field, one thread and all threads), the
 //! work `tolray spot` does; a PSF of 1,000,000 random pupil rays end to end (`psf/lens2`, the
@@ -79,7 +80,7 @@ fn bench_type<S: Traceable>(c: &mut Criterion, lens: &Lens, set: &RaySet) {
 }
 
 /// The kernel on surface kinds traced by Newton's method (Q-type aspheres, toroids, Zernike sag
-/// surfaces), all threads.
+/// surfaces) and through gradient-index media, all threads.
 fn bench_kinds(c: &mut Criterion) {
     let mut g = c.benchmark_group("trace/kinds");
     g.sample_size(10);
@@ -88,6 +89,8 @@ fn bench_kinds(c: &mut Criterion) {
         ("qcon-singlet", "qcon.zmx"),
         ("toroid-lj1598l1", "real/optiland/thorlabs_lj1598l1.zmx"),
         ("zernike-singlet", "zernike.zmx"),
+        // Two gradient-index media, integrated in steps of 0.05 mm (about 140 a ray).
+        ("grin-doublet", "grin.zmx"),
     ] {
         let path = format!("{}/tests/data/zemax/{file}", env!("CARGO_MANIFEST_DIR"));
         let lens = zemax::read_file(std::path::Path::new(&path), &GlassCatalogs::builtin())
