@@ -307,8 +307,9 @@ impl<S: Real> GradientRow<S> {
     /// The paraxial transfer through `len_mm` of the medium: the matrix `[a, b, c, d]` taking a
     /// paraxial ray's height y and reduced slope w = n dy/dz at the entry vertex plane to those
     /// at the exit plane, and the axial index at entry and exit. It integrates dy/dz = w / N(z),
-    /// dw/dz = 2 N₂(z) y by the classical Runge-Kutta method in 1024 steps (exact to rounding
-    /// for a lens of a few pitches).
+    /// dw/dz = 2 N₂(z) y by the classical Runge-Kutta method in 1024 steps (its error grows as
+    /// the fourth power of the medium's length in pitches; the tests hold the focal length of
+    /// rods of 0.14 and 0.23 pitch to 1e-9 of the closed form).
     pub fn paraxial_transfer(&self, len_mm: S) -> ([S; 4], S, S) {
         const STEPS: usize = 1024;
         let h = len_mm / S::cst(STEPS as f64);
