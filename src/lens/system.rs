@@ -474,6 +474,24 @@ impl<S: Real> System<S> {
         }
     }
 
+    /// The surface before surface `i` and its gradient-index medium, when one ends at `i`.
+    ///
+    /// ```
+    /// use tolray::lens::{Gradient, GradientForm, Material, Surface};
+    /// let mut lens = tolray::Lens::load("lens1").unwrap();
+    /// let rod = Gradient::radial(GradientForm::Index, 1.6, &[-0.05], 0.05);
+    /// lens.surfaces = vec![
+    ///     Surface::sphere(0.0, 1.0, 3.0, Material::Gradient(Box::new(rod))),
+    ///     Surface::sphere(0.0, 1.0, 2.0, Material::Air),
+    /// ];
+    /// let sys = lens.compile();
+    /// assert!(sys.gradient_before(1).is_some() && sys.gradient_before(0).is_none());
+    /// ```
+    pub fn gradient_before(&self, i: usize) -> Option<(&SurfaceRow<S>, &GradientRow<S>)> {
+        let entry = self.rows.get(i.checked_sub(1)?)?;
+        entry.grin.as_deref().map(|g| (entry, g))
+    }
+
     /// Refractive indices at `wavelength_nm`: `n[0]` of the object medium, then `n[i + 1]`
     /// after surface `i` (so surface `i` goes from `n[i]` to `n[i + 1]`; `rows.len() + 1`
     /// values).

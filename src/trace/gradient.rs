@@ -14,17 +14,25 @@ use super::kernel::{commit, load, sag_xy, select_u32, turn, SHAPED};
 use super::{Block, CODE_BACKWARD, CODE_MISSED, CODE_TIR, CODE_VIGNETTED, LANES};
 use crate::lens::gradient::GradientRow;
 use crate::lens::SurfaceRow;
-use crate::math::Vec3;
+use crate::math::{Mat3, Vec3};
 use crate::real::Real;
 
-/// Where a ray ends in the medium before surface `row`: its crossing `q` and optical direction
-/// `dir` (n times the unit direction) in `row`'s frame, the optical path gained and the
-/// medium's index there.
+/// Where a ray ends in the medium before surface `row`: its crossing `q`, optical direction
+/// `dir` (n times the unit direction) and the surface's slopes `zx`, `zy` there, in `row`'s
+/// frame; the optical path gained and the medium's index there.
 struct Exit<S> {
     q: Vec3<S>,
     dir: Vec3<S>,
+    zx: S,
+    zy: S,
     opl: S,
     n: S,
+}
+
+/// The medium's frame (the entry surface's) to the exit surface's: x ↦ `rot` x + `shift`.
+struct ToExit<S> {
+    rot: Mat3<S>,
+    shift: Vec3<S>,
 }
 
 /// Traces every lane of `src` from the surface `entry` through its medium `g` to the surface
@@ -42,6 +50,10 @@ pub(super) fn exit_pass<S: Real>(
     src: &[Block<S>],
     dst: &mut [Block<S>],
 ) {
+    let to_exit = ToExit {
+        rot: row.rot.transpose() * entry.rot,
+        shift: row.rot.apply_t(entry.pos - row.pos),
+    };
     for (s, b) in src.iter().zip(dst.iter_mut()) {
         for l in 0..LANES {
             let (o, d0) = load(s, l);
@@ -49,15 +61,14 @@ pub(super) fn exit_pass<S: Real>(
                 commit(s, b, l, 0, o, d0, S::cst(0.0));
                 continue;
             }
-            let (e, why) = match through(entry, g, row, o, d0) {
-                Ok(e) => (e, 0),
+            let e = match through(entry, g, row, &to_exit, o, d0) {
+                Ok(e) => e,
                 Err(why) => {
                     commit(s, b, l, why | code, o, d0, S::cst(0.0));
                     continue;
                 }
             };
-            let (_, zx, zy, _) = sag_xy(row, e.q.x, e.q.y);
-            let nrm = Vec3::new(zx, zy, -S::cst(1.0));
+            let nrm = Vec3::new(e.zx, e.zy, -S::cst(1.0));
             let d = e.dir * (S::cst(1.0) / e.dir.dot(e.dir).sqrt());
             let n2 = match &row.grin {
                 Some(next) => next.index(e.q),
@@ -67,7 +78,7 @@ pub(super) fn exit_pass<S: Real>(
             let zero = S::cst(0.0);
             let (dr, tir) = turn::<S, SHAPED>(row, d, e.q, nrm, e.n / n2, (zero, zero));
             let (og, dg) = (row.rot.apply(e.q) + row.pos, row.rot.apply(dr));
-            let mut why = select_u32(tir, CODE_TIR | code, why);
+            let mut why = select_u32(tir, CODE_TIR | code, 0);
             why = select_u32(vignetted, CODE_VIGNETTED | code, why);
             why = select_u32(!zero.lt(n2), CODE_MISSED | code, why);
             commit(s, b, l, why, og, dg, e.opl);
@@ -80,17 +91,17 @@ fn through<S: Real>(
     entry: &SurfaceRow<S>,
     g: &GradientRow<S>,
     row: &SurfaceRow<S>,
+    to_exit: &ToExit<S>,
     o: Vec3<S>,
     d: Vec3<S>,
 ) -> Result<Exit<S>, u32> {
     let zero = S::cst(0.0);
     let p0 = entry.rot.apply_t(o - entry.pos);
     let d = entry.rot.apply_t(d);
-    // The medium's frame to the exit surface's, and the exit surface's equation there: f < 0
-    // before it, with (-∂z/∂x, -∂z/∂y, 1) its gradient.
-    let to_exit = |p: Vec3<S>| row.rot.apply_t(entry.rot.apply(p) + entry.pos - row.pos);
+    // The exit surface's equation in the medium's frame: f < 0 before it, with (-∂z/∂x,
+    // -∂z/∂y, 1) its gradient in its own frame.
     let surface = |p: Vec3<S>| {
-        let q = to_exit(p);
+        let q = to_exit.rot.apply(p) + to_exit.shift;
         let (z, zx, zy, ok) = sag_xy(row, q.x, q.y);
         (q, q.z - z, zx, zy, ok)
     };
@@ -128,7 +139,7 @@ fn through<S: Real>(
     for _ in 0..60 {
         let (p1, t1, _, _) = g.step(p, tv, s);
         let (_, f, zx, zy, _) = surface(p1);
-        let v = row.rot.apply_t(entry.rot.apply(t1));
+        let v = to_exit.rot.apply(t1);
         let slope = v.z - zx * v.x - zy * v.y;
         let ds = f / slope;
         s -= ds;
@@ -144,13 +155,15 @@ fn through<S: Real>(
         }
     }
     let (p1, t1, dl, ok) = g.step(p, tv, s);
-    let (q, _, _, _, in_rim) = surface(p1);
+    let (q, _, zx, zy, in_rim) = surface(p1);
     if extra == 0 || !ok || !in_rim || s.value() < 0.0 {
         return Err(CODE_MISSED);
     }
     Ok(Exit {
         q,
-        dir: row.rot.apply_t(entry.rot.apply(t1)),
+        dir: to_exit.rot.apply(t1),
+        zx,
+        zy,
         opl: opl + dl,
         n: g.index(p1),
     })

@@ -259,11 +259,7 @@ pub(crate) fn trace_blocks_generic<S: Real, const ISA: u8>(
             };
             let code = i as u32;
             // A surface that ends a gradient-index medium: the pass through the medium to it.
-            let medium = i.checked_sub(1).and_then(|j| {
-                let entry = &sys.rows[j];
-                entry.grin.as_deref().map(|g| (entry, g))
-            });
-            if let Some((entry, g)) = medium {
+            if let Some((entry, g)) = sys.gradient_before(i) {
                 let n2 = n[i + 1];
                 if i % 2 == 0 {
                     gradient::exit_pass(entry, g, row, n2, code, clip, group, scratch);

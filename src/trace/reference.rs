@@ -375,10 +375,44 @@ pub fn bend(
     Some((dn, 0.0))
 }
 
+/// The points (global frame) a ray at `o` going `d` on surface `i` passes through in the
+/// gradient-index medium after it, one per integration step, up to where it meets surface
+/// `i + 1` (that point included); empty when the medium is homogeneous or the ray does not get
+/// through. For drawing the curved paths (the lens layout).
+///
+/// ```
+/// use tolray::lens::{Gradient, GradientForm, Material, Surface};
+/// use tolray::math::Vec3;
+/// let mut lens = tolray::Lens::load("lens1").unwrap();
+/// let rod = Gradient::radial(GradientForm::Index, 1.6, &[-0.05], 0.05);
+/// lens.surfaces = vec![
+///     Surface::sphere(0.0, 1.0, 3.0, Material::Gradient(Box::new(rod))),
+///     Surface::sphere(0.0, 1.0, 2.0, Material::Air),
+/// ];
+/// let sys = lens.compile();
+/// let (o, d) = (Vec3::new(0.0, 0.5, 0.0), Vec3::new(0.0, 0.0, 1.0));
+/// let path = tolray::trace::reference::gradient_path(&sys, 0, o, d);
+/// // About 3 mm / 0.05 mm steps; the ray bends toward the axis (the index falls outward).
+/// assert!(path.len() > 50);
+/// let end = path.last().unwrap();
+/// assert!((end.z - 3.0).abs() < 1e-12 && end.y < 0.5);
+/// ```
+pub fn gradient_path(sys: &System<f64>, i: usize, o: Vec3<f64>, d: Vec3<f64>) -> Vec<Vec3<f64>> {
+    let (Some((entry, g)), Some(row)) = (sys.gradient_before(i + 1), sys.rows.get(i + 1)) else {
+        return Vec::new();
+    };
+    let mut points = Vec::new();
+    match through_medium(entry, g, row, o, d, Some(&mut points)) {
+        Ok(_) => points,
+        Err(_) => Vec::new(),
+    }
+}
+
 /// A ray at `o` going `d` (global frame, on the surface `entry`) through the gradient-index
 /// medium `g` to the surface `row`: where it meets `row` and its unit direction there (both in
 /// `row`'s frame), the sag gradient there, the medium's index there and the path's optical
-/// length; or the status for surface code `i`.
+/// length; or the status for surface code `i`. With `record`, the points it passes (global
+/// frame), one per step, and the crossing.
 ///
 /// Written apart from the kernel's integrator: the classical Runge-Kutta method on the
 /// first-order ray equations in arc length s (dR/ds = T / n, dT/ds = ∇n, dL/ds = n, with T = n
@@ -386,35 +420,6 @@ pub fn bend(
 /// found by bisecting the last step's length.
 #[allow(clippy::type_complexity)]
 fn through_medium(
-    entry: &SurfaceRow<f64>,
-    g: &GradientRow<f64>,
-    row: &SurfaceRow<f64>,
-    o: Vec3<f64>,
-    d: Vec3<f64>,
-) -> Result<(Vec3<f64>, Vec3<f64>, [f64; 2], f64, f64), fn(u32) -> RayStatus> {
-    through_medium_path(entry, g, row, o, d, None)
-}
-
-/// The points (global frame) a ray at `o` going `d` on surface `i` passes through in the
-/// gradient-index medium after it, one per integration step, up to where it meets surface
-/// `i + 1` (that point included); empty when the medium is homogeneous or the ray does not get
-/// through. For drawing the curved paths (the lens layout).
-pub fn gradient_path(sys: &System<f64>, i: usize, o: Vec3<f64>, d: Vec3<f64>) -> Vec<Vec3<f64>> {
-    let (Some(entry), Some(row)) = (sys.rows.get(i), sys.rows.get(i + 1)) else {
-        return Vec::new();
-    };
-    let Some(g) = entry.grin.as_deref() else {
-        return Vec::new();
-    };
-    let mut points = Vec::new();
-    match through_medium_path(entry, g, row, o, d, Some(&mut points)) {
-        Ok(_) => points,
-        Err(_) => Vec::new(),
-    }
-}
-
-#[allow(clippy::type_complexity)]
-fn through_medium_path(
     entry: &SurfaceRow<f64>,
     g: &GradientRow<f64>,
     row: &SurfaceRow<f64>,
@@ -454,13 +459,14 @@ fn through_medium_path(
     if !past(r0).is_some_and(|f| f < 0.0) {
         return Err(RayStatus::Backward);
     }
+    let missed: fn(u32) -> RayStatus = RayStatus::Missed;
     let h = g.dt * n0;
     let mut steps = 0;
-    let end = loop {
-        let next = rk4(y, h).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+    loop {
+        let next = rk4(y, h).ok_or(missed)?;
         match past(next.0) {
-            Some(f) if f >= 0.0 => break next,
-            _ if steps >= g.max_steps => return Err(RayStatus::Missed),
+            Some(f) if f >= 0.0 => break,
+            _ if steps >= g.max_steps => return Err(missed),
             _ => {}
         }
         y = next;
@@ -468,8 +474,7 @@ fn through_medium_path(
         if let Some(r) = record.as_deref_mut() {
             r.push(entry.rot.apply(y.0) + entry.pos);
         }
-    };
-    let _ = end;
+    }
     // Bisection on the last step's length: `lo` before the surface, `hi` past it.
     let (mut lo, mut hi) = (0.0, h);
     for _ in 0..200 {
@@ -477,17 +482,16 @@ fn through_medium_path(
         if mid <= lo || mid >= hi {
             break;
         }
-        let s = rk4(y, mid).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+        let s = rk4(y, mid).ok_or(missed)?;
         if past(s.0).is_some_and(|f| f >= 0.0) {
             hi = mid;
         } else {
             lo = mid;
         }
     }
-    let (r, t, opl) = rk4(y, hi).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+    let (r, t, opl) = rk4(y, hi).ok_or(missed)?;
     let q = to_row(r);
-    let (_, gx, gy) =
-        surface_sag_xy(row, q.x, q.y).ok_or(RayStatus::Missed as fn(u32) -> RayStatus)?;
+    let (_, gx, gy) = surface_sag_xy(row, q.x, q.y).ok_or(missed)?;
     let dir = row.rot.apply_t(entry.rot.apply(t)).normalized();
     if let Some(points) = record {
         points.push(row.rot.apply(q) + row.pos);
@@ -514,14 +518,10 @@ pub fn trace_ray(
     let last = upto.map_or(sys.rows.len(), |u| u + 1).min(sys.rows.len());
     for (i, row) in sys.rows.iter().enumerate().take(last) {
         let fail = |status| RefRay { o, d, opl, status };
-        let medium = i.checked_sub(1).and_then(|j| {
-            let entry = &sys.rows[j];
-            entry.grin.as_deref().map(|g| (entry, g))
-        });
         // Where the ray meets the surface, in its frame: straight, or through a gradient-index
         // medium (then also the direction there, the path's optical length and the index).
-        let (h, dl, grad, n1, path) = match medium {
-            Some((entry, g)) => match through_medium(entry, g, row, o, d) {
+        let (h, dl, grad, n1, path) = match sys.gradient_before(i) {
+            Some((entry, g)) => match through_medium(entry, g, row, o, d, None) {
                 Ok(hit) => hit,
                 Err(status) => return fail(status(i as u32)),
             },

@@ -261,20 +261,19 @@ fn impossible_media_are_refused_with_the_reason() {
     let e = rod(bad, 3.0, 5.0).validate().unwrap_err().to_string();
     assert!(e.contains("surface 0") && e.contains("10,000 steps"), "{e}");
     // Gradient 1's r term, which tolray does not trace.
-    let text = std::fs::read_to_string(data("grin.zmx"))
-        .unwrap()
-        .replace("  PARM 3 -0.006\n", "  PARM 3 -0.006\n  PARM 4 0.01\n");
-    let e = tolray::lens::zemax::from_str(&text, &GlassCatalogs::builtin())
-        .unwrap_err()
-        .to_string();
+    // The reader's error for grin.zmx with `from` replaced by `to`.
+    let edited = |from: &str, to: &str| {
+        let text = std::fs::read_to_string(data("grin.zmx"))
+            .unwrap()
+            .replace(from, to);
+        tolray::lens::zemax::from_str(&text, &GlassCatalogs::builtin())
+            .unwrap_err()
+            .to_string()
+    };
+    let e = edited("  PARM 3 -0.006\n", "  PARM 3 -0.006\n  PARM 4 0.01\n");
     assert!(e.contains("PARM 4") && e.contains("nr1"), "{e}");
     // Gradient 9 (SELFOC) needs OpticStudio's data file.
-    let text = std::fs::read_to_string(data("grin.zmx"))
-        .unwrap()
-        .replace("TYPE GRINSUR1", "TYPE GRINSUR9");
-    let e = tolray::lens::zemax::from_str(&text, &GlassCatalogs::builtin())
-        .unwrap_err()
-        .to_string();
+    let e = edited("TYPE GRINSUR1", "TYPE GRINSUR9");
     assert!(e.contains("GRADIENT_9.DAT") && e.contains("line 36"), "{e}");
     // An aspheric surface before the medium: OpticStudio's Gradient surfaces are conics.
     let mut l = rod(g, 3.0, 5.0);

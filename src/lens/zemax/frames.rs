@@ -474,7 +474,7 @@ impl Walker {
         // PARM 9 and 10: the Zernike decenter.
         let (mut extrapolate, mut decenter_mm) = (true, [0.0; 2]);
         // GRINSUR1 to 3: PARM 1 to 8 (Δt, n0, then the coefficients), in mm.
-        let grin = ty.starts_with("GRINSUR");
+        let grin = matches!(ty.as_str(), "GRINSUR1" | "GRINSUR2" | "GRINSUR3");
         let mut grin_parm = [0.0; 9];
         for &(p, v, line) in &s.parm {
             match ty.as_str() {
@@ -487,7 +487,9 @@ impl Walker {
                     ),
                     ))
                 }
-                "GRINSUR1" if (1..=3).contains(&p) => grin_parm[p] = grin_in_mm(&ty, p, v, scale),
+                "GRINSUR1" if (1..=3).contains(&p) => {
+                    grin_parm[p] = grin_in_mm(ty.as_str(), p, v, scale);
+                }
                 "GRINSUR2" | "GRINSUR3" if (1..=8).contains(&p) => {
                     grin_parm[p] = grin_in_mm(ty.as_str(), p, v, scale);
                 }

@@ -307,10 +307,9 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             .map(|p| p.stop_surface)
     });
     for (i, s) in lens.surfaces.iter().enumerate() {
-        let v = s.vec_local;
-        let moved = s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0 || s.roll_deg != 0.0;
+        let moved = is_moved(s);
         let (a, b, g) = if moved {
-            tilt_angles(v, s.roll_deg)
+            tilt_angles(s.vec_local, s.roll_deg)
         } else {
             (0.0, 0.0, 0.0)
         };
@@ -331,7 +330,7 @@ pub fn to_string(lens: &Lens, extras: Option<&ZmxExtras>) -> String {
             _ => None,
         };
         l.push(match grin {
-            // (`write_file` refuses a gradient-index medium after a surface of another shape.)
+            // (Validation keeps a gradient-index medium after a conic: no asphere PARMs.)
             Some(g) => format!("TYPE {}", g.zemax_type()),
             None => match s.shape {
                 _ if s.grating.is_some() => "TYPE DGRATING",
@@ -580,13 +579,15 @@ fn gradient_unwritable(lens: &Lens, i: usize) -> Option<String> {
     let s = &lens.surfaces[i];
     let starts = matches!(s.material, Material::Gradient(_));
     let ends = i > 0 && matches!(lens.surfaces[i - 1].material, Material::Gradient(_));
-    let moved = s.pos_xy_mm != [0.0, 0.0]
-        || s.vec_local[0] != 0.0
-        || s.vec_local[1] != 0.0
-        || s.roll_deg != 0.0;
-    if (starts || ends) && moved {
+    if (starts || ends) && is_moved(s) {
         Some("a decentred, tilted or rolled surface bounds a gradient-index medium; its coordinate breaks would end the medium in a .zmx file".into())
     } else {
         None
     }
+}
+
+/// True when the surface is decentred, tilted or rolled: written between coordinate breaks.
+fn is_moved(s: &Surface) -> bool {
+    let v = s.vec_local;
+    s.pos_xy_mm != [0.0, 0.0] || v[0] != 0.0 || v[1] != 0.0 || s.roll_deg != 0.0
 }
