@@ -103,7 +103,50 @@ pub fn fft2_rows<T: Cached>(
     rows: std::ops::Range<usize>,
     inverse: bool,
 ) {
+    fft2_some(a, (nx, ny), rows, std::slice::from_ref(&(0..nx)), inverse);
+}
+
+/// [`fft2`] where only the columns in `cols` of the result are wanted: those are the columns of
+/// [`fft2`], bit for bit; the others hold their rows' transforms only (the column stage skips
+/// them).
+///
+/// # Examples
+/// ```
+/// use rustfft::num_complex::Complex;
+/// let mut a: Vec<Complex<f64>> = (0..12 * 6).map(|k| Complex::new(k as f64, 1.0)).collect();
+/// let mut b = a.clone();
+/// tolray::fft::fft2(&mut a, 12, 6, false);
+/// tolray::fft::fft2_cols(&mut b, 12, 6, &[0..2, 10..12], false);
+/// for y in 0..6 {
+///     for x in [0, 1, 10, 11] {
+///         assert_eq!(a[y * 12 + x], b[y * 12 + x]);
+///     }
+/// }
+/// ```
+pub fn fft2_cols<T: Cached>(
+    a: &mut [Complex<T>],
+    nx: usize,
+    ny: usize,
+    cols: &[std::ops::Range<usize>],
+    inverse: bool,
+) {
+    fft2_some(a, (nx, ny), 0..ny, cols, inverse);
+}
+
+/// The row transforms of `rows` (the others zero), then the column transforms of `cols`.
+fn fft2_some<T: Cached>(
+    a: &mut [Complex<T>],
+    (nx, ny): (usize, usize),
+    rows: std::ops::Range<usize>,
+    cols: &[std::ops::Range<usize>],
+    inverse: bool,
+) {
     assert_eq!(a.len(), nx * ny, "fft2: {} values for {nx} x {ny}", a.len());
+    assert!(
+        cols.iter().all(|c| c.start <= c.end && c.end <= nx)
+            && cols.windows(2).all(|p| p[0].end <= p[1].start),
+        "fft2: columns {cols:?} of {nx} (ascending, disjoint)"
+    );
     assert!(
         rows.start <= rows.end && rows.end <= ny,
         "fft2: rows {rows:?} of {ny}"
@@ -128,8 +171,9 @@ pub fn fft2_rows<T: Cached>(
     const COLS: usize = 8;
     let stride = ny + 4;
     let mut col = vec![zero; COLS * stride];
-    for x0 in (0..nx).step_by(COLS) {
-        let w = COLS.min(nx - x0);
+    for x0 in cols.iter().flat_map(|c| c.clone().step_by(COLS)) {
+        let end = cols.iter().find(|c| c.contains(&x0)).map_or(nx, |c| c.end);
+        let w = COLS.min(end - x0);
         for y in 0..ny {
             for (k, v) in a[y * nx + x0..y * nx + x0 + w].iter().enumerate() {
                 col[k * stride + y] = *v;

@@ -7,6 +7,7 @@
 //! Parameters of every part live in one flat `f64` vector ([`Decoder::params`]) so that one
 //! Adam, with a learning rate per group, steps them together with the lens.
 
+mod conv;
 pub mod file;
 pub mod loss;
 pub mod unet;

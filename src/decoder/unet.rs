@@ -9,6 +9,7 @@
 //! upsampling, concatenation with the skip, two convolutions; a final 1x1 convolution to 3
 //! channels whose weights start at zero, so the network starts as a zero residual.
 
+use super::conv;
 use crate::error::{Error, Result};
 use rand::SeedableRng;
 use rayon::prelude::*;
@@ -245,6 +246,11 @@ fn gemm(
 /// Convolution forward: `out[co] = b[co] + Σ W[co] · im2col(inp)`, `cout x (h · w)`, a band of
 /// pixels at a time.
 fn conv_forward(p: &[f32], cv: &Conv, inp: &[f32], h: usize, w: usize) -> Vec<f32> {
+    if cv.k == 3 && conv::available() {
+        let kk = cv.cin * 9;
+        let (wt, b) = (&p[cv.w..cv.w + cv.cout * kk], &p[cv.b..cv.b + cv.cout]);
+        return conv::forward(wt, b, inp, (cv.cin, cv.cout), (h, w));
+    }
     let nb = band_px(cv.cin * cv.k * cv.k, h * w);
     conv_forward_bands(p, cv, inp, (h, w), nb)
 }
@@ -300,7 +306,17 @@ fn conv_backward(
     dinp: &mut [f32],
 ) {
     let nb = band_px(cv.cin * cv.k * cv.k, h * w);
-    conv_backward_bands(p, cv, inp, (h, w), dout, dp, dinp, nb);
+    if cv.k == 3 && conv::available() {
+        let dw = &mut dp[cv.w..cv.w + cv.cout * cv.cin * 9];
+        conv::weight_gradient(inp, dout, (cv.cin, cv.cout), (h, w), dw);
+        for (co, d) in dout.chunks(h * w).enumerate() {
+            dp[cv.b + co] += d.iter().sum::<f32>();
+        }
+        let wt = &p[cv.w..cv.w + cv.cout * cv.cin * 9];
+        conv::input_gradient(wt, dout, (cv.cin, cv.cout), (h, w), dinp);
+    } else {
+        conv_backward_bands(p, cv, inp, (h, w), dout, dp, dinp, nb);
+    }
 }
 
 /// [`conv_backward`] in bands of `nb` pixels (a multiple of 256 for the same weight gradient).
@@ -315,6 +331,20 @@ fn conv_backward_bands(
     dinp: &mut [f32],
     nb: usize,
 ) {
+    weight_gradient_bands(cv, inp, (h, w), dout, dp, nb);
+    input_gradient_bands(p, cv, (h, w), dout, dinp, nb);
+}
+
+/// Adds dW and db of a convolution into `dp`, im2col in bands of `nb` pixels: dW (cout x kk) +=
+/// dout (cout x hw) · colᵀ (hw x kk), the bands from the first to the last.
+fn weight_gradient_bands(
+    cv: &Conv,
+    inp: &[f32],
+    (h, w): (usize, usize),
+    dout: &[f32],
+    dp: &mut [f32],
+    nb: usize,
+) {
     let hw = h * w;
     let kk = cv.cin * cv.k * cv.k;
     debug_assert_eq!(
@@ -322,10 +352,7 @@ fn conv_backward_bands(
         cv.cout * hw,
         "the output gradient is cout x h x w"
     );
-    debug_assert_eq!(dp.len(), p.len(), "one gradient per parameter");
-    let wt = &p[cv.w..cv.w + cv.cout * kk];
     with_columns(kk * nb, |col| {
-        // dW (cout x kk) += dout (cout x hw) · colᵀ (hw x kk).
         for p0 in (0..hw).step_by(nb) {
             let p1 = (p0 + nb).min(hw);
             let col = &mut col[..kk * (p1 - p0)];
@@ -341,7 +368,26 @@ fn conv_backward_bands(
                 kk,
             );
         }
-        // dcol (kk x band) = Wᵀ (kk x cout) · dout (cout x band), added back into dinp.
+    });
+    for (co, d) in dout.chunks(hw).enumerate() {
+        dp[cv.b + co] += d.iter().sum::<f32>();
+    }
+}
+
+/// Adds dL/dinput of a convolution into `dinp`: dcol (kk x band) = Wᵀ (kk x cout) · dout (cout x
+/// band), added back by col2im, the bands from the last to the first.
+fn input_gradient_bands(
+    p: &[f32],
+    cv: &Conv,
+    (h, w): (usize, usize),
+    dout: &[f32],
+    dinp: &mut [f32],
+    nb: usize,
+) {
+    let hw = h * w;
+    let kk = cv.cin * cv.k * cv.k;
+    let wt = &p[cv.w..cv.w + cv.cout * kk];
+    with_columns(kk * nb, |col| {
         for p0 in (0..hw).step_by(nb).rev() {
             let p1 = (p0 + nb).min(hw);
             let dcol = &mut col[..kk * (p1 - p0)];
@@ -358,9 +404,6 @@ fn conv_backward_bands(
             col2im_band(dcol, cv.cin, h, w, cv.k, (p0, p1), dinp);
         }
     });
-    for (co, d) in dout.chunks(hw).enumerate() {
-        dp[cv.b + co] += d.iter().sum::<f32>();
-    }
 }
 
 fn relu(v: &mut [f32]) {
@@ -894,6 +937,58 @@ mod tests {
                 }
                 assert!((s - d as f64).abs() < 1e-5, "dinput {q}: {s} vs {d}");
             }
+        }
+    }
+
+    /// The direct 3x3 convolutions (AVX2 + FMA) give the values of im2col + SGEMM: the forward
+    /// pass and the input gradient, with chains longer than the SGEMM's 256-deep blocks (cin · 9
+    /// > 256 forward, cout > 256 backward), widths from 1 to above a vector, and odd sizes.
+    #[test]
+    fn direct_convolutions_equal_im2col_and_sgemm() {
+        if !conv::available() {
+            eprintln!("no AVX2 + FMA: the direct convolutions do not run here");
+            return;
+        }
+        let shapes = [
+            (8, 8, 32, 32),
+            (24, 8, 16, 16),
+            (5, 7, 9, 13),
+            (30, 5, 6, 7),
+            (3, 260, 4, 5),
+            (64, 32, 8, 8),
+            (1, 1, 1, 1),
+            (2, 3, 3, 1),
+            (4, 9, 23, 29),
+        ];
+        for (cin, cout, h, w) in shapes {
+            let cv = Conv {
+                cin,
+                cout,
+                k: 3,
+                w: 0,
+                b: cout * cin * 9,
+            };
+            let p = lcg(cv.b + cout, 31);
+            let inp = lcg(cin * h * w, 32);
+            let dout = lcg(cout * h * w, 33);
+            let nb = band_px(cin * 9, h * w);
+            let gemm_out = conv_forward_bands(&p, &cv, &inp, (h, w), nb);
+            let direct_out = conv_forward(&p, &cv, &inp, h, w);
+            assert!(gemm_out.iter().any(|&v| v != 0.0));
+            assert_eq!(direct_out, gemm_out, "forward {cin}x{cout} {h}x{w}");
+            let mut gemm_d = lcg(cin * h * w, 34);
+            let mut direct_d = gemm_d.clone();
+            input_gradient_bands(&p, &cv, (h, w), &dout, &mut gemm_d, nb);
+            conv::input_gradient(&p[..cv.b], &dout, (cin, cout), (h, w), &mut direct_d);
+            assert_eq!(direct_d, gemm_d, "input gradient {cin}x{cout} {h}x{w}");
+            let mut gemm_dp = lcg(p.len(), 35);
+            let mut direct_dp = gemm_dp.clone();
+            weight_gradient_bands(&cv, &inp, (h, w), &dout, &mut gemm_dp, nb);
+            conv::weight_gradient(&inp, &dout, (cin, cout), (h, w), &mut direct_dp[..cv.b]);
+            for (co, d) in dout.chunks(h * w).enumerate() {
+                direct_dp[cv.b + co] += d.iter().sum::<f32>();
+            }
+            assert_eq!(direct_dp, gemm_dp, "weight gradient {cin}x{cout} {h}x{w}");
         }
     }
 

@@ -16,7 +16,7 @@
 //! `log μ[t][c]`.
 
 use crate::error::{Error, Result};
-use crate::fft::{fast_size, fft2};
+use crate::fft::{fast_size, fft2, fft2_cols, fft2_rows};
 use rustfft::num_complex::Complex;
 
 /// Per-tile Wiener filters.
@@ -39,7 +39,12 @@ pub struct WienerCache {
     h: usize,
     /// DFT of the padded capture, per channel.
     z: Vec<Vec<Complex<f64>>>,
+    /// The filters' spectra (H, λ + μ|D|², Q) per channel, as [`Wiener::spectra`] gave them.
+    spectra: Vec<Spectra>,
 }
+
+/// [`Wiener::spectra`]'s (H, λ + μ|D|², Q) on a frame.
+type Spectra = (Vec<Complex<f64>>, Vec<f64>, Vec<f64>);
 
 /// Source index of padded position `i` (may be negative or past the end) under mirror
 /// extension without repeating the edge, repeated periodically.
@@ -102,13 +107,7 @@ impl Wiener {
     }
 
     /// The transfer function of filter (t, c) on an `nx x ny` frame: (H, λ + μ|D|², Q).
-    fn spectra(
-        &self,
-        t: usize,
-        c: usize,
-        nx: usize,
-        ny: usize,
-    ) -> (Vec<Complex<f64>>, Vec<f64>, Vec<f64>) {
+    fn spectra(&self, t: usize, c: usize, nx: usize, ny: usize) -> Spectra {
         let (ks, half) = (self.ks, (self.ks / 2) as isize);
         let mut h = vec![Complex::default(); nx * ny];
         for (k, &v) in self.psf(t, c).iter().enumerate() {
@@ -124,12 +123,17 @@ impl Wiener {
         let (lambda, mu) = (self.params[li].exp(), self.params[mi].exp());
         let mut reg = vec![0.0; nx * ny];
         let mut q = vec![0.0; nx * ny];
+        // sin²(π i / n) of the discrete Laplacian's spectrum, a row's once.
+        let sin2 = |i: usize, n: usize| {
+            let s = (std::f64::consts::PI * i as f64 / n as f64).sin();
+            s * s
+        };
+        let sx2: Vec<f64> = (0..nx).map(|x| sin2(x, nx)).collect();
         for y in 0..ny {
-            let sy = (std::f64::consts::PI * y as f64 / ny as f64).sin();
-            for x in 0..nx {
-                let sx = (std::f64::consts::PI * x as f64 / nx as f64).sin();
+            let sy2 = sin2(y, ny);
+            for (x, &sx2) in sx2.iter().enumerate() {
                 let k = y * nx + x;
-                reg[k] = lambda + mu * 4.0 * (sx * sx + sy * sy);
+                reg[k] = lambda + mu * 4.0 * (sx2 + sy2);
                 q[k] = h[k].norm_sqr() + reg[k];
             }
         }
@@ -164,6 +168,7 @@ impl Wiener {
         let inv_n = 1.0 / (nx * ny) as f64;
         let mut out = vec![0f32; 3 * w * h];
         let mut zs = Vec::with_capacity(3);
+        let mut spectra = Vec::with_capacity(3);
         for c in 0..3 {
             let yc = &y[c * w * h..(c + 1) * w * h];
             let mut z = vec![Complex::default(); nx * ny];
@@ -175,10 +180,11 @@ impl Wiener {
                 }
             }
             fft2(&mut z, nx, ny, false);
-            let (hs, _, q) = self.spectra(t, c, nx, ny);
+            let sp = self.spectra(t, c, nx, ny);
+            let (hs, q) = (&sp.0, &sp.2);
             let mut x: Vec<Complex<f64>> = z
                 .iter()
-                .zip(hs.iter().zip(&q))
+                .zip(hs.iter().zip(q))
                 .map(|(zv, (hv, qv))| hv.conj() * zv / qv)
                 .collect();
             fft2(&mut x, nx, ny, true);
@@ -189,6 +195,7 @@ impl Wiener {
                 }
             }
             zs.push(z);
+            spectra.push(sp);
         }
         Ok((
             out,
@@ -198,6 +205,7 @@ impl Wiener {
                 w,
                 h,
                 z: zs,
+                spectra,
             },
         ))
     }
@@ -218,7 +226,7 @@ impl Wiener {
         let inv_n = 1.0 / n;
         let p = ks as isize;
         for c in 0..3 {
-            let (hs, reg, q) = self.spectra(t, c, nx, ny);
+            let (hs, reg, q) = &cache.spectra[c];
             // g = Cᵀ dx̂ on the frame, and its DFT.
             let mut g = vec![Complex::default(); nx * ny];
             for r in 0..h {
@@ -226,12 +234,13 @@ impl Wiener {
                     g[(r + ks) * nx + x + ks] = Complex::new(dx[c * w * h + r * w + x] as f64, 0.0);
                 }
             }
-            fft2(&mut g, nx, ny, false);
+            // Rows outside the crop are zero.
+            fft2_rows(&mut g, nx, ny, ks..ks + h, false);
             let z = &cache.z[c];
             // dL/dz = IFFT(conj(G) ĝ), G = conj(H) / Q.
             let mut dz: Vec<Complex<f64>> = g
                 .iter()
-                .zip(hs.iter().zip(&q))
+                .zip(hs.iter().zip(q.iter()))
                 .map(|(gv, (hv, qv))| hv * gv / qv)
                 .collect();
             fft2(&mut dz, nx, ny, true);
@@ -261,8 +270,13 @@ impl Wiener {
             dparams[li] += dl;
             dparams[mi] += dm;
             // dL/dpsf[m] = Re(FFT(A)[m] + N · IFFT(B)[m]) at the kernel's frame positions.
-            fft2(&mut a, nx, ny, false);
-            fft2(&mut b, nx, ny, true);
+            // Only the kernel's columns of the transforms are read.
+            let cols = [
+                0..(half as usize + 1).min(nx),
+                nx - (half as usize).min(nx - 1)..nx,
+            ];
+            fft2_cols(&mut a, nx, ny, &cols, false);
+            fft2_cols(&mut b, nx, ny, &cols, true);
             let k2 = ks * ks;
             let base = (t * 3 + c) * k2;
             for k in 0..k2 {
