@@ -384,9 +384,9 @@ pub(crate) fn weight_gradient(
         if cp != cout {
             dt.fill(0.0);
         }
-        for (co, d) in dout.chunks_exact(hw).enumerate() {
-            for (p, &v) in d.iter().enumerate() {
-                dt[p * cp + co] = v;
+        for (p, row) in dt.chunks_exact_mut(cp).enumerate() {
+            for (co, v) in row[..cout].iter_mut().enumerate() {
+                *v = dout[co * hw + p];
             }
         }
         let mut base = Vec::with_capacity(KC);

@@ -309,9 +309,7 @@ fn conv_backward(
     if cv.k == 3 && conv::available() {
         let dw = &mut dp[cv.w..cv.w + cv.cout * cv.cin * 9];
         conv::weight_gradient(inp, dout, (cv.cin, cv.cout), (h, w), dw);
-        for (co, d) in dout.chunks(h * w).enumerate() {
-            dp[cv.b + co] += d.iter().sum::<f32>();
-        }
+        bias_gradient(dout, h * w, &mut dp[cv.b..cv.b + cv.cout]);
         let wt = &p[cv.w..cv.w + cv.cout * cv.cin * 9];
         conv::input_gradient(wt, dout, (cv.cin, cv.cout), (h, w), dinp);
     } else {
@@ -369,9 +367,24 @@ fn weight_gradient_bands(
             );
         }
     });
-    for (co, d) in dout.chunks(hw).enumerate() {
-        dp[cv.b + co] += d.iter().sum::<f32>();
+    bias_gradient(dout, hw, &mut dp[cv.b..cv.b + cv.cout]);
+}
+
+/// Adds each channel's sum of `dout` (`db.len() x hw`) into `db`: in pixel order, as a
+/// sequential sum adds them, the channels' chains interleaved so that they overlap.
+fn bias_gradient(dout: &[f32], hw: usize, db: &mut [f32]) {
+    debug_assert_eq!(
+        dout.len(),
+        db.len() * hw,
+        "the output gradient is cout x h x w"
+    );
+    let mut s = vec![-0.0f32; db.len()];
+    for p in 0..hw {
+        for (co, v) in s.iter_mut().enumerate() {
+            *v += dout[co * hw + p];
+        }
     }
+    db.iter_mut().zip(&s).for_each(|(d, v)| *d += v);
 }
 
 /// Adds dL/dinput of a convolution into `dinp`: dcol (kk x band) = Wᵀ (kk x cout) · dout (cout x
@@ -985,6 +998,7 @@ mod tests {
             let mut direct_dp = gemm_dp.clone();
             weight_gradient_bands(&cv, &inp, (h, w), &dout, &mut gemm_dp, nb);
             conv::weight_gradient(&inp, &dout, (cin, cout), (h, w), &mut direct_dp[..cv.b]);
+            // (The biases here by a plain sequential sum, there by `bias_gradient`.)
             for (co, d) in dout.chunks(h * w).enumerate() {
                 direct_dp[cv.b + co] += d.iter().sum::<f32>();
             }
