@@ -258,30 +258,37 @@ fn run(src: &[f32], chains: &[Chains], per_block: bool, acc: &mut [f32], nq: usi
         let (s, a) = (src.as_ptr(), acc.as_mut_ptr());
         let mut q = 0;
         while q + 2 * V <= nq {
-            let mut r = 0;
-            while r + 4 <= rows {
-                tile::<4, 2>(s, chains, per_block, a, nq, (r, q));
-                r += 4;
-            }
-            for r in r..rows {
-                tile::<1, 2>(s, chains, per_block, a, nq, (r, q));
-            }
+            rows_at::<2>(s, chains, per_block, a, (nq, rows), q);
             q += 2 * V;
         }
         while q < nq {
-            let mut r = 0;
-            while r + 4 <= rows {
-                tile::<4, 1>(s, chains, per_block, a, nq, (r, q));
-                r += 4;
-            }
-            for r in r..rows {
-                tile::<1, 1>(s, chains, per_block, a, nq, (r, q));
-            }
+            rows_at::<1>(s, chains, per_block, a, (nq, rows), q);
             q += V;
         }
     }
     #[cfg(not(target_arch = "x86_64"))]
     unreachable!("direct convolutions run on x86-64 only");
+}
+
+/// Every row of [`run`] at positions `q0 .. q0 + Q V`, four rows a tile.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn rows_at<const Q: usize>(
+    src: *const f32,
+    chains: &[Chains],
+    per_block: bool,
+    acc: *mut f32,
+    (nq, rows): (usize, usize),
+    q0: usize,
+) {
+    let mut r = 0;
+    while r + 4 <= rows {
+        tile::<4, Q>(src, chains, per_block, acc, nq, (r, q0));
+        r += 4;
+    }
+    for r in r..rows {
+        tile::<1, Q>(src, chains, per_block, acc, nq, (r, q0));
+    }
 }
 
 /// Rows `r0 .. r0 + R`, positions `q0 .. q0 + Q V` of [`run`].
